@@ -1,0 +1,1 @@
+"""Zenoh session and ROS 2 (rmw_zenoh) wire compatibility."""

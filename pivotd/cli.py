@@ -1,0 +1,71 @@
+"""``pivotd`` command line: run (default), check, plan, bench.
+
+Each command lives in its own module exposing ``configure(parser)`` and ``run(args) -> int``;
+this module only dispatches and turns :class:`~pivotd.errors.PivotdError` into exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from pivotd.errors import PivotdError
+
+# command name -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "run": ("pivotd.daemon_cmd", "run the daemon (the default command)"),
+    "check": ("pivotd.check_cmd", "validate a config, load its map, print a summary"),
+    "plan": ("pivotd.plan_cmd", "optimize viewing directions offline for a map and a path"),
+    "bench": ("pivotd.bench", "run a benchmark"),
+}
+
+
+class _ArgumentParser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # one line, exit 2
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full ``pivotd`` argument parser with every available sub-command."""
+    parser = _ArgumentParser(prog="pivotd", description=__doc__.splitlines()[0])
+    subs = parser.add_subparsers(dest="command", parser_class=_ArgumentParser)
+    for name, (module_name, help_text) in COMMANDS.items():
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name != module_name:
+                raise
+            continue
+        module.configure(subs.add_parser(name, help=help_text, description=help_text))
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``pivotd`` console script; returns the process exit code."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    # `pivotd [--config FILE] ...` without a sub-command means `pivotd run ...`.
+    if not argv or (argv[0] not in COMMANDS and argv[0] not in ("-h", "--help")):
+        argv = ["run", *argv]
+    args = build_parser().parse_args(argv)
+    if args.command is None:
+        build_parser().print_help()
+        return 2
+    logging.basicConfig(
+        level=getattr(args, "log_level", None) or "INFO",
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    module = importlib.import_module(COMMANDS[args.command][0])
+    try:
+        return int(module.run(args) or 0)
+    except PivotdError as exc:
+        print(f"pivotd {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,166 @@
+"""SO(3) / S² helpers, quaternions and the pan/tilt convention (pure numpy).
+
+Conventions (docs/ARCHITECTURE.md): REP-103 frames (x forward, y left, z up), quaternions
+ordered (x, y, z, w), angles in radians. Gimbal joints: pan rotates about the base +z, tilt
+about the panned +y (positive tilt points the camera down); at pan = tilt = 0 the optical
+axis is the base +x. All functions broadcast over leading dimensions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_EPS = 1e-12
+
+
+def hat(w: np.ndarray) -> np.ndarray:
+    """Skew-symmetric matrix ω^ of vectors ``w`` (..., 3) -> (..., 3, 3), so that ω^ v = ω × v."""
+    w = np.asarray(w, dtype=float)
+    out = np.zeros((*w.shape[:-1], 3, 3))
+    out[..., 0, 1] = -w[..., 2]
+    out[..., 0, 2] = w[..., 1]
+    out[..., 1, 0] = w[..., 2]
+    out[..., 1, 2] = -w[..., 0]
+    out[..., 2, 0] = -w[..., 1]
+    out[..., 2, 1] = w[..., 0]
+    return out
+
+
+def so3_exp(w: np.ndarray) -> np.ndarray:
+    """Exponential map exp(ω^) (Rodrigues) of rotation vectors ``w`` (..., 3) [rad] -> (..., 3, 3)."""
+    w = np.asarray(w, dtype=float)
+    theta = np.linalg.norm(w, axis=-1)[..., None, None]
+    K = hat(w)
+    small = theta < 1e-8
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    eye = np.broadcast_to(np.eye(3), K.shape)
+    return eye + a * K + b * (K @ K)
+
+
+def so3_log(R: np.ndarray) -> np.ndarray:
+    """Logarithm map of rotations ``R`` (..., 3, 3) -> rotation vectors (..., 3) [rad]."""
+    R = np.asarray(R, dtype=float)
+    cos_t = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    theta = np.arccos(cos_t)
+    v = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    sin_t = np.sin(theta)
+    near_pi = theta > np.pi - 1e-4
+    scale = np.where(theta < 1e-8, 0.5, theta / (2.0 * np.where(sin_t == 0, 1.0, sin_t)))
+    out = v * scale[..., None]
+    if np.any(near_pi):
+        # Axis from the diagonal of (R + I) / 2 = a a^T when theta ~ pi.
+        B = (R[near_pi] + np.eye(3)) / 2.0
+        idx = np.argmax(np.diagonal(B, axis1=-2, axis2=-1), axis=-1)
+        axis = B[np.arange(B.shape[0]), :, idx]
+        axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+        sign = np.sign(np.sum(axis * v[near_pi], axis=-1))
+        sign[sign == 0] = 1.0
+        out[near_pi] = axis * (sign * theta[near_pi])[..., None]
+    return out
+
+
+def normalize(v: np.ndarray, axis: int = -1) -> np.ndarray:
+    """Unit vectors along ``axis``; zero vectors stay zero."""
+    v = np.asarray(v, dtype=float)
+    n = np.linalg.norm(v, axis=axis, keepdims=True)
+    return v / np.where(n < _EPS, 1.0, n)
+
+
+def angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle [rad] between vectors ``a`` and ``b`` (..., 3), accurate near 0 and π."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) from quaternions (..., 4) ordered (x, y, z, w); normalizes q."""
+    q = normalize(np.asarray(q, dtype=float))
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    R = np.empty((*q.shape[:-1], 3, 3))
+    R[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    R[..., 0, 1] = 2 * (x * y - z * w)
+    R[..., 0, 2] = 2 * (x * z + y * w)
+    R[..., 1, 0] = 2 * (x * y + z * w)
+    R[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    R[..., 1, 2] = 2 * (y * z - x * w)
+    R[..., 2, 0] = 2 * (x * z - y * w)
+    R[..., 2, 1] = 2 * (y * z + x * w)
+    R[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return R
+
+
+def matrix_to_quat(R: np.ndarray) -> np.ndarray:
+    """Quaternions (..., 4) ordered (x, y, z, w) with w ≥ 0 from rotation matrices (..., 3, 3)."""
+    R = np.asarray(R, dtype=float)
+    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
+    q = np.stack(
+        [
+            np.sqrt(np.maximum(0.0, 1 + m00 - m11 - m22)) / 2,
+            np.sqrt(np.maximum(0.0, 1 - m00 + m11 - m22)) / 2,
+            np.sqrt(np.maximum(0.0, 1 - m00 - m11 + m22)) / 2,
+            np.sqrt(np.maximum(0.0, 1 + m00 + m11 + m22)) / 2,
+        ],
+        axis=-1,
+    )
+    q[..., 0] = np.copysign(q[..., 0], R[..., 2, 1] - R[..., 1, 2])
+    q[..., 1] = np.copysign(q[..., 1], R[..., 0, 2] - R[..., 2, 0])
+    q[..., 2] = np.copysign(q[..., 2], R[..., 1, 0] - R[..., 0, 1])
+    return normalize(q)
+
+
+def yaw_to_matrix(yaw: np.ndarray) -> np.ndarray:
+    """Rotations about +z by ``yaw`` [rad] (...,) -> (..., 3, 3)."""
+    yaw = np.asarray(yaw, dtype=float)
+    c, s = np.cos(yaw), np.sin(yaw)
+    R = np.zeros((*yaw.shape, 3, 3))
+    R[..., 0, 0] = c
+    R[..., 0, 1] = -s
+    R[..., 1, 0] = s
+    R[..., 1, 1] = c
+    R[..., 2, 2] = 1.0
+    return R
+
+
+def pan_tilt_to_direction(pan: np.ndarray, tilt: np.ndarray) -> np.ndarray:
+    """Unit optical axis in the gimbal base frame (..., 3) for joint angles ``pan``, ``tilt`` [rad].
+
+    d = Rz(pan) Ry(tilt) x̂ = (cos p cos t, sin p cos t, −sin t): positive tilt points down.
+    """
+    pan = np.asarray(pan, dtype=float)
+    tilt = np.asarray(tilt, dtype=float)
+    ct = np.cos(tilt)
+    return np.stack([np.cos(pan) * ct, np.sin(pan) * ct, -np.sin(tilt)], axis=-1)
+
+
+def direction_to_pan_tilt(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Joint angles (pan ∈ (−π, π], tilt ∈ [−π/2, π/2]) [rad] pointing the axis along ``d`` (..., 3).
+
+    Inverse of :func:`pan_tilt_to_direction`; ``d`` need not be normalized. Straight up/down
+    (a singularity of the pan/tilt chart) returns pan = 0.
+    """
+    d = np.asarray(d, dtype=float)
+    horiz = np.hypot(d[..., 0], d[..., 1])
+    pan = np.where(horiz < 1e-12, 0.0, np.arctan2(d[..., 1], d[..., 0]))
+    tilt = np.arctan2(-d[..., 2], horiz)
+    return pan, tilt
+
+
+def optical_frame_from_direction(c: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
+    """Camera-to-world rotations (..., 3, 3) whose +z (optical axis, e₃) is ``c`` (..., 3).
+
+    ROS optical convention: x right, y down, z forward. The image "up" (−y) is kept as close as
+    possible to ``up`` (default world +z); when ``c`` is parallel to ``up``, world +x is used.
+    """
+    z = normalize(c)
+    up_v = np.broadcast_to(np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, float), z.shape)
+    x = np.cross(z, up_v)  # right = forward × up
+    bad = np.linalg.norm(x, axis=-1) < 1e-9
+    if np.any(bad):
+        alt = np.broadcast_to(np.array([1.0, 0.0, 0.0]), z.shape)
+        x = np.where(bad[..., None], np.cross(z, alt), x)
+    x = normalize(x)
+    y = np.cross(z, x)
+    return np.stack([x, y, z], axis=-1)

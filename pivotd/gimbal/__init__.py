@@ -1,0 +1,1 @@
+"""Gimbal side: kinematics (direction <-> pan/tilt), motion (Ruckig), serial link."""

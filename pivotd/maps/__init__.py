@@ -1,0 +1,1 @@
+"""Landmark maps: file formats, spatial index, per-waypoint retained sets."""

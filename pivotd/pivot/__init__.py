@@ -1,0 +1,1 @@
+"""PIVOT optimizer: pure numpy, no I/O, no threads, no globals."""

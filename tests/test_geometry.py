@@ -1,0 +1,77 @@
+import numpy as np
+import pytest
+
+from pivotd import geometry as g
+
+
+def _random_rotvecs(n, rng):
+    axes = g.normalize(rng.normal(size=(n, 3)))
+    return axes * rng.uniform(0, np.pi - 1e-3, size=(n, 1))
+
+
+def test_exp_is_rotation_and_log_inverts():
+    rng = np.random.default_rng(0)
+    w = _random_rotvecs(500, rng)
+    R = g.so3_exp(w)
+    np.testing.assert_allclose(R @ np.swapaxes(R, -1, -2), np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-12)
+    np.testing.assert_allclose(g.so3_log(R), w, atol=1e-9)
+
+
+def test_exp_matches_cross_product_for_small_angles():
+    w = np.array([1e-9, -2e-9, 3e-9])
+    v = np.array([0.3, 0.5, -0.2])
+    np.testing.assert_allclose(g.so3_exp(w) @ v, v + np.cross(w, v), atol=1e-15)
+    np.testing.assert_allclose(g.hat(w) @ v, np.cross(w, v))
+
+
+def test_log_near_pi():
+    axis = g.normalize(np.array([0.2, -0.7, 0.4]))
+    w = axis * (np.pi - 1e-7)
+    np.testing.assert_allclose(g.so3_exp(g.so3_log(g.so3_exp(w))), g.so3_exp(w), atol=1e-6)
+
+
+def test_quaternion_round_trip_and_known_value():
+    rng = np.random.default_rng(1)
+    R = g.so3_exp(_random_rotvecs(200, rng))
+    np.testing.assert_allclose(g.quat_to_matrix(g.matrix_to_quat(R)), R, atol=1e-12)
+    # 90° about z: (x, y, z, w) = (0, 0, sin45, cos45) maps x -> y
+    q = np.array([0, 0, np.sqrt(0.5), np.sqrt(0.5)])
+    np.testing.assert_allclose(g.quat_to_matrix(q) @ [1, 0, 0], [0, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(g.yaw_to_matrix(np.pi / 2), g.quat_to_matrix(q), atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("pan", "tilt", "expected"),
+    [(0, 0, [1, 0, 0]), (np.pi / 2, 0, [0, 1, 0]), (0, np.pi / 4, [np.sqrt(0.5), 0, -np.sqrt(0.5)])],
+)
+def test_pan_tilt_convention(pan, tilt, expected):
+    np.testing.assert_allclose(g.pan_tilt_to_direction(pan, tilt), expected, atol=1e-12)
+
+
+def test_pan_tilt_round_trip():
+    rng = np.random.default_rng(2)
+    pan = rng.uniform(-np.pi + 1e-6, np.pi, 1000)
+    tilt = rng.uniform(-np.pi / 2 + 1e-3, np.pi / 2 - 1e-3, 1000)
+    p2, t2 = g.direction_to_pan_tilt(3.0 * g.pan_tilt_to_direction(pan, tilt))
+    np.testing.assert_allclose(p2, pan, atol=1e-9)
+    np.testing.assert_allclose(t2, tilt, atol=1e-9)
+
+
+def test_optical_frame_axes():
+    rng = np.random.default_rng(3)
+    c = g.normalize(rng.normal(size=(100, 3)))
+    c[0] = [0, 0, 1]  # parallel to the default up
+    R = g.optical_frame_from_direction(c)
+    np.testing.assert_allclose(R[..., :, 2], c, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-12)
+    R1 = g.optical_frame_from_direction(np.array([1.0, 0, 0]))
+    np.testing.assert_allclose(R1[:, 0], [0, -1, 0], atol=1e-12)  # image right = world -y
+    np.testing.assert_allclose(R1[:, 1], [0, 0, -1], atol=1e-12)  # image down = world -z
+
+
+def test_angle_between_accuracy():
+    a = np.array([1.0, 0, 0])
+    b = np.array([np.cos(1e-8), np.sin(1e-8), 0])
+    assert abs(g.angle_between(a, b) - 1e-8) < 1e-15
+    assert abs(g.angle_between(a, -a) - np.pi) < 1e-12
