@@ -1,0 +1,153 @@
+"""The control tick: plan + latest pose -> pan/tilt target -> Ruckig -> one SETPOINT.
+
+:class:`ControlLoop` holds no thread; the daemon calls :meth:`ControlLoop.tick` at the control
+rate with absolute deadlines. Each tick compensates body motion with the **latest** attitude,
+converts the plan's world direction to joint angles within limits, and lets the jerk-limited
+motion generator produce the setpoint. A stale pose or a missing plan means a jerk-limited stop
+and hold; a lost link or a faulted gimbal means no motion at all.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pivotd.bus.messages import PoseSample
+from pivotd.gimbal.kinematics import JointLimits, Mount, joints_to_world_direction, world_direction_to_joints
+from pivotd.gimbal.link import GimbalState
+from pivotd.gimbal.motion import MotionGenerator
+from pivotd.planner import Plan, camera_positions
+
+MODE_FAULT = 3
+FAULT_CLEARABLE_MASK = 0xFFFF
+
+
+@dataclass(frozen=True)
+class ControlSettings:
+    """rate_hz: control rate; pose_timeout: age [s] after which a pose is stale;
+    lookahead: horizon [s] of the velocity feed-forward taken from the plan."""
+
+    rate_hz: float = 100.0
+    pose_timeout: float = 0.5
+    lookahead: float = 0.2
+
+
+@dataclass(frozen=True)
+class TickResult:
+    """What one tick decided: ``mode`` in {tracking, holding, waiting, link-down, fault};
+    ``setpoint`` (pan, tilt, pan_rate, tilt_rate) [rad, rad/s] when one was sent."""
+
+    mode: str
+    setpoint: tuple[float, float, float, float] | None = None
+    clamped: bool = False
+
+
+@dataclass
+class ControlStats:
+    """Rolling statistics of the loop (latency of a new pose to its first setpoint [s])."""
+
+    ticks: int = 0
+    setpoints: int = 0
+    clamped: int = 0
+    pose_latency: deque = field(default_factory=lambda: deque(maxlen=2000))
+
+
+class ControlLoop:
+    """Turns plan + pose into setpoints; ``link`` needs ``send_setpoint``, ``send_heartbeat``,
+    ``link_state`` and ``state`` (see :class:`pivotd.gimbal.link.GimbalLink`)."""
+
+    def __init__(self, settings: ControlSettings, motion: MotionGenerator, mount: Mount, limits: JointLimits,
+                 link) -> None:
+        self.settings = settings
+        self.motion = motion
+        self.mount = mount
+        self.limits = limits
+        self.link = link
+        self.stats = ControlStats()
+        self.commanded_direction: np.ndarray | None = None  # world direction of the last setpoint
+        self.override_target: tuple[float, float] | None = None  # e.g. the park pose
+        self._need_reset = True
+        self._last_pose_rx: float | None = None
+        self._prev_pose: PoseSample | None = None
+        self._speed = 0.0
+
+    def invalidate(self) -> None:
+        """Re-seed the motion generator from the measured state at the next tick (after reconnects)."""
+        self._need_reset = True
+
+    def _reset_from(self, state: GimbalState) -> None:
+        self.motion.reset((state.pan, state.tilt), (state.pan_rate, state.tilt_rate))
+        self._need_reset = False
+
+    def _estimate_speed(self, pose: PoseSample) -> None:
+        prev = self._prev_pose
+        if prev is not None and pose.rx_time > prev.rx_time:
+            dt = pose.stamp - prev.stamp if pose.stamp > prev.stamp else pose.rx_time - prev.rx_time
+            if dt > 1e-4:
+                v = float(np.linalg.norm(pose.position - prev.position)) / dt
+                self._speed += 0.3 * (min(v, 10.0) - self._speed)
+        self._prev_pose = pose
+
+    def _target(self, pose: PoseSample, plan: Plan) -> tuple[np.ndarray, np.ndarray, bool, np.ndarray]:
+        """Joint target (2,), feed-forward rate (2,), clamped flag and the world direction."""
+        cam = camera_positions(pose.position[None, :], pose.quat[None, :], self.mount)[0]
+        s = plan.locate(cam)
+        direction = plan.direction_at_s(s)
+        prev_pan = float(self.motion.state.position[0])
+        pan, tilt, clamped = world_direction_to_joints(direction, pose.quat, self.mount, self.limits, prev_pan)
+        rate = np.zeros(2)
+        la = self.settings.lookahead
+        if plan.s.shape[0] > 1 and self._speed > 0.02 and la > 0:
+            ahead = plan.direction_at_s(s + self._speed * la)
+            pan2, tilt2, clamped2 = world_direction_to_joints(ahead, pose.quat, self.mount, self.limits, pan)
+            if not (clamped or clamped2):
+                rate = np.array([pan2 - pan, tilt2 - tilt]) / la
+        return np.array([pan, tilt]), rate, clamped, direction
+
+    def tick(self, now: float, pose: PoseSample | None, plan: Plan | None, faulted: bool = False) -> TickResult:
+        """One control period at monotonic time ``now`` [s]."""
+        self.stats.ticks += 1
+        link_state = self.link.link_state
+        state = self.link.state
+        if link_state != "up" or state is None:
+            self._need_reset = True
+            return TickResult("link-down")
+        if faulted or state.mode == MODE_FAULT:
+            # No motion while faulted; keep the watchdog fed so the fault, not a link loss, is reported.
+            self._need_reset = True
+            self.link.send_heartbeat()
+            return TickResult("fault")
+        if self._need_reset:
+            self._reset_from(state)
+
+        clamped = False
+        if self.override_target is not None:
+            self.motion.set_target(np.asarray(self.override_target, float), np.zeros(2))
+            mode = "parking"
+        elif pose is None:
+            self.motion.hold()
+            mode = "waiting"
+        elif now - pose.rx_time > self.settings.pose_timeout or plan is None:
+            self.motion.hold()
+            mode = "holding"
+        else:
+            self._estimate_speed(pose)
+            target, rate, clamped, _ = self._target(pose, plan)
+            self.motion.set_target(target, rate)
+            mode = "tracking"
+
+        sample = self.motion.step()
+        pan, tilt = float(sample.position[0]), float(sample.position[1])
+        vp, vt = float(sample.velocity[0]), float(sample.velocity[1])
+        self.link.send_setpoint(pan, tilt, vp, vt)
+        self.stats.setpoints += 1
+        self.stats.clamped += int(clamped)
+        if pose is not None:
+            if mode == "tracking" and pose.rx_time != self._last_pose_rx:
+                self.stats.pose_latency.append(time.monotonic() - pose.rx_time)
+                self._last_pose_rx = pose.rx_time
+            self.commanded_direction = joints_to_world_direction(pan, tilt, pose.quat, self.mount)
+        return TickResult(mode, (pan, tilt, vp, vt), clamped)

@@ -1,0 +1,440 @@
+"""The pivotd daemon: wiring, threads, state machine, signals (DESIGN.md §1, §8).
+
+Threads: the main thread (signals, status, supervision: reload, fault clearing, parking), the
+planner thread (receding-horizon PIVOT at ``planner.replan_hz``), the control thread (absolute
+deadlines at ``control.rate_hz``: plan -> pan/tilt -> Ruckig -> SETPOINT, systemd watchdog), the
+serial link's reader thread and Zenoh's callback threads. Threads share only immutable snapshots
+(pose, path, plan, map) swapped by reference assignment.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from pivotd.bus.messages import CloudMsg, PathMsg, PoseSample
+from pivotd.bus.pivot_bus import PivotBus
+from pivotd.bus.session import open_session
+from pivotd.config import Config, load_config
+from pivotd.control import ControlLoop, TickResult
+from pivotd.errors import PivotdError
+from pivotd.gimbal.link import GimbalLink
+from pivotd.maps.formats import LandmarkCloud
+from pivotd.maps.store import MapStore
+from pivotd.planner import Plan, RecedingHorizonPlanner
+from pivotd.runtime import (
+    build_bus_topics,
+    build_control_loop,
+    build_link_config,
+    build_map_store,
+    build_planner,
+    park_joints,
+)
+from pivotd.systemd import Notifier, watchdog_interval
+
+log = logging.getLogger("pivotd.daemon")
+
+FAULT_NAMES = ("over-current", "over-temperature", "encoder", "driver", "watchdog", "setpoint-clamped",
+               "config-invalid", "under-voltage")
+MODE_NAMES = {0: "disabled", 1: "enabled", 2: "holding", 3: "fault"}
+
+
+@dataclass(frozen=True)
+class RunOverrides:
+    """Command-line overrides of the config: gimbal port URL, Zenoh endpoints, MCAP recording."""
+
+    port: str | None = None
+    connect: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()
+    record: Path | None = None
+
+
+def _percentile_ms(values, q: float) -> float | None:
+    return None if not values else round(float(np.percentile(np.asarray(values), q)) * 1e3, 3)
+
+
+class RateLimitedLog:
+    """Logs a message at most once per ``period`` seconds per key, counting the suppressed ones."""
+
+    def __init__(self, period: float = 5.0) -> None:
+        self.period = period
+        self._last: dict[str, float] = {}
+        self._suppressed: dict[str, int] = {}
+
+    def warning(self, key: str, msg: str) -> None:
+        now = time.monotonic()
+        if now - self._last.get(key, -1e9) >= self.period:
+            n = self._suppressed.pop(key, 0)
+            log.warning("%s%s", msg, f" ({n} similar suppressed)" if n else "")
+            self._last[key] = now
+        else:
+            self._suppressed[key] = self._suppressed.get(key, 0) + 1
+
+
+class Daemon:
+    """One pivotd process. ``run()`` blocks until SIGTERM/SIGINT (or :meth:`request_stop`)."""
+
+    def __init__(self, config_path: str | Path, overrides: RunOverrides | None = None) -> None:
+        self.config_path = Path(config_path)
+        self.overrides = overrides or RunOverrides()
+        self.cfg: Config = self._load_config()
+        self.notifier = Notifier()
+        self.state = "starting"
+        self._stop = threading.Event()  # shutdown requested: leave the main loop, park
+        self._halt = threading.Event()  # threads exit (after parking)
+        self._reload = threading.Event()
+        self._lock = threading.Lock()
+        # Latest inputs: immutable objects swapped by reference.
+        self.pose: PoseSample | None = None
+        self._path: tuple[np.ndarray, np.ndarray | None, int] | None = None
+        self._path_version = 0
+        self._pending_clouds: dict[str, CloudMsg] = {}
+        self.plan: Plan | None = None
+        self.store: MapStore = build_map_store(self.cfg)
+        self.planner: RecedingHorizonPlanner = build_planner(self.cfg)
+        self.link: GimbalLink | None = None
+        self.bus: PivotBus | None = None
+        self.session = None
+        self.control: ControlLoop | None = None
+        self._last_tick: TickResult | None = None
+        self._jitter: deque = deque(maxlen=5000)
+        self._solve: deque = deque(maxlen=500)
+        self._plans = 0
+        self._reloads = 0
+        self._reload_errors = 0
+        self._last_error = ""
+        self._clear_attempts = 0
+        self._last_clear = 0.0
+        self._control_healthy = 0.0
+        self._rl = RateLimitedLog()
+        self._threads: list[threading.Thread] = []
+        self._recorder = None
+
+    # ------------------------------------------------------------------ configuration
+    def _load_config(self) -> Config:
+        cfg = load_config(self.config_path)
+        ov = self.overrides
+        if ov.port:
+            cfg = replace(cfg, gimbal=replace(cfg.gimbal, port=ov.port))
+        if ov.connect or ov.listen:
+            z = cfg.zenoh
+            cfg = replace(cfg, zenoh=replace(z, connect=tuple(ov.connect) or tuple(z.connect),
+                                              listen=tuple(ov.listen) or tuple(z.listen)))
+        return cfg
+
+    # ------------------------------------------------------------------ bus callbacks (Zenoh threads)
+    def _on_pose(self, pose: PoseSample) -> None:
+        self.pose = pose
+        if self._recorder is not None:
+            self._recorder.pose(pose)
+
+    def _on_path(self, path: PathMsg) -> None:
+        with self._lock:
+            self._path_version += 1
+            self._path = (path.positions, path.quats, self._path_version)
+
+    def _on_cloud(self, layer: str, cloud: CloudMsg) -> None:
+        with self._lock:
+            self._pending_clouds[layer] = cloud
+
+    # ------------------------------------------------------------------ planner thread
+    def _apply_pending_clouds(self) -> None:
+        with self._lock:
+            pending, self._pending_clouds = self._pending_clouds, {}
+        for layer, cloud in pending.items():
+            weights = cloud.weights if cloud.weights is not None else np.ones(cloud.points.shape[0])
+            lc = LandmarkCloud(points=cloud.points, weights=weights)
+            mult = self.cfg.map.targets_weight if layer == "targets" else 1.0
+            version = self.store.set_layer(layer, lc, weight_multiplier=mult)
+            log.info("map layer %r replaced from Zenoh: %d points (map version %d)", layer, len(lc), version)
+
+    def _planner_loop(self) -> None:
+        period = 1.0 / self.cfg.planner.replan_hz
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            try:
+                self._apply_pending_clouds()
+                self._replan_once()
+            except Exception as exc:  # keep planning; never take the daemon down
+                self._rl.warning("planner", f"planner: replan failed: {exc!r}")
+                self._last_error = f"planner: {exc}"
+            next_t += period
+            delay = next_t - time.monotonic()
+            if delay < 0:
+                next_t = time.monotonic()
+                delay = 0
+            self._stop.wait(delay)
+
+    def _replan_once(self) -> None:
+        pose = self.pose
+        if pose is None or time.monotonic() - pose.rx_time > self.cfg.control.pose_timeout_s:
+            return
+        path = self._path
+        if path is None:
+            self.planner.set_path(None, None, 0)
+        else:
+            self.planner.set_path(path[0], path[1], path[2])
+        anchor = self.control.commanded_direction if self.control is not None else None
+        plan = self.planner.replan(self.store.snapshot(), pose.position, pose.quat, anchor)
+        self.plan = plan
+        self._plans += 1
+        self._solve.append(plan.solve_s)
+        if self.bus is not None:
+            self.bus.publish_view_plan(pose.stamp, plan.positions, plan.directions)
+
+    # ------------------------------------------------------------------ control thread
+    def _control_loop(self) -> None:
+        assert self.control is not None and self.link is not None
+        period = 1.0 / self.cfg.control.rate_hz
+        js_every = max(1, round(self.cfg.control.rate_hz / self.cfg.control.joint_state_hz))
+        wd = watchdog_interval()
+        wd_period = wd / 2.0 if wd else None
+        last_wd = 0.0
+        k = 0
+        t0 = time.monotonic()
+        while not self._halt.is_set():
+            deadline = t0 + k * period
+            now = time.monotonic()
+            if deadline > now:
+                time.sleep(deadline - now)
+                now = time.monotonic()
+            elif now - deadline > period:
+                # Overrun by more than a period: resynchronise instead of bursting.
+                skipped = int((now - deadline) / period)
+                k += skipped
+                deadline = t0 + k * period
+            self._jitter.append(now - deadline)
+            k += 1
+            try:
+                tick = self.control.tick(now, self.pose, self.plan, faulted=self._gimbal_faulted())
+            except Exception as exc:
+                self._rl.warning("control", f"control: tick failed: {exc!r}")
+                self._last_error = f"control: {exc}"
+                continue
+            self._last_tick = tick
+            self.state = tick.mode
+            if tick.mode not in ("link-down",):
+                self._control_healthy = now
+                if wd_period and now - last_wd >= wd_period:
+                    self.notifier.watchdog()
+                    last_wd = now
+            if k % js_every == 0 and self.bus is not None:
+                st = self.link.state
+                if st is not None and self.link.link_state == "up":
+                    try:
+                        self.bus.publish_joint_state(time.time(), st.pan, st.tilt, st.pan_rate, st.tilt_rate)
+                    except Exception as exc:
+                        self._rl.warning("joint_states", f"joint_states: publish failed: {exc!r}")
+            if self._recorder is not None and tick.setpoint is not None:
+                self._recorder.setpoint(tick.setpoint)
+
+    # ------------------------------------------------------------------ supervision (main thread)
+    def _gimbal_faulted(self) -> bool:
+        st = self.link.state if self.link is not None else None
+        return st is not None and st.mode == 3
+
+    def _supervise_gimbal(self) -> None:
+        link = self.link
+        if link is None or link.link_state != "up" or link.state is None:
+            return
+        st = link.state
+        now = time.monotonic()
+        if st.mode == 3 or st.faults:
+            if now - self._last_clear >= 1.0:
+                self._last_clear = now
+                self._clear_attempts += 1
+                names = [n for i, n in enumerate(FAULT_NAMES) if st.faults >> i & 1]
+                log.warning("gimbal fault bits 0x%04x (%s), mode %s: sending CLEAR_FAULT (attempt %d)",
+                            st.faults, ", ".join(names) or "none", MODE_NAMES.get(st.mode, st.mode),
+                            self._clear_attempts)
+                if link.clear_fault() and self.control is not None:
+                    self.control.invalidate()
+        else:
+            self._clear_attempts = 0
+        if st.mode == 0 and not self._stop.is_set():
+            log.info("gimbal is disabled: sending ENABLE")
+            if link.set_enabled(True) and self.control is not None:
+                self.control.invalidate()
+
+    def status(self) -> dict:
+        """The JSON status document published on ``pivot/<name>/status``."""
+        pose = self.pose
+        link = self.link
+        st = link.state if link is not None else None
+        plan = self.plan
+        state = self.state
+        if st is not None and st.mode == 3:
+            state = "fault"
+        ctl = self.control.stats if self.control is not None else None
+        return {
+            "name": self.cfg.name,
+            "state": state,
+            "time": time.time(),
+            "pose_age_s": None if pose is None else round(time.monotonic() - pose.rx_time, 3),
+            "link": link.link_state if link is not None else "stopped",
+            "gimbal": None if st is None else {
+                "mode": MODE_NAMES.get(st.mode, str(st.mode)),
+                "faults": st.faults,
+                "fault_names": [n for i, n in enumerate(FAULT_NAMES) if st.faults >> i & 1],
+                "pan_deg": round(float(np.degrees(st.pan)), 3),
+                "tilt_deg": round(float(np.degrees(st.tilt)), 3),
+                "age_s": round(time.monotonic() - st.rx_time, 3),
+            },
+            "clear_fault_attempts": self._clear_attempts,
+            "planner": {
+                "plans": self._plans,
+                "solve_ms_p50": _percentile_ms(list(self._solve), 50),
+                "solve_ms_p99": _percentile_ms(list(self._solve), 99),
+                "horizon": 0 if plan is None else int(plan.directions.shape[0]),
+                "landmarks": 0 if plan is None else plan.landmarks,
+                "visible_now": None if plan is None else int(plan.visible[0]),
+                "progress_m": self.planner.progress,
+            },
+            "control": {
+                "rate_hz": self.cfg.control.rate_hz,
+                "jitter_ms_p99": _percentile_ms(list(self._jitter), 99),
+                "setpoints": 0 if ctl is None else ctl.setpoints,
+                "clamped": 0 if ctl is None else ctl.clamped,
+                "pose_latency_ms_p99": None if ctl is None else _percentile_ms(list(ctl.pose_latency), 99),
+            },
+            "map": {"landmarks": len(self.store.snapshot()), "version": self.store.snapshot().version},
+            "counters": self.bus.counters() if self.bus is not None else {},
+            "link_counters": link.counters() if link is not None else {},
+            "reloads": self._reloads,
+            "reload_errors": self._reload_errors,
+            "last_error": self._last_error,
+        }
+
+    def _do_reload(self) -> None:
+        self.notifier.reloading()
+        try:
+            cfg = self._load_config()
+            store = build_map_store(cfg)
+            planner = build_planner(cfg)
+        except PivotdError as exc:
+            self._reload_errors += 1
+            self._last_error = f"reload: {exc}"
+            log.error("reload failed, keeping the running config and map: %s", exc)
+        else:
+            # Carry Zenoh-provided layers over to the new map.
+            old = self.store.snapshot()
+            for name in old.layers:
+                if name != "base" and name in ("landmarks", "targets"):
+                    pts, w = old.layer_cloud(name) if hasattr(old, "layer_cloud") else (None, None)
+                    if pts is not None:
+                        store.set_layer(name, LandmarkCloud(points=pts, weights=w))
+            self.cfg, self.store = cfg, store
+            planner.set_path(*(self._path or (None, None, 0)))
+            self.planner = planner
+            self.plan = None
+            self._reloads += 1
+            log.info("reloaded %s: %d landmarks", self.config_path, len(store.snapshot()))
+        self.notifier.ready()
+
+    def _park(self) -> None:
+        """Move to the park pose within the park timeout, then disable."""
+        link, control = self.link, self.control
+        if link is None or control is None:
+            return
+        self.state = "parking"
+        target = park_joints(self.cfg)
+        control.override_target = target
+        deadline = time.monotonic() + self.cfg.gimbal.park_timeout_s
+        tol = np.radians(0.5)
+        while time.monotonic() < deadline:
+            st = link.state
+            if link.link_state != "up":
+                break
+            if st is not None and abs(st.pan - target[0]) < tol and abs(st.tilt - target[1]) < tol \
+                    and abs(st.pan_rate) < 0.01 and abs(st.tilt_rate) < 0.01:
+                break
+            time.sleep(0.02)
+        else:
+            log.warning("park pose not reached within %.1f s", self.cfg.gimbal.park_timeout_s)
+        control.override_target = None
+
+    # ------------------------------------------------------------------ lifecycle
+    def request_stop(self) -> None:
+        self._stop.set()
+
+    def _install_signals(self) -> None:
+        def on_term(signum, _frame):
+            log.info("signal %s: parking and stopping", signal.Signals(signum).name)
+            self._stop.set()
+
+        def on_hup(_signum, _frame):
+            self._reload.set()
+
+        signal.signal(signal.SIGTERM, on_term)
+        signal.signal(signal.SIGINT, on_term)
+        signal.signal(signal.SIGHUP, on_hup)
+
+    def _start(self) -> None:
+        cfg = self.cfg
+        z = cfg.zenoh
+        self.session = open_session(mode=z.mode, connect=z.connect, listen=z.listen, config_file=z.config_file,
+                                    multicast_scouting=z.multicast_scouting)
+        self.bus = PivotBus(self.session, build_bus_topics(cfg), node_name=cfg.name, on_pose=self._on_pose,
+                            on_path=self._on_path, on_cloud=self._on_cloud)
+        if self.overrides.record is not None:
+            from pivotd.recorder import Recorder
+
+            self._recorder = Recorder(self.overrides.record)
+        self.link = GimbalLink(cfg.gimbal.port, build_link_config(cfg), baudrate=cfg.gimbal.baud)
+        self.link.start()
+        self.control = build_control_loop(cfg, self.link)
+        self.state = "waiting"
+        for name, target in (("planner", self._planner_loop), ("control", self._control_loop)):
+            t = threading.Thread(target=target, name=f"pivotd-{name}", daemon=True)
+            t.start()
+            self._threads.append(t)
+        self.notifier.ready()
+        log.info("pivotd %r ready: %d landmarks, gimbal %s, zenoh %s", cfg.name, len(self.store.snapshot()),
+                 cfg.gimbal.port, ", ".join([*z.listen, *z.connect]) or z.mode)
+
+    def run(self) -> int:
+        """Run until stopped; returns the exit code (0 after a clean park and disable)."""
+        self._install_signals()
+        try:
+            self._start()
+            status_period = 1.0 / self.cfg.control.status_hz
+            while not self._stop.is_set():
+                self._stop.wait(status_period)
+                if self._reload.is_set():
+                    self._reload.clear()
+                    self._do_reload()
+                try:
+                    self._supervise_gimbal()
+                    if self.bus is not None:
+                        self.bus.publish_status(self.status())
+                except Exception as exc:
+                    self._rl.warning("supervise", f"supervision failed: {exc!r}")
+            self.notifier.stopping()
+            self._park()
+        finally:
+            self._stop.set()
+            self._halt.set()
+            for t in self._threads:
+                t.join(timeout=2.0)
+            if self.link is not None:
+                self.link.stop(disable=True)
+            if self.bus is not None:
+                self.state = "stopped"
+                try:
+                    self.bus.publish_status(self.status())
+                except Exception:
+                    pass
+                self.bus.close()
+            if self.session is not None:
+                self.session.close()
+            if self._recorder is not None:
+                self._recorder.close()
+        log.info("pivotd stopped")
+        return 0

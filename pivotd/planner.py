@@ -1,0 +1,299 @@
+"""Receding-horizon PIVOT on a translation path.
+
+At waypoint rate the planner locates the robot's progress along the path (monotone, robust to the
+robot being off the path), resamples the path ahead every ``spacing`` metres for ``horizon``
+waypoints, predicts the body attitude at each waypoint, takes the retained landmarks there from
+the map, and runs the trajectory optimizer warm-started from the previous plan and anchored to the
+direction currently being commanded. Reachability (joint limits given the predicted attitude) is a
+constraint inside the optimisation. The result is an immutable :class:`Plan` that the control
+loop samples at its own rate.
+
+Pure computation: no threads and no I/O here; the daemon owns the threads.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pivotd.geometry import normalize, quat_to_matrix
+from pivotd.gimbal.kinematics import JointLimits, Mount, base_from_world
+from pivotd.maps.filters import RetainedFilter
+from pivotd.maps.store import MapSnapshot
+from pivotd.pivot.constraints import PanTiltConstraint
+from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
+
+
+def slerp_directions(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Spherical interpolation between unit vectors ``a`` and ``b`` (..., 3) at fractions ``t`` (...)."""
+    a = np.asarray(a, float)
+    b = np.asarray(b, float)
+    t = np.asarray(t, float)[..., None]
+    dot = np.clip(np.sum(a * b, axis=-1, keepdims=True), -1.0, 1.0)
+    omega = np.arccos(dot)
+    sin_o = np.sin(omega)
+    small = sin_o < 1e-6
+    safe = np.where(small, 1.0, sin_o)
+    wa = np.where(small, 1.0 - t, np.sin((1.0 - t) * omega) / safe)
+    wb = np.where(small, t, np.sin(t * omega) / safe)
+    return normalize(wa * a + wb * b)
+
+
+class PathTracker:
+    """A translation path (P, 3) with arc length, monotone progress and resampling.
+
+    ``quats`` (P, 4) (x, y, z, w) give the body attitude along the path; when None (or all equal,
+    as when a path planner leaves orientations unset), the attitude is predicted from the path
+    heading with zero roll and pitch.
+    """
+
+    def __init__(self, positions: np.ndarray, quats: np.ndarray | None = None) -> None:
+        positions = np.asarray(positions, dtype=float)
+        if positions.ndim != 2 or positions.shape[1] != 3 or positions.shape[0] == 0:
+            raise ValueError(f"path positions must be (P, 3) with P >= 1, got {positions.shape}")
+        keep = np.ones(positions.shape[0], bool)
+        keep[1:] = np.linalg.norm(np.diff(positions, axis=0), axis=1) > 1e-9  # drop repeated points
+        self.positions = positions[keep]
+        self.quats = None
+        if quats is not None:
+            q = np.asarray(quats, dtype=float)[keep]
+            if not np.allclose(q, q[:1], atol=1e-9) or self.positions.shape[0] == 1:
+                self.quats = normalize(q)
+        seg = np.diff(self.positions, axis=0)
+        self._seg = seg
+        self._seg_len2 = np.maximum(np.sum(seg * seg, axis=1), 1e-18)
+        self.s = np.concatenate([[0.0], np.cumsum(np.sqrt(np.sum(seg * seg, axis=1)))])
+
+    @property
+    def length(self) -> float:
+        """Total arc length [m]."""
+        return float(self.s[-1])
+
+    def locate(self, position: np.ndarray, previous: float | None = None, back: float = 1.0,
+               ahead: float = 5.0) -> tuple[float, float]:
+        """Progress [m] of the point on the path nearest to ``position`` and its distance [m].
+
+        With ``previous`` progress, only the stretch [previous - back, previous + ahead] is searched
+        (so an S-shaped path that passes near itself cannot make progress jump) and the result is
+        never less than ``previous`` (monotone).
+        """
+        p = np.asarray(position, float)
+        if self.positions.shape[0] == 1:
+            return 0.0, float(np.linalg.norm(p - self.positions[0]))
+        a = self.positions[:-1]
+        t = np.clip(np.einsum("ij,ij->i", p - a, self._seg) / self._seg_len2, 0.0, 1.0)
+        foot = a + t[:, None] * self._seg
+        d = np.linalg.norm(foot - p, axis=1)
+        s_foot = self.s[:-1] + t * np.sqrt(self._seg_len2)
+        if previous is not None:
+            lo, hi = previous - back, previous + ahead
+            window = (self.s[1:] >= lo) & (self.s[:-1] <= hi)
+            if window.any():
+                d = np.where(window, d, np.inf)
+        i = int(np.argmin(d))
+        s_new = float(s_foot[i])
+        if previous is not None:
+            s_new = max(s_new, float(previous))
+        return min(s_new, self.length), float(d[i])
+
+    def sample(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions (K, 3) and body quaternions (K, 4) at arc lengths ``s`` (K,) (clamped to the path)."""
+        s = np.clip(np.asarray(s, float), 0.0, self.length)
+        if self.positions.shape[0] == 1:
+            pos = np.repeat(self.positions, s.shape[0], axis=0)
+            q = self.quats if self.quats is not None else np.array([[0.0, 0.0, 0.0, 1.0]])
+            return pos, np.repeat(q, s.shape[0], axis=0)
+        i = np.clip(np.searchsorted(self.s, s, side="right") - 1, 0, self.positions.shape[0] - 2)
+        t = ((s - self.s[i]) / np.maximum(self.s[i + 1] - self.s[i], 1e-12))[:, None]
+        pos = self.positions[i] + t * self._seg[i]
+        if self.quats is not None:
+            qa, qb = self.quats[i], self.quats[i + 1]
+            qb = np.where(np.sum(qa * qb, axis=1, keepdims=True) < 0, -qb, qb)
+            quats = normalize((1 - t) * qa + t * qb)
+        else:
+            tangent = self._seg[i]
+            yaw = np.arctan2(tangent[:, 1], tangent[:, 0])
+            half = 0.5 * yaw
+            quats = np.column_stack([np.zeros_like(yaw), np.zeros_like(yaw), np.sin(half), np.cos(half)])
+        return pos, quats
+
+
+@dataclass(frozen=True)
+class Plan:
+    """An immutable view plan over a horizon.
+
+    s: (N,) arc length of each waypoint along the path [m] (zeros for a single-pose plan);
+    positions: (N, 3) camera centres [m]; directions: (N, 3) world unit viewing directions;
+    body_quats: (N, 4) predicted body attitude (x, y, z, w); visible: (N,) hard counts.
+    """
+
+    created: float
+    positions: np.ndarray
+    directions: np.ndarray
+    body_quats: np.ndarray
+    visible: np.ndarray
+    s: np.ndarray
+    map_version: int
+    path_version: int
+    solve_s: float
+    landmarks: int = 0
+
+    def direction_at_s(self, s: np.ndarray | float) -> np.ndarray:
+        """Viewing directions (K, 3) (or (3,)) interpolated (slerp) at arc lengths ``s``."""
+        scalar = np.ndim(s) == 0
+        s_arr = np.atleast_1d(np.asarray(s, float))
+        if self.s.shape[0] == 1:
+            out = np.repeat(self.directions, s_arr.shape[0], axis=0)
+        else:
+            sc = np.clip(s_arr, self.s[0], self.s[-1])
+            i = np.clip(np.searchsorted(self.s, sc, side="right") - 1, 0, self.s.shape[0] - 2)
+            t = (sc - self.s[i]) / np.maximum(self.s[i + 1] - self.s[i], 1e-12)
+            out = slerp_directions(self.directions[i], self.directions[i + 1], t)
+        return out[0] if scalar else out
+
+    def locate(self, position: np.ndarray) -> float:
+        """Arc length [m] of the point of the plan's camera polyline nearest to ``position``."""
+        if self.positions.shape[0] == 1:
+            return float(self.s[0])
+        a = self.positions[:-1]
+        seg = np.diff(self.positions, axis=0)
+        len2 = np.maximum(np.sum(seg * seg, axis=1), 1e-18)
+        t = np.clip(np.einsum("ij,ij->i", np.asarray(position, float) - a, seg) / len2, 0.0, 1.0)
+        d = np.linalg.norm(a + t[:, None] * seg - position, axis=1)
+        i = int(np.argmin(d))
+        return float(self.s[i] + t[i] * (self.s[i + 1] - self.s[i]))
+
+
+@dataclass(frozen=True)
+class PlannerSettings:
+    """fov: full cone opening [rad]; lam: smoothness weight λ; spacing [m]; horizon: waypoints."""
+
+    fov: float
+    lam: float = 0.6
+    spacing: float = 0.5
+    horizon: int = 40
+    max_landmarks_per_waypoint: int | None = 20000
+    retained_filter: RetainedFilter = field(default_factory=RetainedFilter)
+    options: TrajectoryOptions | None = None
+    back_window: float = 1.0
+    ahead_window: float = 5.0
+
+    @property
+    def alpha(self) -> float:
+        """The paper's half-angle α [rad]."""
+        return 0.5 * self.fov
+
+
+def _cap_retained(retained: Sequence[np.ndarray], cap: int | None) -> list[np.ndarray]:
+    """Evenly subsample any waypoint's retained set larger than ``cap`` (deterministic)."""
+    if not cap:
+        return list(retained)
+    out = []
+    for idx in retained:
+        if idx.shape[0] > cap:
+            idx = idx[np.linspace(0, idx.shape[0] - 1, cap).astype(np.int64)]
+        out.append(idx)
+    return out
+
+
+def camera_positions(body_positions: np.ndarray, body_quats: np.ndarray, mount: Mount) -> np.ndarray:
+    """Sensor centres (N, 3) in the world for body positions (N, 3) and attitudes (N, 4)."""
+    return body_positions + np.einsum("nij,j->ni", quat_to_matrix(body_quats), np.asarray(mount.translation, float))
+
+
+class RecedingHorizonPlanner:
+    """Stateful receding-horizon planner (single-threaded: call :meth:`replan` from one thread)."""
+
+    def __init__(self, settings: PlannerSettings, mount: Mount, limits: JointLimits) -> None:
+        self.settings = settings
+        self.mount = mount
+        self.limits = limits
+        self._tracker: PathTracker | None = None
+        self._path_version = -1
+        self.progress: float | None = None
+        self.last_plan: Plan | None = None
+
+    def set_path(self, positions: np.ndarray | None, quats: np.ndarray | None, version: int) -> None:
+        """Install a new translation path (None clears it); progress restarts from the nearest point."""
+        if version == self._path_version:
+            return
+        self._path_version = version
+        self._tracker = None if positions is None or len(positions) == 0 else PathTracker(positions, quats)
+        self.progress = None
+
+    def _constraint(self, body_quats: np.ndarray) -> PanTiltConstraint:
+        lim = self.limits
+        pan_min, pan_max = (-np.inf, np.inf) if lim.continuous_pan else (lim.pan_min, lim.pan_max)
+        return PanTiltConstraint(base_from_world(body_quats, self.mount), pan_min, pan_max, lim.tilt_min, lim.tilt_max)
+
+    def _warm_start(self, s: np.ndarray, n: int) -> np.ndarray | None:
+        prev = self.last_plan
+        if prev is None or prev.path_version != self._path_version or prev.s.shape[0] != prev.directions.shape[0]:
+            return None
+        if self._tracker is None:
+            return np.repeat(prev.directions[-1:], n, axis=0)
+        return prev.direction_at_s(s)
+
+    def replan(self, snapshot: MapSnapshot, body_position: np.ndarray, body_quat: np.ndarray,
+               anchor: np.ndarray | None) -> Plan:
+        """Plan the horizon ahead of the robot at ``body_position`` / ``body_quat`` (x, y, z, w).
+
+        ``anchor`` is the world direction currently being commanded (None before the first command).
+        """
+        t0 = time.perf_counter()
+        st = self.settings
+        body_position = np.asarray(body_position, float)
+        body_quat = normalize(np.asarray(body_quat, float))
+        if self._tracker is not None:
+            self.progress, _ = self._tracker.locate(body_position, self.progress, st.back_window, st.ahead_window)
+            s = self.progress + st.spacing * np.arange(st.horizon)
+            s = s[s <= self._tracker.length + 1e-9]
+            if s.shape[0] == 0:
+                s = np.array([self._tracker.length])
+            body_pos, quats = self._tracker.sample(s)
+            # The first waypoint is where the robot is now, with its measured attitude.
+            body_pos[0] = body_position
+            quats[0] = body_quat
+        else:
+            s = np.zeros(1)
+            body_pos, quats = body_position[None, :], body_quat[None, :]
+        cams = camera_positions(body_pos, quats, self.mount)
+        if len(snapshot) > 0:
+            retained = _cap_retained(snapshot.retained(cams, st.retained_filter), st.max_landmarks_per_waypoint)
+        else:
+            retained = [np.zeros(0, np.int64) for _ in range(cams.shape[0])]
+        init = self._warm_start(s, cams.shape[0])
+        if init is None and anchor is not None:
+            init = np.repeat(np.asarray(anchor, float)[None, :], cams.shape[0], axis=0)
+        points = snapshot.points if len(snapshot) > 0 else np.zeros((0, 3))
+        weights = snapshot.weights if len(snapshot) > 0 else np.zeros(0)
+        result = optimize_trajectory(
+            points,
+            cams,
+            st.alpha,
+            st.lam,
+            weights=weights,
+            retained=retained,
+            init_directions=init,
+            anchor=anchor,
+            constraint=self._constraint(quats),
+            options=st.options,
+        )
+        plan = Plan(
+            created=time.monotonic(),
+            positions=cams,
+            directions=result.directions,
+            body_quats=quats,
+            visible=np.asarray(result.visible),
+            s=s,
+            map_version=snapshot.version,
+            path_version=self._path_version,
+            solve_s=time.perf_counter() - t0,
+            landmarks=int(sum(r.shape[0] for r in retained)),
+        )
+        self.last_plan = plan
+        return plan
+
