@@ -245,6 +245,10 @@ class RosPublisher:
             self._pub.put(bytes(cdr), attachment=att)
         return seq
 
+    def matched(self) -> bool:
+        """True while at least one Zenoh subscriber matches this publisher's key."""
+        return bool(self._pub.matching_status.matching)
+
     def publish(self, message: object) -> int:
         """Serialize a rosbags message object of this publisher's type and publish it."""
         return self.put(bytes(typestore().serialize_cdr(message, self.msgtype)))
