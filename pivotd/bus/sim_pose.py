@@ -76,6 +76,10 @@ class PosePublisher:
         if self.path is not None:
             self.path.put(m.encode_path(stamp, self.frame_id, positions, quats))
 
+    def all_matched(self) -> bool:
+        """True when every enabled publisher has at least one matching subscriber."""
+        return all(p.matched() for p in (self.odom, self.pose, self.path) if p is not None)
+
     def close(self) -> None:
         for pub in (self.odom, self.pose, self.path):
             if pub is not None:
@@ -95,6 +99,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="stop after S seconds (default: at the route's end, or never with --loop)")
     p.add_argument("--loop", action="store_true", help="restart at the beginning after the end")
     p.add_argument("--path-period", type=float, default=2.0, metavar="S", help="re-publish the path every S s")
+    p.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
+                   help="wait up to S s for subscribers of every topic before starting the clock")
     p.add_argument("--mode", choices=("peer", "client"), default="peer", help="Zenoh mode (default peer)")
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT", help="e.g. tcp/127.0.0.1:7447")
     p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT")
@@ -116,6 +122,8 @@ def _check_args(args: argparse.Namespace) -> list[Gap]:
         v = getattr(args, name)
         if not np.isfinite(v) or v <= 0:
             raise InputError(f"--{name.replace('_', '-')} must be > 0, got {v}")
+    if not np.isfinite(args.wait_subscribers) or args.wait_subscribers < 0:
+        raise InputError(f"--wait-subscribers must be >= 0, got {args.wait_subscribers}")
     if not np.isfinite(args.pose_noise) or args.pose_noise < 0:
         raise InputError(f"--pose-noise must be >= 0, got {args.pose_noise}")
     if args.duration is not None and (not np.isfinite(args.duration) or args.duration <= 0):
@@ -136,6 +144,12 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
         pub = PosePublisher(session, args.domain_id, args.odom_topic or None, args.pose_topic or None,
                             args.path_topic or None, args.frame_id, args.child_frame_id)
         path_quats = route.quats if route.quats is not None else np.array([route.at(s).quat for s in route.arc])
+        if args.wait_subscribers > 0:
+            deadline = time.monotonic() + args.wait_subscribers
+            while not pub.all_matched() and time.monotonic() < deadline and not stop.is_set():
+                stop.wait(0.02)
+            if not args.quiet:
+                log.info("subscribers %s", "matched" if pub.all_matched() else "not all matched; starting anyway")
         period = 1.0 / args.rate
         t0_wall, t0 = time.time(), time.monotonic()
         next_path, next_print, k, sent = 0.0, 0.0, 0, 0
