@@ -223,3 +223,19 @@ def test_status_publication_and_queryable(sessions):
 def test_bad_topics_config(kw):
     with pytest.raises(ConfigError):
         BusTopics(**kw)
+
+
+def test_humble_publishers_are_received_and_humble_mode_publishes_without_hash(sessions):
+    humble = ros.RosNode(sessions[1], "humble_talker", node_id=900, humble=True)
+    events = queue.Queue()
+    bus = PivotBus(sessions[0], BusTopics(humble=True), on_pose=events.put)
+    try:
+        odom = connected_publisher(humble, "/odom", m.ODOMETRY)
+        assert odom.key == "0/odom/nav_msgs::msg::dds_::Odometry_/TypeHashNotSupported"
+        assert "/nav_msgs::msg::dds_::Odometry_/TypeHashNotSupported/" in odom.token_key
+        odom.put(m.encode_odometry(0, "map", "b", [1, 1, 1], [0, 0, 0, 1]))
+        np.testing.assert_allclose(drain(events, 1)[0].position, [1, 1, 1])
+        assert bus._joint_pub.key.endswith("/sensor_msgs::msg::dds_::JointState_/TypeHashNotSupported")
+    finally:
+        bus.close()
+        humble.close()

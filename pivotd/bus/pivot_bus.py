@@ -36,6 +36,7 @@ class BusTopics:
 
     ``accept_empty_frame``: messages with an empty ``frame_id`` are taken as being in ``frame_id``.
     ``frame_id`` None accepts any frame. ``namespace`` is the ROS namespace of pivotd's node.
+    ``humble``: publish with rmw_zenoh's Humble key form (no type hash) instead of RIHS01 hashes.
     """
 
     domain_id: int = 0
@@ -51,6 +52,7 @@ class BusTopics:
     max_cloud_points: int = 2_000_000
     accept_empty_frame: bool = True
     namespace: str = "/"
+    humble: bool = False
 
     def __post_init__(self) -> None:
         if self.pose_type not in m.POSE_TYPES:
@@ -90,7 +92,7 @@ class PivotBus:
         self._ratelog = RateLimitedLog(log)
         self._status_json = b""
         self._closed = False
-        self.node = RosNode(session, node_name, topics.domain_id, topics.namespace)
+        self.node = RosNode(session, node_name, topics.domain_id, topics.namespace, humble=topics.humble)
         self._entities: list[Any] = []
         try:
             sub_qos = QoS(depth=10)

@@ -40,6 +40,8 @@ ATTACHMENT_SIZE = 8 + 8 + 1 + GID_SIZE
 _ATTACHMENT = struct.Struct("<qqB")
 
 NODE, PUBLISHER, SUBSCRIPTION = "NN", "MP", "MS"
+# What rmw_zenoh on ROS 2 Humble (no type hashes in that distribution) puts in the hash position.
+NO_TYPE_HASH = "TypeHashNotSupported"
 
 # rmw QoS enum values (rmw/types.h).
 RELIABILITY_RELIABLE, RELIABILITY_BEST_EFFORT = 1, 2
@@ -142,12 +144,16 @@ def node_token_key(domain_id: int, zid: str, node_id: int, node_name: str, names
 
 
 def entity_token_key(kind: str, domain_id: int, zid: str, node_id: int, entity_id: int, node_name: str,
-                     topic: str, msgtype: str, qos: QoS, namespace: str = "/", enclave: str = "/") -> str:
-    """Liveliness key of a publisher (``MP``) or subscription (``MS``) of ``msgtype`` on ``topic``."""
+                     topic: str, msgtype: str, qos: QoS, namespace: str = "/", enclave: str = "/",
+                     hash_part: str | None = None) -> str:
+    """Liveliness key of a publisher (``MP``) or subscription (``MS``) of ``msgtype`` on ``topic``.
+
+    ``hash_part`` defaults to the RIHS01 hash (:data:`NO_TYPE_HASH` for Humble peers).
+    """
     return (
         f"{ADMIN_SPACE}/{domain_id}/{zid}/{node_id}/{entity_id}/{kind}/{mangle(enclave)}/{mangle(namespace)}/"
-        f"{node_name}/{mangle(normalize_topic(topic))}/{dds_type_name(msgtype)}/{type_hash(msgtype)}/"
-        f"{qos_to_keyexpr(qos)}"
+        f"{node_name}/{mangle(normalize_topic(topic))}/{dds_type_name(msgtype)}/"
+        f"{hash_part or type_hash(msgtype)}/{qos_to_keyexpr(qos)}"
     )
 
 
@@ -185,10 +191,11 @@ class RosNode:
     """A ROS 2 node as seen by rmw_zenoh peers: a ``NN`` liveliness token plus its entities.
 
     ``node_id`` distinguishes several nodes sharing one session; entity ids count up from 10 like rclcpp's.
+    ``humble`` publishes :data:`NO_TYPE_HASH` instead of RIHS01 hashes, as rmw_zenoh does on ROS 2 Humble.
     """
 
     def __init__(self, session: zenoh.Session, name: str, domain_id: int = 0, namespace: str = "/",
-                 node_id: int = 0) -> None:
+                 node_id: int = 0, humble: bool = False) -> None:
         if not name or not all(c.isalnum() or c == "_" for c in name) or name[0].isdigit():
             raise ConfigError(f"invalid ROS node name {name!r} (letters, digits and '_' only)")
         self.session = session
@@ -196,11 +203,16 @@ class RosNode:
         self.domain_id = int(domain_id)
         self.namespace = namespace if namespace.startswith("/") else "/" + namespace
         self.node_id = node_id
+        self.humble = bool(humble)
         self.zid = str(session.info.zid())
         self._ids = itertools.count(10)
         self._ids_lock = threading.Lock()
         self.token_key = node_token_key(self.domain_id, self.zid, node_id, name, self.namespace)
         self._token = session.liveliness().declare_token(self.token_key)
+
+    def hash_for(self, msgtype: str) -> str:
+        """Type hash this node advertises and publishes under for ``msgtype``."""
+        return NO_TYPE_HASH if self.humble else type_hash(msgtype)
 
     def next_entity_id(self) -> int:
         with self._ids_lock:
@@ -224,10 +236,11 @@ class RosPublisher:
     def __init__(self, node: RosNode, topic: str, msgtype: str, qos: QoS) -> None:
         self.topic = normalize_topic(topic)
         self.msgtype = msgtype
-        self.key = topic_key(node.domain_id, self.topic, msgtype)
+        self.key = topic_key(node.domain_id, self.topic, msgtype, node.hash_for(msgtype))
         self.entity_id = node.next_entity_id()
         self.token_key = entity_token_key(PUBLISHER, node.domain_id, node.zid, node.node_id, self.entity_id,
-                                          node.name, self.topic, msgtype, qos, node.namespace)
+                                          node.name, self.topic, msgtype, qos, node.namespace,
+                                          hash_part=node.hash_for(msgtype))
         self.gid = gid_from_key(self.token_key)
         reliability = zenoh.Reliability.RELIABLE if qos.reliability == RELIABILITY_RELIABLE else (
             zenoh.Reliability.BEST_EFFORT)
@@ -272,7 +285,8 @@ class RosSubscriber:
         self.key = topic_key(node.domain_id, self.topic, None if any_type else msgtype, "*")
         self.entity_id = node.next_entity_id()
         self.token_key = entity_token_key(SUBSCRIPTION, node.domain_id, node.zid, node.node_id, self.entity_id,
-                                          node.name, self.topic, msgtype, qos, node.namespace)
+                                          node.name, self.topic, msgtype, qos, node.namespace,
+                                          hash_part=node.hash_for(msgtype))
         self._sub = node.session.declare_subscriber(self.key, callback)
         self._token = node.session.liveliness().declare_token(self.token_key)
 

@@ -56,8 +56,8 @@ class PosePublisher:
 
     def __init__(self, session: zenoh.Session, domain_id: int = 0, odom_topic: str | None = "/odom",
                  pose_topic: str | None = None, path_topic: str | None = "/plan", frame_id: str = "map",
-                 child_frame_id: str = "base_link", node_name: str = "sim_pose") -> None:
-        self.node = RosNode(session, node_name, domain_id)
+                 child_frame_id: str = "base_link", node_name: str = "sim_pose", humble: bool = False) -> None:
+        self.node = RosNode(session, node_name, domain_id, humble=humble)
         self.frame_id = frame_id
         self.child_frame_id = child_frame_id
         self.odom = self.node.publisher(odom_topic, m.ODOMETRY, QoS(depth=10)) if odom_topic else None
@@ -107,6 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--zenoh-config", default=None, metavar="FILE", help="Zenoh config file (TLS, auth, ...)")
     p.add_argument("--multicast-scouting", action="store_true", help="enable Zenoh multicast scouting")
     p.add_argument("--domain-id", type=int, default=0)
+    p.add_argument("--humble", action="store_true", help="publish with ROS 2 Humble keys (no type hash)")
     p.add_argument("--odom-topic", default="/odom", help="nav_msgs/Odometry topic ('' disables)")
     p.add_argument("--pose-topic", default="", help="geometry_msgs/PoseStamped topic ('' disables, the default)")
     p.add_argument("--path-topic", default="/plan", help="nav_msgs/Path topic ('' disables)")
@@ -142,7 +143,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     pub = None
     try:
         pub = PosePublisher(session, args.domain_id, args.odom_topic or None, args.pose_topic or None,
-                            args.path_topic or None, args.frame_id, args.child_frame_id)
+                            args.path_topic or None, args.frame_id, args.child_frame_id, humble=args.humble)
         path_quats = route.quats if route.quats is not None else np.array([route.at(s).quat for s in route.arc])
         if args.wait_subscribers > 0:
             deadline = time.monotonic() + args.wait_subscribers
