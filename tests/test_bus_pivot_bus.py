@@ -239,3 +239,12 @@ def test_humble_publishers_are_received_and_humble_mode_publishes_without_hash(s
     finally:
         bus.close()
         humble.close()
+
+
+def test_publishing_after_close_is_a_quiet_no_op(sessions):
+    bus, _ = make_bus(sessions[0])
+    bus.close()
+    bus.publish_joint_state(0.0, 0.0, 0.0, 0.0, 0.0)
+    bus.publish_view_plan(0.0, np.zeros((1, 3)), np.array([[1.0, 0, 0]]))
+    bus.publish_status({"state": "stopped", "obj": object})
+    bus.close()

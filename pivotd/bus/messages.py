@@ -187,8 +187,8 @@ def decode_cloud(payload: bytes, topic: str, expected_frame: str | None = "map",
     Honours ``point_step``, ``row_step``, ``is_bigendian`` and padding; drops points (and weights)
     with a non-finite coordinate or a non-finite or negative weight.
     """
-    # Cheap size guard before decoding: each point needs at least 12 bytes.
-    if len(payload) > 64 * 1024 + max(12, 64) * max_points:
+    # Cheap guard before decoding: even generously padded points (256 bytes) cannot need more than this.
+    if len(payload) > 64 * 1024 + 256 * max_points:
         raise MessageError(topic, "oversized", f"cloud payload of {len(payload)} bytes exceeds the "
                                                f"{max_points}-point limit")
     msg = deserialize(payload, POINT_CLOUD2, topic)

@@ -178,24 +178,39 @@ class PivotBus:
 
     def publish_joint_state(self, stamp: float, pan: float, tilt: float, pan_rate: float, tilt_rate: float) -> None:
         """Publish the measured gimbal state: angles [rad], rates [rad/s], stamp [s since the epoch]."""
-        self._joint_pub.put(m.encode_joint_state(stamp, ["pan", "tilt"], [pan, tilt], [pan_rate, tilt_rate]))
+        self._put(self._joint_pub, m.encode_joint_state(stamp, ["pan", "tilt"], [pan, tilt], [pan_rate, tilt_rate]))
 
     def publish_view_plan(self, stamp: float, positions: np.ndarray, directions: np.ndarray) -> None:
         """Publish the view plan: camera positions (N, 3) [m] and unit view directions (N, 3) in the map frame."""
         frame = self.topics.frame_id or "map"
-        self._plan_pub.put(m.encode_view_plan(stamp, frame, positions, directions))
+        self._put(self._plan_pub, m.encode_view_plan(stamp, frame, positions, directions))
+
+    def _put(self, pub: Any, payload: bytes) -> None:
+        # Publishing races with close() at shutdown; a closed bus or session drops the message quietly.
+        if self._closed:
+            return
+        try:
+            pub.put(payload)
+        except zenoh.ZError as exc:
+            self._ratelog.warning(f"put:{pub.topic}", f"{pub.topic}: publish failed: {exc}")
 
     def publish_status(self, status: dict) -> None:
         """Publish ``status`` as JSON on the status key and keep it as the queryable's answer.
 
-        The bus adds its counters under ``"bus"`` unless the dict already has that key.
+        The bus adds its counters under ``"bus"`` unless the dict already has that key. numpy values become
+        numbers/lists, other non-JSON values their ``str()``.
         """
         doc = dict(status)
         doc.setdefault("bus", self.counters())
         payload = json.dumps(doc, default=_json_default, separators=(",", ":")).encode()
         with self._lock:
             self._status_json = payload
-        self._status_pub.put(payload, encoding=zenoh.Encoding.APPLICATION_JSON)
+        if self._closed:
+            return
+        try:
+            self._status_pub.put(payload, encoding=zenoh.Encoding.APPLICATION_JSON)
+        except zenoh.ZError as exc:
+            self._ratelog.warning("put:status", f"{self.topics.status_key}: publish failed: {exc}")
 
     def _answer_status(self, query: zenoh.Query) -> None:
         with self._lock:
@@ -235,4 +250,4 @@ def _json_default(obj: object) -> Any:
         return obj.tolist()
     if isinstance(obj, np.generic):
         return obj.item()
-    raise TypeError(f"status value of type {type(obj).__name__} is not JSON serializable")
+    return str(obj)  # enums, paths, ...: readable rather than fatal
