@@ -80,3 +80,10 @@ def test_two_sessions_talk_on_loopback():
             b.close()
     finally:
         a.close()
+
+
+def test_peer_listens_on_loopback_only_by_default():
+    cfg = build_config(mode="peer", connect=["tcp/127.0.0.1:7447"])
+    assert json.loads(cfg.get_json("listen/endpoints")) == ["tcp/127.0.0.1:0"]
+    cfg = build_config(mode="peer", listen=["tcp/0.0.0.0:7448"])
+    assert json.loads(cfg.get_json("listen/endpoints")) == ["tcp/0.0.0.0:7448"]

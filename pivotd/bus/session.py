@@ -15,6 +15,9 @@ from pivotd.errors import ConfigError
 log = logging.getLogger(__name__)
 
 MODES = ("peer", "client")
+# Like rmw_zenoh's default session config: peers accept direct connections from this host only; other
+# hosts are reached through the router (``connect``) or explicit ``listen`` endpoints.
+DEFAULT_PEER_LISTEN = "tcp/127.0.0.1:0"
 # <protocol>/<address>[#<config>], e.g. tcp/127.0.0.1:7447, tls/robot.local:7447, udp/[::1]:7447
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream|unixpipe|serial|vsock)/[^\s/]\S*$")
 
@@ -34,7 +37,10 @@ def validate_endpoint(endpoint: str, what: str = "endpoint") -> str:
 
 def build_config(mode: str = "peer", connect: Iterable[str] = (), listen: Iterable[str] = (),
                  config_file: str | Path | None = None, multicast_scouting: bool = False) -> zenoh.Config:
-    """A :class:`zenoh.Config` from a base file (TLS, auth, …) overlaid with the given settings."""
+    """A :class:`zenoh.Config` from a base file (TLS, auth, …) overlaid with the given settings.
+
+    Without a file and without ``listen`` endpoints, a peer listens on :data:`DEFAULT_PEER_LISTEN`.
+    """
     if mode not in MODES:
         raise ConfigError(f"invalid Zenoh mode {mode!r} (expected one of {', '.join(MODES)})")
     connect = [validate_endpoint(e, "connect endpoint") for e in connect]
@@ -55,6 +61,8 @@ def build_config(mode: str = "peer", connect: Iterable[str] = (), listen: Iterab
             config.insert_json5("connect/endpoints", json.dumps(connect))
         if listen:
             config.insert_json5("listen/endpoints", json.dumps(listen))
+        elif config_file is None and mode == "peer":
+            config.insert_json5("listen/endpoints", json.dumps([DEFAULT_PEER_LISTEN]))
         config.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast_scouting)))
     except zenoh.ZError as exc:
         raise ConfigError(f"invalid Zenoh setting: {_one_line(exc)}") from exc
