@@ -170,3 +170,32 @@ def test_sim_pose_csv_route_as_pose_stamped(listener):
     data = load_path(YCORRIDOR)
     np.testing.assert_allclose(first[0].position, data.positions[0], atol=1e-9)
     np.testing.assert_allclose(first[0].quat, data.quats[0], atol=1e-9)
+
+
+def test_sim_pose_ends_by_itself_at_the_end_of_the_route(tmp_path):
+    route = tmp_path / "short.csv"
+    route.write_text("# x,y,z\n0,0,0\n1,0,0\n1,1,0\n")
+    proc = run_tool("--route", f"csv:{route}", "--speed", "20", "--rate", "50")
+    try:
+        out, err = proc.communicate(timeout=60)
+    finally:
+        stop_tool(proc)
+    assert proc.returncode == 0, err
+    lines = out.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("t=0.0s s=0.00m/2.00m poses=1")
+
+
+def test_sim_pose_stops_on_sigint(listener):
+    session, endpoint = listener
+    events = queue.Queue()
+    bus = PivotBus(session, BusTopics(), on_pose=events.put)
+    proc = run_tool("--connect", endpoint, "--loop", "--quiet")
+    try:
+        assert drain(events, 1, timeout=60), "sim_pose never published"  # running, handlers installed
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        stop_tool(proc)
+        bus.close()
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err
