@@ -199,3 +199,30 @@ def test_sim_pose_stops_on_sigint(listener):
         bus.close()
     assert proc.returncode == 0, err
     assert "Traceback" not in err
+
+
+def test_pose_noise_in_process(listener):
+    import threading
+
+    from pivotd.bus.sim_pose import build_parser, run
+
+    session, endpoint = listener
+    events = queue.Queue()
+    bus = PivotBus(session, BusTopics(), on_pose=events.put)
+    args = build_parser().parse_args(["--connect", endpoint, "--rate", "100", "--speed", "1", "--pose-noise", "0.1",
+                                      "--duration", "1.5", "--wait-subscribers", "30", "--path-topic", "", "--quiet"])
+    result = []
+    worker = threading.Thread(target=lambda: result.append(run(args)))
+    worker.start()
+    try:
+        worker.join(timeout=60)
+        poses = drain(events, 151, timeout=10)
+    finally:
+        bus.close()
+    assert result == [0]
+    assert len(poses) == 151
+    t0 = poses[0].stamp
+    route = Route(hallway().path)
+    err = np.array([p.position - route.at(p.stamp - t0).position for p in poses])
+    assert 0.07 < err.std() < 0.13
+    assert np.all(np.abs(err.mean(axis=0)) < 0.05)
