@@ -248,3 +248,21 @@ def test_publishing_after_close_is_a_quiet_no_op(sessions):
     bus.publish_view_plan(0.0, np.zeros((1, 3)), np.array([[1.0, 0, 0]]))
     bus.publish_status({"state": "stopped", "obj": object})
     bus.close()
+
+
+def test_raw_hook_sees_accepted_inputs_and_outputs(sessions, remote):
+    raw = queue.Queue()
+    bus = PivotBus(sessions[0], BusTopics(), on_raw=lambda t, ty, b: raw.put((t, ty, b)))
+    try:
+        odom = connected_publisher(remote, "/odom", m.ODOMETRY)
+        good = m.encode_odometry(0, "map", "b", [1, 0, 0], [0, 0, 0, 1])
+        odom.put(m.encode_odometry(0, "odom", "b", [1, 0, 0], [0, 0, 0, 1]))  # dropped: not recorded
+        odom.put(good)
+        assert drain(raw, 1) == [("/odom", m.ODOMETRY, good)]
+        bus.publish_joint_state(1.0, 0.1, 0.2, 0.0, 0.0)
+        topic, msgtype, payload = drain(raw, 1)[0]
+        assert (topic, msgtype) == ("/pivot/joint_states", m.JOINT_STATE)
+        assert list(ros.typestore().deserialize_cdr(payload, m.JOINT_STATE).name) == ["pan", "tilt"]
+        assert raw.empty()
+    finally:
+        bus.close()

@@ -77,16 +77,19 @@ class PivotBus:
     """pivotd's presence on the bus. Construct with an open session; call :meth:`close` when done.
 
     Callbacks: ``on_pose(PoseSample)``, ``on_path(PathMsg)``, ``on_cloud(layer, CloudMsg)`` with layer
-    ``"landmarks"`` or ``"targets"``. They run on Zenoh threads and must be short.
+    ``"landmarks"`` or ``"targets"``. They run on Zenoh threads and must be short. ``on_raw(topic, msgtype,
+    cdr)`` (e.g. for an MCAP recorder) sees every accepted input and every published ROS message; on the
+    publishing side it runs on the caller's thread.
     """
 
     def __init__(self, session: zenoh.Session, topics: BusTopics, node_name: str = "pivotd",
                  on_pose: Callable[[m.PoseSample], None] | None = None,
                  on_path: Callable[[m.PathMsg], None] | None = None,
-                 on_cloud: Callable[[str, m.CloudMsg], None] | None = None) -> None:
+                 on_cloud: Callable[[str, m.CloudMsg], None] | None = None,
+                 on_raw: Callable[[str, str, bytes], None] | None = None) -> None:
         self.topics = topics
         self.session = session
-        self._on_pose, self._on_path, self._on_cloud = on_pose, on_path, on_cloud
+        self._on_pose, self._on_path, self._on_cloud, self._on_raw = on_pose, on_path, on_cloud, on_raw
         self._lock = threading.Lock()
         self._counters: dict[str, dict[str, int]] = {}
         self._ratelog = RateLimitedLog(log)
@@ -128,7 +131,10 @@ class PivotBus:
                 got = msgtype_of_key(str(sample.key_expr))
                 if got != msgtype:
                     raise m.MessageError(name, "wrong_type", f"message of type {got or '?'} on a {msgtype} topic")
-                take(sample.payload.to_bytes(), rx)
+                payload = sample.payload.to_bytes()
+                take(payload, rx)
+                if self._on_raw is not None:
+                    self._on_raw(name, msgtype, payload)
             except m.MessageError as exc:
                 self._count(name, f"dropped_{exc.reason}")
                 self._ratelog.warning(f"{name}:{exc.reason}", f"dropped message: {exc}")
@@ -191,6 +197,8 @@ class PivotBus:
             return
         try:
             pub.put(payload)
+            if self._on_raw is not None:
+                self._on_raw(pub.topic, pub.msgtype, payload)
         except zenoh.ZError as exc:
             self._ratelog.warning(f"put:{pub.topic}", f"{pub.topic}: publish failed: {exc}")
 
