@@ -54,6 +54,29 @@ class BusTopics:
     namespace: str = "/"
     humble: bool = False
 
+    @classmethod
+    def from_mapping(cls, values: dict[str, Any], where: str = "bus") -> BusTopics:
+        """Build from a config mapping; unknown keys or wrong value types raise ConfigError naming ``where.key``."""
+        if not isinstance(values, dict):
+            raise ConfigError(f"{where}: expected a mapping, got {type(values).__name__}")
+        fields = cls.__dataclass_fields__
+        kwargs: dict[str, Any] = {}
+        for key, value in values.items():
+            if key not in fields:
+                raise ConfigError(f"{where}.{key}: unknown key (known: {', '.join(sorted(fields))})")
+            default = fields[key].default
+            if key == "frame_id" and value is None:
+                kwargs[key] = None
+                continue
+            expected = type(default)
+            if (expected is int and isinstance(value, bool)) or not isinstance(value, expected):
+                raise ConfigError(f"{where}.{key}: expected {expected.__name__}, got {value!r}")
+            kwargs[key] = value
+        try:
+            return cls(**kwargs)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from exc
+
     def __post_init__(self) -> None:
         if self.pose_type not in m.POSE_TYPES:
             raise ConfigError(f"pose_type {self.pose_type!r} must be one of {', '.join(m.POSE_TYPES)}")
