@@ -1,4 +1,4 @@
-"""Helpers for bus tests: free loopback ports, connected Zenoh session pairs, waiting for deliveries."""
+"""Support code for bus tests: free loopback ports, connected Zenoh session pairs, waiting for deliveries."""
 
 from __future__ import annotations
 
