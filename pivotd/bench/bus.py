@@ -1,0 +1,143 @@
+"""``pivotd bench bus``: codec costs and loopback delivery latency of the Zenoh/ROS 2 bus.
+
+Reports medians (and p99 for latencies) measured in one run, single process, two Zenoh peer
+sessions connected over TCP on 127.0.0.1 (scouting off):
+
+* codec: encode JointState, decode Odometry, encode view plan (N poses), decode PointCloud2 (N points)
+* latency: remote Odometry put -> PivotBus ``on_pose`` callback (CDR decode + validation included),
+  and PivotBus.publish_joint_state -> a raw subscriber in the other session.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import queue
+import socket
+import statistics
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--quick", action="store_true", help="fewer repeats and smaller clouds")
+    parser.add_argument("--json", default=None, metavar="FILE", help="also write the results as JSON")
+
+
+def _median_us(fn: Callable[[], object], repeats: int) -> float:
+    fn()
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return 1e6 * statistics.median(times)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def codec_results(quick: bool) -> dict[str, float]:
+    from pivotd.bus import messages as m
+
+    reps = 200 if quick else 2000
+    odom = m.encode_odometry(1.0, "map", "base_link", [1, 2, 3], [0, 0, 0, 1])
+    out = {
+        "encode_joint_state_us": _median_us(lambda: m.encode_joint_state(1.0, ["pan", "tilt"], [0.1, 0.2],
+                                                                          [0.0, 0.0]), reps),
+        "decode_odometry_us": _median_us(lambda: m.decode_pose(odom, m.ODOMETRY, "/odom"), reps),
+    }
+    rng = np.random.default_rng(0)
+    n_plan = 100
+    pos, dirs = rng.normal(size=(n_plan, 3)), rng.normal(size=(n_plan, 3))
+    out[f"encode_view_plan_{n_plan}_us"] = _median_us(lambda: m.encode_view_plan(1.0, "map", pos, dirs),
+                                                       max(20, reps // 20))
+    for n in ((10_000, 100_000) if quick else (10_000, 100_000, 1_000_000)):
+        cloud = m.encode_cloud(1.0, "map", rng.normal(size=(n, 3)), rng.uniform(0, 1, n))
+        out[f"decode_cloud_{n}_us"] = _median_us(lambda c=cloud, k=n: m.decode_cloud(c, "/c", max_points=k),
+                                                 5 if quick else 15)
+    return out
+
+
+def latency_results(quick: bool) -> dict[str, float]:
+    from pivotd.bus import messages as m
+    from pivotd.bus.pivot_bus import BusTopics, PivotBus
+    from pivotd.bus.ros import RosNode
+    from pivotd.bus.session import open_session
+
+    count = 200 if quick else 2000
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    a = open_session(listen=[endpoint])
+    b = open_session(connect=[endpoint])
+    arrivals: queue.Queue = queue.Queue()
+    bus = PivotBus(a, BusTopics(), on_pose=lambda s: arrivals.put(time.perf_counter()))
+    node = RosNode(b, "bench")
+    out: dict[str, float] = {}
+    try:
+        odom = node.publisher("/odom", m.ODOMETRY)
+        _wait(odom.matched)
+        payload = m.encode_odometry(1.0, "map", "base_link", [1, 2, 3], [0, 0, 0, 1])
+        out.update(_latencies("pose_to_callback", count, lambda: odom.put(payload), arrivals))
+        joint_rx: queue.Queue = queue.Queue()
+        sub = b.declare_subscriber("0/pivot/joint_states/*/*", lambda s: joint_rx.put(time.perf_counter()))
+        _wait(bus._joint_pub.matched)
+        out.update(_latencies("joint_state_to_subscriber", count,
+                              lambda: bus.publish_joint_state(1.0, 0.1, 0.2, 0.0, 0.0), joint_rx))
+        sub.undeclare()
+    finally:
+        bus.close()
+        node.close()
+        b.close()
+        a.close()
+    return out
+
+
+def _wait(pred: Callable[[], bool], timeout: float = 10.0) -> None:
+    end = time.monotonic() + timeout
+    while not pred():
+        if time.monotonic() > end:
+            raise RuntimeError("bench sessions did not match on loopback")
+        time.sleep(0.01)
+
+
+def _latencies(name: str, count: int, send: Callable[[], None], arrivals: queue.Queue) -> dict[str, float]:
+    lat = []
+    for _ in range(count):
+        t = time.perf_counter()
+        send()
+        lat.append(arrivals.get(timeout=5.0) - t)
+        time.sleep(0.001)
+    us = np.array(lat) * 1e6
+    return {f"{name}_median_us": float(np.median(us)), f"{name}_p99_us": float(np.percentile(us, 99))}
+
+
+def run(args: argparse.Namespace) -> int:
+    results = {"quick": bool(args.quick), **codec_results(args.quick), **latency_results(args.quick)}
+    for key, value in results.items():
+        if key != "quick":
+            log.info("%-40s %12.1f", key, value)
+    print(json.dumps(results, indent=1))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(results, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    import sys
+
+    from pivotd.bench import pin_single_thread
+
+    pin_single_thread()
+    logging.basicConfig(level=logging.WARNING)
+    p = argparse.ArgumentParser(prog="python -m pivotd.bench.bus", description=__doc__.splitlines()[0])
+    configure(p)
+    sys.exit(run(p.parse_args()))

@@ -1,0 +1,354 @@
+"""Typed decode/encode of pivotd's ROS 2 messages (CDR through ``rosbags``), with validation.
+
+Decoders turn a CDR payload into a small frozen dataclass or raise :class:`MessageError`, whose
+``reason`` is a short token used for per-topic drop counters: ``malformed`` (not CDR of the type),
+``wrong_type``, ``nonfinite`` (NaN/inf pose or path), ``zero_quaternion``, ``wrong_frame``,
+``oversized`` (cloud above the point limit), ``bad_fields`` (cloud without float x/y/z), ``empty``
+(path without poses).
+
+Frames: ``frame_id`` is compared with the expected frame ignoring a leading ``/``. An empty
+``frame_id`` is accepted as the expected frame unless ``accept_empty_frame`` is False. ``None`` as the
+expected frame accepts any frame.
+
+Encoders return CDR bytes (little-endian, 4-byte encapsulation header) ready for
+:meth:`pivotd.bus.ros.RosPublisher.put`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from pivotd.bus.ros import typestore
+from pivotd.errors import PivotdError
+from pivotd.geometry import matrix_to_quat, optical_frame_from_direction
+
+ODOMETRY = "nav_msgs/msg/Odometry"
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+PATH = "nav_msgs/msg/Path"
+POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"
+JOINT_STATE = "sensor_msgs/msg/JointState"
+POSE_TYPES = (ODOMETRY, POSE_STAMPED)
+
+_FLOAT32, _FLOAT64 = 7, 8  # sensor_msgs/PointField datatypes
+_FIELD_DTYPES = {_FLOAT32: "f4", _FLOAT64: "f8"}
+
+
+class MessageError(PivotdError):
+    """A dropped message: one-line reason naming the topic; ``reason`` is the counter token."""
+
+    def __init__(self, topic: str, reason: str, detail: str) -> None:
+        super().__init__(f"{topic}: {detail}")
+        self.topic = topic
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class PoseSample:
+    """Body pose in the map frame. stamp [s] (header time); position (3,) [m]; quat (4,) unit (x, y, z, w);
+    rx_time: ``time.monotonic()`` at reception [s]."""
+
+    stamp: float
+    frame_id: str
+    position: np.ndarray
+    quat: np.ndarray
+    rx_time: float
+
+
+@dataclass(frozen=True)
+class PathMsg:
+    """Translation path. stamp [s]; positions (N, 3) [m]; quats (N, 4) unit (x, y, z, w), identity where
+    the sender left a zero quaternion (planners often do)."""
+
+    stamp: float
+    frame_id: str
+    positions: np.ndarray
+    quats: np.ndarray
+
+
+@dataclass(frozen=True)
+class CloudMsg:
+    """Landmarks or targets. stamp [s]; points (N, 3) float64 [m] (non-finite points dropped);
+    weights (N,) float64 or None when the cloud has no ``weight`` field."""
+
+    stamp: float
+    frame_id: str
+    points: np.ndarray
+    weights: np.ndarray | None
+
+
+# --------------------------------------------------------------------------------------------- conversions
+
+
+def stamp_to_seconds(stamp: object) -> float:
+    """builtin_interfaces/Time -> seconds."""
+    return float(stamp.sec) + 1e-9 * float(stamp.nanosec)  # type: ignore[attr-defined]
+
+
+def seconds_to_stamp(t: float) -> object:
+    """Seconds -> builtin_interfaces/Time (floor to whole nanoseconds; negative times clamp to 0)."""
+    ns = max(0, round(float(t) * 1e9))
+    return _t("builtin_interfaces/msg/Time")(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def _t(name: str) -> type:
+    return typestore().types[name]
+
+
+def deserialize(payload: bytes | memoryview, msgtype: str, topic: str) -> object:
+    """CDR payload -> rosbags message object; :class:`MessageError` ``malformed`` on any failure."""
+    data = bytes(payload)
+    if len(data) < 4 or data[0] != 0 or data[1] not in (0, 1):
+        raise MessageError(topic, "malformed", f"not a CDR {msgtype} payload ({len(data)} bytes, bad header)")
+    try:
+        return typestore().deserialize_cdr(data, msgtype)
+    except Exception as exc:  # rosbags raises SerdeError, but garbage may surface as other errors
+        raise MessageError(topic, "malformed", f"cannot decode {msgtype}: {' '.join(str(exc).split())}") from exc
+
+
+def serialize(message: object, msgtype: str) -> bytes:
+    """rosbags message object -> CDR little-endian bytes with the encapsulation header."""
+    return bytes(typestore().serialize_cdr(message, msgtype))
+
+
+def _norm_frame(frame: str) -> str:
+    return frame.strip().lstrip("/")
+
+
+def check_frame(frame_id: str, expected: str | None, topic: str, accept_empty: bool = True) -> str:
+    """Validated frame id (the expected one when empty and accepted); raises ``wrong_frame``."""
+    if expected is None:
+        return frame_id
+    if not frame_id.strip():
+        if accept_empty:
+            return expected
+        raise MessageError(topic, "wrong_frame", f"empty frame_id, expected {expected!r}")
+    if _norm_frame(frame_id) != _norm_frame(expected):
+        raise MessageError(topic, "wrong_frame", f"frame_id {frame_id!r}, expected {expected!r}")
+    return frame_id
+
+
+def _pose_arrays(pose: object, topic: str, what: str) -> tuple[np.ndarray, np.ndarray]:
+    p, q = pose.position, pose.orientation  # type: ignore[attr-defined]
+    position = np.array([p.x, p.y, p.z], dtype=float)
+    quat = np.array([q.x, q.y, q.z, q.w], dtype=float)
+    if not (np.all(np.isfinite(position)) and np.all(np.isfinite(quat))):
+        raise MessageError(topic, "nonfinite", f"{what} has a NaN or infinite value")
+    n = float(np.linalg.norm(quat))
+    if n < 1e-6:
+        raise MessageError(topic, "zero_quaternion", f"{what} has a zero quaternion")
+    return position, quat / n
+
+
+# --------------------------------------------------------------------------------------------- decoders
+
+
+def decode_pose(payload: bytes, msgtype: str, topic: str, expected_frame: str | None = "map",
+                accept_empty_frame: bool = True, rx_time: float | None = None) -> PoseSample:
+    """Decode an ``nav_msgs/msg/Odometry`` or ``geometry_msgs/msg/PoseStamped`` payload."""
+    rx = time.monotonic() if rx_time is None else rx_time
+    if msgtype not in POSE_TYPES:
+        raise MessageError(topic, "wrong_type", f"unsupported pose type {msgtype}")
+    msg = deserialize(payload, msgtype, topic)
+    pose = msg.pose.pose if msgtype == ODOMETRY else msg.pose  # type: ignore[attr-defined]
+    frame = check_frame(msg.header.frame_id, expected_frame, topic, accept_empty_frame)  # type: ignore[attr-defined]
+    position, quat = _pose_arrays(pose, topic, "pose")
+    stamp = stamp_to_seconds(msg.header.stamp)  # type: ignore[attr-defined]
+    return PoseSample(stamp=stamp, frame_id=frame, position=position, quat=quat, rx_time=rx)
+
+
+def decode_path(payload: bytes, topic: str, expected_frame: str | None = "map",
+                accept_empty_frame: bool = True) -> PathMsg:
+    """Decode a ``nav_msgs/msg/Path`` payload (at least one pose, finite positions)."""
+    msg = deserialize(payload, PATH, topic)
+    frame = check_frame(msg.header.frame_id, expected_frame, topic, accept_empty_frame)  # type: ignore[attr-defined]
+    poses = msg.poses  # type: ignore[attr-defined]
+    if not poses:
+        raise MessageError(topic, "empty", "path has no poses")
+    positions = np.array([[ps.pose.position.x, ps.pose.position.y, ps.pose.position.z] for ps in poses], float)
+    quats = np.array([[ps.pose.orientation.x, ps.pose.orientation.y, ps.pose.orientation.z,
+                       ps.pose.orientation.w] for ps in poses], float)
+    if not np.all(np.isfinite(positions)):
+        bad = int(np.argmax(~np.all(np.isfinite(positions), axis=1)))
+        raise MessageError(topic, "nonfinite", f"path pose {bad} has a NaN or infinite position")
+    norms = np.linalg.norm(quats, axis=1)
+    unusable = ~np.isfinite(norms) | (norms < 1e-6)
+    quats = np.where(unusable[:, None], np.array([0.0, 0.0, 0.0, 1.0]), quats / np.where(unusable, 1.0, norms)[:, None])
+    return PathMsg(stamp=stamp_to_seconds(msg.header.stamp), frame_id=frame,  # type: ignore[attr-defined]
+                   positions=positions, quats=quats)
+
+
+def decode_cloud(payload: bytes, topic: str, expected_frame: str | None = "map", max_points: int = 2_000_000,
+                 accept_empty_frame: bool = True) -> CloudMsg:
+    """Decode a ``sensor_msgs/msg/PointCloud2`` with float x, y, z and an optional float ``weight``.
+
+    Honours ``point_step``, ``row_step``, ``is_bigendian`` and padding; drops points (and weights)
+    with a non-finite coordinate or a non-finite or negative weight.
+    """
+    # Cheap guard before decoding: even generously padded points (256 bytes) cannot need more than this.
+    if len(payload) > 64 * 1024 + 256 * max_points:
+        raise MessageError(topic, "oversized", f"cloud payload of {len(payload)} bytes exceeds the "
+                                               f"{max_points}-point limit")
+    msg = deserialize(payload, POINT_CLOUD2, topic)
+    frame = check_frame(msg.header.frame_id, expected_frame, topic, accept_empty_frame)  # type: ignore[attr-defined]
+    points, weights = cloud_arrays(msg, topic, max_points)
+    return CloudMsg(stamp=stamp_to_seconds(msg.header.stamp), frame_id=frame,  # type: ignore[attr-defined]
+                    points=points, weights=weights)
+
+
+def cloud_arrays(msg: object, topic: str, max_points: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """(points (N, 3) float64, weights (N,) | None) of a decoded PointCloud2, finite points only."""
+    height, width = int(msg.height), int(msg.width)  # type: ignore[attr-defined]
+    n = height * width
+    if n > max_points:
+        raise MessageError(topic, "oversized", f"cloud has {n} points, limit is {max_points}")
+    step, row_step = int(msg.point_step), int(msg.row_step)  # type: ignore[attr-defined]
+    fields = {f.name: f for f in msg.fields}  # type: ignore[attr-defined]
+    order = ">" if msg.is_bigendian else "<"  # type: ignore[attr-defined]
+    layout = {}
+    for name in ("x", "y", "z", "weight"):
+        f = fields.get(name)
+        if f is None:
+            if name != "weight":
+                raise MessageError(topic, "bad_fields", f"cloud has no {name!r} field")
+            continue
+        if f.datatype not in _FIELD_DTYPES or f.count < 1:
+            raise MessageError(topic, "bad_fields", f"cloud field {name!r} is not float32/float64 "
+                                                    f"(datatype {f.datatype}, count {f.count})")
+        size = 4 if f.datatype == _FLOAT32 else 8
+        if f.offset + size > step:
+            raise MessageError(topic, "malformed", f"cloud field {name!r} at offset {f.offset} exceeds "
+                                                   f"point_step {step}")
+        layout[name] = (int(f.offset), order + _FIELD_DTYPES[f.datatype], size)
+    data = np.asarray(msg.data, dtype=np.uint8).reshape(-1)  # type: ignore[attr-defined]
+    if n and (row_step < width * step or data.size < row_step * height):
+        raise MessageError(topic, "malformed", f"cloud data of {data.size} bytes does not hold {height}x{width} "
+                                               f"points (point_step {step}, row_step {row_step})")
+    if n == 0:
+        return np.zeros((0, 3)), (np.zeros(0) if "weight" in layout else None)
+    rows = data[: row_step * height].reshape(height, row_step)[:, : width * step].reshape(n, step)
+
+    def column(name: str) -> np.ndarray:
+        off, dt, size = layout[name]
+        return np.ascontiguousarray(rows[:, off:off + size]).view(dt).reshape(n).astype(np.float64)
+
+    points = np.column_stack([column("x"), column("y"), column("z")])
+    keep = np.all(np.isfinite(points), axis=1)
+    weights = None
+    if "weight" in layout:
+        weights = column("weight")
+        keep &= np.isfinite(weights) & (weights >= 0)
+        weights = weights[keep]
+    return points[keep], weights
+
+
+# --------------------------------------------------------------------------------------------- encoders
+
+
+def _header(stamp: float, frame_id: str) -> object:
+    return _t("std_msgs/msg/Header")(stamp=seconds_to_stamp(stamp), frame_id=frame_id)
+
+
+def _pose(position: np.ndarray, quat: np.ndarray) -> object:
+    p = [float(v) for v in position]
+    q = [float(v) for v in quat]
+    return _t("geometry_msgs/msg/Pose")(
+        position=_t("geometry_msgs/msg/Point")(x=p[0], y=p[1], z=p[2]),
+        orientation=_t("geometry_msgs/msg/Quaternion")(x=q[0], y=q[1], z=q[2], w=q[3]),
+    )
+
+
+def encode_joint_state(stamp: float, names: list[str], positions: list[float], velocities: list[float],
+                       frame_id: str = "") -> bytes:
+    """sensor_msgs/msg/JointState CDR: positions [rad], velocities [rad/s], no efforts."""
+    msg = _t(JOINT_STATE)(header=_header(stamp, frame_id), name=list(names),
+                          position=np.asarray(positions, dtype=np.float64),
+                          velocity=np.asarray(velocities, dtype=np.float64), effort=np.zeros(0))
+    return serialize(msg, JOINT_STATE)
+
+
+def encode_pose_stamped(stamp: float, frame_id: str, position: np.ndarray, quat: np.ndarray) -> bytes:
+    """geometry_msgs/msg/PoseStamped CDR; quat (x, y, z, w)."""
+    return serialize(_t(POSE_STAMPED)(header=_header(stamp, frame_id), pose=_pose(position, quat)), POSE_STAMPED)
+
+
+def encode_odometry(stamp: float, frame_id: str, child_frame_id: str, position: np.ndarray, quat: np.ndarray,
+                    linear_velocity: np.ndarray | None = None, angular_velocity: np.ndarray | None = None) -> bytes:
+    """nav_msgs/msg/Odometry CDR; velocities (3,) in the child (body) frame [m/s, rad/s], zero covariances."""
+    lin = [0.0, 0.0, 0.0] if linear_velocity is None else [float(v) for v in linear_velocity]
+    ang = [0.0, 0.0, 0.0] if angular_velocity is None else [float(v) for v in angular_velocity]
+    vec = _t("geometry_msgs/msg/Vector3")
+    msg = _t(ODOMETRY)(
+        header=_header(stamp, frame_id),
+        child_frame_id=child_frame_id,
+        pose=_t("geometry_msgs/msg/PoseWithCovariance")(pose=_pose(position, quat), covariance=np.zeros(36)),
+        twist=_t("geometry_msgs/msg/TwistWithCovariance")(
+            twist=_t("geometry_msgs/msg/Twist")(linear=vec(x=lin[0], y=lin[1], z=lin[2]),
+                                                angular=vec(x=ang[0], y=ang[1], z=ang[2])),
+            covariance=np.zeros(36)),
+    )
+    return serialize(msg, ODOMETRY)
+
+
+def encode_path(stamp: float, frame_id: str, positions: np.ndarray, quats: np.ndarray | None = None,
+                stamps: np.ndarray | None = None) -> bytes:
+    """nav_msgs/msg/Path CDR from positions (N, 3) [m], quats (N, 4) (x, y, z, w) (identity when None) and
+    per-pose stamps (N,) [s] (``stamp`` when None)."""
+    positions = np.asarray(positions, dtype=float).reshape(-1, 3)
+    n = positions.shape[0]
+    quats = np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)) if quats is None else np.asarray(quats, float).reshape(n, 4)
+    ps = _t(POSE_STAMPED)
+    poses = [ps(header=_header(stamp if stamps is None else float(stamps[i]), frame_id),
+                pose=_pose(positions[i], quats[i])) for i in range(n)]
+    return serialize(_t(PATH)(header=_header(stamp, frame_id), poses=poses), PATH)
+
+
+def view_plan_quats(directions: np.ndarray) -> np.ndarray:
+    """Camera orientations (N, 4) (x, y, z, w) whose +z axis is each view direction (N, 3)."""
+    return matrix_to_quat(optical_frame_from_direction(np.asarray(directions, dtype=float).reshape(-1, 3)))
+
+
+def encode_view_plan(stamp: float, frame_id: str, positions: np.ndarray, directions: np.ndarray) -> bytes:
+    """nav_msgs/msg/Path of camera poses: positions (N, 3) [m], orientation +z along directions (N, 3)."""
+    positions = np.asarray(positions, dtype=float).reshape(-1, 3)
+    directions = np.asarray(directions, dtype=float).reshape(-1, 3)
+    if positions.shape != directions.shape:
+        raise ValueError(f"view plan needs as many directions as positions: {positions.shape} vs {directions.shape}")
+    return encode_path(stamp, frame_id, positions, view_plan_quats(directions))
+
+
+def encode_cloud(stamp: float, frame_id: str, points: np.ndarray, weights: np.ndarray | None = None,
+                 big_endian: bool = False, point_step: int | None = None, height: int = 1,
+                 row_padding: int = 0) -> bytes:
+    """sensor_msgs/msg/PointCloud2 CDR with float32 x, y, z (+ ``weight``) fields.
+
+    ``point_step`` may exceed the packed size (padding bytes), ``height`` > 1 makes an organized
+    cloud (N must divide), ``row_padding`` adds bytes at each row end (``row_step`` > width·step).
+    """
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    n = points.shape[0]
+    names = ["x", "y", "z"] + (["weight"] if weights is not None else [])
+    packed = 4 * len(names)
+    step = packed if point_step is None else int(point_step)
+    if step < packed:
+        raise ValueError(f"point_step {step} is smaller than {packed}")
+    if height < 1 or (n and n % height):
+        raise ValueError(f"{n} points do not form {height} rows")
+    width = n // height if n else 0
+    order = ">" if big_endian else "<"
+    cols = [points[:, 0], points[:, 1], points[:, 2]] + ([np.asarray(weights, float)] if weights is not None else [])
+    buf = np.zeros((n, step), dtype=np.uint8)
+    for i, col in enumerate(cols):
+        buf[:, 4 * i:4 * i + 4] = np.asarray(col, dtype=order + "f4").reshape(n, 1).view(np.uint8)
+    row_step = width * step + row_padding
+    rows = np.zeros((height if n else 0, row_step), dtype=np.uint8)
+    if n:
+        rows[:, : width * step] = buf.reshape(height, width * step)
+    pf = _t("sensor_msgs/msg/PointField")
+    fields = [pf(name=name, offset=4 * i, datatype=_FLOAT32, count=1) for i, name in enumerate(names)]
+    msg = _t(POINT_CLOUD2)(header=_header(stamp, frame_id), height=height if n else 1, width=width, fields=fields,
+                           is_bigendian=big_endian, point_step=step, row_step=row_step, data=rows.reshape(-1),
+                           is_dense=bool(np.all(np.isfinite(points))))
+    return serialize(msg, POINT_CLOUD2)

@@ -1,0 +1,284 @@
+"""The daemon-facing bus facade: ROS 2 topics in and out over Zenoh, plus the JSON status key.
+
+:class:`PivotBus` declares one rmw_zenoh node with subscriptions for the pose, path, landmarks and
+targets, publishers for joint states and the view plan, and a plain Zenoh publisher + queryable for
+status. Subscription callbacks run on Zenoh's threads: they decode, validate and hand the typed
+message to the daemon's callback; anything wrong is dropped, counted and logged (rate limited).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from pivotd.bus import messages as m
+from pivotd.bus.ratelimit import RateLimitedLog
+from pivotd.bus.ros import QoS, RosNode, msgtype_of_key, normalize_topic
+from pivotd.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+CLOUD_LAYERS = ("landmarks", "targets")
+
+
+@dataclass(frozen=True)
+class BusTopics:
+    """Topic names, types and validation settings of the bus (all configurable).
+
+    ``accept_empty_frame``: messages with an empty ``frame_id`` are taken as being in ``frame_id``.
+    ``frame_id`` None accepts any frame. ``namespace`` is the ROS namespace of pivotd's node.
+    ``humble``: publish with rmw_zenoh's Humble key form (no type hash) instead of RIHS01 hashes.
+    """
+
+    domain_id: int = 0
+    pose: str = "/odom"
+    pose_type: str = m.ODOMETRY
+    path: str = "/plan"
+    landmarks: str = "/pivot/landmarks"
+    targets: str = "/pivot/targets"
+    joint_states: str = "/pivot/joint_states"
+    view_plan: str = "/pivot/view_plan"
+    status_key: str = "pivot/pivotd/status"
+    frame_id: str | None = "map"
+    max_cloud_points: int = 2_000_000
+    accept_empty_frame: bool = True
+    namespace: str = "/"
+    humble: bool = False
+
+    @classmethod
+    def from_mapping(cls, values: dict[str, Any], where: str = "bus") -> BusTopics:
+        """Build from a config mapping; unknown keys or wrong value types raise ConfigError naming ``where.key``."""
+        if not isinstance(values, dict):
+            raise ConfigError(f"{where}: expected a mapping, got {type(values).__name__}")
+        fields = cls.__dataclass_fields__
+        kwargs: dict[str, Any] = {}
+        for key, value in values.items():
+            if key not in fields:
+                raise ConfigError(f"{where}.{key}: unknown key (known: {', '.join(sorted(fields))})")
+            default = fields[key].default
+            if key == "frame_id" and value is None:
+                kwargs[key] = None
+                continue
+            expected = type(default)
+            if (expected is int and isinstance(value, bool)) or not isinstance(value, expected):
+                raise ConfigError(f"{where}.{key}: expected {expected.__name__}, got {value!r}")
+            kwargs[key] = value
+        try:
+            return cls(**kwargs)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from exc
+
+    def __post_init__(self) -> None:
+        if self.pose_type not in m.POSE_TYPES:
+            raise ConfigError(f"pose_type {self.pose_type!r} must be one of {', '.join(m.POSE_TYPES)}")
+        if self.max_cloud_points < 1:
+            raise ConfigError(f"max_cloud_points must be >= 1, got {self.max_cloud_points}")
+        if not isinstance(self.domain_id, int) or not 0 <= self.domain_id <= 232:
+            raise ConfigError(f"domain_id must be an integer in 0..232, got {self.domain_id!r}")
+        for name in ("pose", "path", "landmarks", "targets", "joint_states", "view_plan"):
+            normalize_topic(getattr(self, name))
+        key = self.status_key
+        if not key or key.startswith("/") or key.endswith("/") or any(c in key for c in "*$?# "):
+            raise ConfigError(f"status_key {key!r} is not a plain Zenoh key such as pivot/pivotd/status")
+
+
+@dataclass
+class _TopicCounters:
+    counts: dict[str, int] = field(default_factory=lambda: {"received": 0, "accepted": 0})
+
+
+class PivotBus:
+    """pivotd's presence on the bus. Construct with an open session; call :meth:`close` when done.
+
+    Callbacks: ``on_pose(PoseSample)``, ``on_path(PathMsg)``, ``on_cloud(layer, CloudMsg)`` with layer
+    ``"landmarks"`` or ``"targets"``. They run on Zenoh threads and must be short. ``on_raw(topic, msgtype,
+    cdr)`` (e.g. for an MCAP recorder) sees every accepted input and every published ROS message; on the
+    publishing side it runs on the caller's thread.
+    """
+
+    def __init__(self, session: zenoh.Session, topics: BusTopics, node_name: str = "pivotd",
+                 on_pose: Callable[[m.PoseSample], None] | None = None,
+                 on_path: Callable[[m.PathMsg], None] | None = None,
+                 on_cloud: Callable[[str, m.CloudMsg], None] | None = None,
+                 on_raw: Callable[[str, str, bytes], None] | None = None) -> None:
+        self.topics = topics
+        self.session = session
+        self._on_pose, self._on_path, self._on_cloud, self._on_raw = on_pose, on_path, on_cloud, on_raw
+        self._lock = threading.Lock()
+        self._counters: dict[str, dict[str, int]] = {}
+        self._ratelog = RateLimitedLog(log)
+        self._status_json = b""
+        self._closed = False
+        self.node = RosNode(session, node_name, topics.domain_id, topics.namespace, humble=topics.humble)
+        self._entities: list[Any] = []
+        try:
+            sub_qos = QoS(depth=10)
+            self._entities.append(self.node.subscriber(topics.pose, topics.pose_type, self._handler(
+                topics.pose, topics.pose_type, self._take_pose), sub_qos, any_type=True))
+            self._entities.append(self.node.subscriber(topics.path, m.PATH, self._handler(
+                topics.path, m.PATH, self._take_path), sub_qos, any_type=True))
+            for layer in CLOUD_LAYERS:
+                topic = getattr(topics, layer)
+                self._entities.append(self.node.subscriber(topic, m.POINT_CLOUD2, self._handler(
+                    topic, m.POINT_CLOUD2, self._cloud_taker(layer)), QoS(depth=2), any_type=True))
+            self._joint_pub = self.node.publisher(topics.joint_states, m.JOINT_STATE, QoS(depth=10))
+            self._plan_pub = self.node.publisher(topics.view_plan, m.PATH, QoS(depth=1))
+            self._entities += [self._joint_pub, self._plan_pub]
+            self._status_pub = session.declare_publisher(topics.status_key)
+            self._status_queryable = session.declare_queryable(topics.status_key, self._answer_status, complete=True)
+        except Exception:
+            self.close()
+            raise
+        for topic in (topics.pose, topics.path, topics.landmarks, topics.targets):
+            self._counters.setdefault(normalize_topic(topic), {"received": 0, "accepted": 0})
+
+    # ------------------------------------------------------------------ inputs
+
+    def _handler(self, topic: str, msgtype: str,
+                 take: Callable[[bytes, float], None]) -> Callable[[zenoh.Sample], None]:
+        name = normalize_topic(topic)
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            rx = time.monotonic()
+            self._count(name, "received")
+            try:
+                got = msgtype_of_key(str(sample.key_expr))
+                if got != msgtype:
+                    raise m.MessageError(name, "wrong_type", f"message of type {got or '?'} on a {msgtype} topic")
+                payload = sample.payload.to_bytes()
+                take(payload, rx)
+                if self._on_raw is not None:
+                    self._on_raw(name, msgtype, payload)
+            except m.MessageError as exc:
+                self._count(name, f"dropped_{exc.reason}")
+                self._ratelog.warning(f"{name}:{exc.reason}", f"dropped message: {exc}")
+                return
+            except Exception as exc:  # a failing daemon callback must not kill Zenoh's thread
+                self._count(name, "dropped_callback_error")
+                self._ratelog.warning(f"{name}:callback", f"{name}: handler failed: {exc!r}")
+                log.debug("handler failure", exc_info=True)
+                return
+            self._count(name, "accepted")
+
+        return on_sample
+
+    def _take_pose(self, payload: bytes, rx: float) -> None:
+        t = self.topics
+        sample = m.decode_pose(payload, t.pose_type, normalize_topic(t.pose), t.frame_id, t.accept_empty_frame, rx)
+        if self._on_pose is not None:
+            self._on_pose(sample)
+
+    def _take_path(self, payload: bytes, rx: float) -> None:
+        t = self.topics
+        path = m.decode_path(payload, normalize_topic(t.path), t.frame_id, t.accept_empty_frame)
+        if self._on_path is not None:
+            self._on_path(path)
+
+    def _cloud_taker(self, layer: str) -> Callable[[bytes, float], None]:
+        def take(payload: bytes, rx: float) -> None:
+            t = self.topics
+            cloud = m.decode_cloud(payload, normalize_topic(getattr(t, layer)), t.frame_id, t.max_cloud_points,
+                                   t.accept_empty_frame)
+            if self._on_cloud is not None:
+                self._on_cloud(layer, cloud)
+
+        return take
+
+    def _count(self, topic: str, what: str) -> None:
+        with self._lock:
+            c = self._counters.setdefault(topic, {"received": 0, "accepted": 0})
+            c[what] = c.get(what, 0) + 1
+
+    def counters(self) -> dict[str, dict[str, int]]:
+        """Per input topic: ``received``, ``accepted`` and ``dropped_<reason>`` counts (a copy)."""
+        with self._lock:
+            return {topic: dict(c) for topic, c in self._counters.items()}
+
+    # ------------------------------------------------------------------ outputs
+
+    def publish_joint_state(self, stamp: float, pan: float, tilt: float, pan_rate: float, tilt_rate: float) -> None:
+        """Publish the measured gimbal state: angles [rad], rates [rad/s], stamp [s since the epoch]."""
+        self._put(self._joint_pub, m.encode_joint_state(stamp, ["pan", "tilt"], [pan, tilt], [pan_rate, tilt_rate]))
+
+    def publish_view_plan(self, stamp: float, positions: np.ndarray, directions: np.ndarray) -> None:
+        """Publish the view plan: camera positions (N, 3) [m] and unit view directions (N, 3) in the map frame."""
+        frame = self.topics.frame_id or "map"
+        self._put(self._plan_pub, m.encode_view_plan(stamp, frame, positions, directions))
+
+    def _put(self, pub: Any, payload: bytes) -> None:
+        # Publishing races with close() at shutdown; a closed bus or session drops the message quietly.
+        if self._closed:
+            return
+        try:
+            pub.put(payload)
+            if self._on_raw is not None:
+                self._on_raw(pub.topic, pub.msgtype, payload)
+        except zenoh.ZError as exc:
+            self._ratelog.warning(f"put:{pub.topic}", f"{pub.topic}: publish failed: {exc}")
+
+    def publish_status(self, status: dict) -> None:
+        """Publish ``status`` as JSON on the status key and keep it as the queryable's answer.
+
+        The bus adds its counters under ``"bus"`` unless the dict already has that key. numpy values become
+        numbers/lists, other non-JSON values their ``str()``.
+        """
+        doc = dict(status)
+        doc.setdefault("bus", self.counters())
+        payload = json.dumps(doc, default=_json_default, separators=(",", ":")).encode()
+        with self._lock:
+            self._status_json = payload
+        if self._closed:
+            return
+        try:
+            self._status_pub.put(payload, encoding=zenoh.Encoding.APPLICATION_JSON)
+        except zenoh.ZError as exc:
+            self._ratelog.warning("put:status", f"{self.topics.status_key}: publish failed: {exc}")
+
+    def _answer_status(self, query: zenoh.Query) -> None:
+        with self._lock:
+            payload = self._status_json
+        if not payload:
+            payload = json.dumps({"state": "starting", "bus": self.counters()}).encode()
+        try:
+            query.reply(self.topics.status_key, payload, encoding=zenoh.Encoding.APPLICATION_JSON)
+        except zenoh.ZError as exc:
+            self._ratelog.warning("status-query", f"status query reply failed: {exc}")
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def close(self) -> None:
+        """Undeclare every publisher, subscriber, queryable and liveliness token (the session stays open)."""
+        if self._closed:
+            return
+        self._closed = True
+        for entity in reversed(self._entities):
+            entity.close()
+        for attr in ("_status_queryable", "_status_pub"):
+            obj = getattr(self, attr, None)
+            if obj is not None:
+                with contextlib.suppress(zenoh.ZError):
+                    obj.undeclare()
+        self.node.close()
+
+    def __enter__(self) -> PivotBus:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _json_default(obj: object) -> Any:
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return str(obj)  # enums, paths, ...: readable rather than fatal

@@ -1,0 +1,93 @@
+"""Opening a Zenoh session from pivotd's settings (mode, endpoints, optional config file, scouting)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+from collections.abc import Iterable
+from pathlib import Path
+
+import zenoh
+
+from pivotd.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+MODES = ("peer", "client")
+# Like rmw_zenoh's default session config: peers accept direct connections from this host only; other
+# hosts are reached through the router (``connect``) or explicit ``listen`` endpoints.
+DEFAULT_PEER_LISTEN = "tcp/127.0.0.1:0"
+# <protocol>/<address>[#<config>], e.g. tcp/127.0.0.1:7447, tls/robot.local:7447, udp/[::1]:7447
+_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream|unixpipe|serial|vsock)/[^\s/]\S*$")
+
+
+def validate_endpoint(endpoint: str, what: str = "endpoint") -> str:
+    """Return ``endpoint`` stripped; raise :class:`ConfigError` naming it when it is not ``proto/address``."""
+    ep = str(endpoint).strip()
+    if not _ENDPOINT.match(ep):
+        raise ConfigError(f"invalid Zenoh {what} {endpoint!r} (expected e.g. tcp/127.0.0.1:7447)")
+    proto, _, addr = ep.partition("/")
+    if proto in ("tcp", "udp", "tls", "quic", "ws"):
+        host, sep, port = addr.split("#", 1)[0].rpartition(":")
+        if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+            raise ConfigError(f"invalid Zenoh {what} {endpoint!r}: needs host:port with a port 0-65535")
+    return ep
+
+
+def build_config(mode: str = "peer", connect: Iterable[str] = (), listen: Iterable[str] = (),
+                 config_file: str | Path | None = None, multicast_scouting: bool = False) -> zenoh.Config:
+    """A :class:`zenoh.Config` from a base file (TLS, auth, …) overlaid with the given settings.
+
+    Without a file and without ``listen`` endpoints, a peer listens on :data:`DEFAULT_PEER_LISTEN`.
+    """
+    if mode not in MODES:
+        raise ConfigError(f"invalid Zenoh mode {mode!r} (expected one of {', '.join(MODES)})")
+    connect = [validate_endpoint(e, "connect endpoint") for e in connect]
+    listen = [validate_endpoint(e, "listen endpoint") for e in listen]
+    if config_file is not None:
+        path = Path(config_file)
+        if not path.is_file():
+            raise ConfigError(f"{path}: Zenoh config file not found")
+        try:
+            config = zenoh.Config.from_file(str(path))
+        except zenoh.ZError as exc:
+            raise ConfigError(f"{path}: invalid Zenoh config: {_one_line(exc)}") from exc
+    else:
+        config = zenoh.Config()
+    try:
+        config.insert_json5("mode", json.dumps(mode))
+        if connect:
+            config.insert_json5("connect/endpoints", json.dumps(connect))
+        if listen:
+            config.insert_json5("listen/endpoints", json.dumps(listen))
+        elif config_file is None and mode == "peer":
+            config.insert_json5("listen/endpoints", json.dumps([DEFAULT_PEER_LISTEN]))
+        config.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast_scouting)))
+    except zenoh.ZError as exc:
+        raise ConfigError(f"invalid Zenoh setting: {_one_line(exc)}") from exc
+    return config
+
+
+def open_session(mode: str = "peer", connect: Iterable[str] = (), listen: Iterable[str] = (),
+                 config_file: str | Path | None = None, multicast_scouting: bool = False) -> zenoh.Session:
+    """Open a Zenoh session; raises :class:`ConfigError` with a one-line reason on bad settings.
+
+    A ``connect`` endpoint that is well-formed but unreachable does not fail in peer mode (Zenoh
+    keeps retrying); in client mode Zenoh fails when no router answers, reported as ConfigError.
+    """
+    config = build_config(mode, connect, listen, config_file, multicast_scouting)
+    try:
+        session = zenoh.open(config)
+    except zenoh.ZError as exc:
+        where = ", ".join([*(f"listen {e}" for e in listen), *(f"connect {e}" for e in connect)]) or mode
+        raise ConfigError(f"cannot open Zenoh session ({where}): {_one_line(exc)}") from exc
+    log.info("zenoh session %s open (%s, connect=%s, listen=%s)", session.info.zid(), mode, list(connect),
+             list(listen))
+    return session
+
+
+def _one_line(exc: BaseException) -> str:
+    """Zenoh's error text on one line, without its Rust source locations."""
+    text = re.sub(r"\s+at \S+\.rs:\d+\.?", "", " ".join(str(exc).split()))
+    return text[:300]

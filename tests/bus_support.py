@@ -1,0 +1,73 @@
+"""Support code for bus tests: free loopback ports, connected Zenoh session pairs, waiting for deliveries."""
+
+from __future__ import annotations
+
+import queue
+import socket
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+import zenoh
+
+from pivotd.bus.session import open_session
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def wait_for(predicate: Callable[[], bool], timeout: float = 10.0, interval: float = 0.02) -> bool:
+    """Poll ``predicate`` until true or ``timeout`` s pass; returns its last value."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(interval)
+    return bool(predicate())
+
+
+def wait_connected(a: zenoh.Session, b: zenoh.Session, timeout: float = 10.0) -> None:
+    """Block until sessions ``a`` and ``b`` see each other as peers."""
+    zb, za = str(b.info.zid()), str(a.info.zid())
+    ok = wait_for(lambda: zb in {str(z) for z in a.info.peers_zid()} and za in {str(z) for z in b.info.peers_zid()},
+                  timeout)
+    if not ok:
+        raise AssertionError("zenoh sessions did not connect on loopback")
+
+
+@contextmanager
+def session_pair() -> Iterator[tuple[zenoh.Session, zenoh.Session, str]]:
+    """Two peer sessions on loopback (scouting off): the first listens on a free port, the second connects.
+
+    Yields (listener, connector, endpoint).
+    """
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    a = open_session(listen=[endpoint])
+    b = None
+    try:
+        b = open_session(connect=[endpoint])
+        wait_connected(a, b)
+        yield a, b, endpoint
+    finally:
+        if b is not None:
+            b.close()
+        a.close()
+
+
+def drain(q: queue.Queue, count: int, timeout: float = 10.0) -> list:
+    """Take ``count`` items from ``q``, waiting up to ``timeout`` s in total; returns what arrived."""
+    out = []
+    end = time.monotonic() + timeout
+    while len(out) < count:
+        left = end - time.monotonic()
+        if left <= 0:
+            break
+        try:
+            out.append(q.get(timeout=left))
+        except queue.Empty:
+            break
+    return out

@@ -1,0 +1,228 @@
+"""tools/sim_pose: route kinematics, option checks, and the real executable publishing over Zenoh."""
+
+import os
+import queue
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from bus_support import drain, free_port, wait_for
+
+from pivotd.bus import messages as m
+from pivotd.bus.pivot_bus import BusTopics, PivotBus
+from pivotd.bus.route import Route, load_route
+from pivotd.bus.session import open_session
+from pivotd.bus.sim_pose import parse_gap
+from pivotd.errors import InputError
+from pivotd.geometry import quat_to_matrix
+from pivotd.paths import load_path
+from pivotd.pivot.scenes import hallway
+
+REPO = Path(__file__).resolve().parent.parent
+TOOL = REPO / "tools" / "sim_pose"
+YCORRIDOR = REPO / "tests" / "data" / "fif" / "ycorridor_6x20.csv"
+
+
+def yaw_of(q):
+    R = quat_to_matrix(q)
+    return np.arctan2(R[..., 1, 0], R[..., 0, 0])
+
+
+def test_route_positions_and_tangent_yaw():
+    r = Route(np.array([[0, 0, 0], [2, 0, 0], [2, 0, 0], [2, 2, 0]], float))
+    assert r.length == pytest.approx(4.0)
+    p = r.at(1.0, speed=0.5)
+    np.testing.assert_allclose(p.position, [1, 0, 0])
+    np.testing.assert_allclose(p.velocity, [0.5, 0, 0])
+    assert yaw_of(r.at(0.0).quat) == pytest.approx(0.0)
+    assert yaw_of(r.at(4.0).quat) == pytest.approx(np.pi / 2)
+    assert yaw_of(r.at(2.0).quat) == pytest.approx(np.pi / 4)  # corner: halfway through the turn
+    np.testing.assert_allclose(r.at(3.0).position, [2, 1, 0])
+    np.testing.assert_allclose(r.at(10.0).position, [2, 2, 0])  # clamped at the end, standing still
+    np.testing.assert_allclose(r.at(10.0, speed=1.0).velocity, 0.0)
+
+
+def test_route_yaw_is_smooth_on_the_hallway():
+    r = Route(hallway().path)
+    s = np.linspace(0, r.length, 2000)
+    yaw = np.unwrap(yaw_of(np.array([r.at(x).quat for x in s])))
+    assert np.max(np.abs(np.diff(yaw))) < np.deg2rad(1.0)
+    assert np.max(yaw) == pytest.approx(np.pi / 2, abs=0.1)  # the S turns left by 90 degrees and back
+
+
+def test_route_uses_csv_quaternions():
+    data = load_route(f"csv:{YCORRIDOR}")
+    r = Route(data.positions, data.quats)
+    np.testing.assert_allclose(r.at(0.0).quat, data.quats[0])
+    np.testing.assert_allclose(r.at(r.arc[5]).quat, data.quats[5], atol=1e-12)
+
+
+def test_bad_route_and_gap_specs():
+    with pytest.raises(InputError, match="unknown route"):
+        load_route("mars")
+    with pytest.raises(InputError, match="no such file"):
+        load_route("csv:/nonexistent.csv")
+    for bad in ("3", "a:b", "-1:2", "1:0"):
+        with pytest.raises(InputError, match="--gap"):
+            parse_gap(bad)
+    g = parse_gap("5:2.5")
+    assert g.covers(5.0) and g.covers(7.4) and not g.covers(7.5) and not g.covers(4.9)
+
+
+def run_tool(*args):
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    return subprocess.Popen([sys.executable, str(TOOL), *args], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def stop_tool(proc):
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def test_bad_option_exits_2_with_one_line():
+    proc = run_tool("--rate", "0", "--quiet")
+    try:
+        _, err = proc.communicate(timeout=60)
+    finally:
+        stop_tool(proc)
+    assert proc.returncode == 2
+    assert err.strip().splitlines() == ["sim_pose: error: --rate must be > 0, got 0.0"]
+
+
+@pytest.fixture
+def listener():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    session = open_session(listen=[endpoint])
+    try:
+        yield session, endpoint
+    finally:
+        session.close()
+
+
+def test_sim_pose_publishes_odometry_and_path_and_honours_gap(listener):
+    session, endpoint = listener
+    events = queue.Queue()
+    bus = PivotBus(session, BusTopics(), on_pose=lambda s: events.put(("pose", s)),
+                   on_path=lambda p: events.put(("path", p)))
+    rate, speed = 20.0, 2.0
+    proc = run_tool("--connect", endpoint, "--rate", str(rate), "--speed", str(speed), "--gap", "1.0:1.0",
+                    "--duration", "60", "--wait-subscribers", "30", "--quiet")
+    try:
+        poses, paths = [], []
+
+        def collect():
+            for kind, msg in drain(events, 200, timeout=0.1):
+                (poses if kind == "pose" else paths).append(msg)
+            return len(poses) >= 50 and poses[-1].stamp - poses[0].stamp > 3.0
+
+        assert wait_for(collect, timeout=60), f"received {len(poses)} poses, {len(paths)} paths"
+        stop_tool(proc)
+        assert proc.returncode == 0
+    finally:
+        stop_tool(proc)
+        bus.close()
+
+    # The path is the hallway route, published at t = 0 (same stamp as the first pose).
+    np.testing.assert_allclose(paths[0].positions, hallway().path, atol=1e-12)
+    t0 = paths[0].stamp
+    assert poses[0].stamp == pytest.approx(t0, abs=1e-6)
+    stamps = np.array([p.stamp for p in poses]) - t0
+    steps = np.diff(stamps)
+    big = np.flatnonzero(steps > 1.5 / rate)
+    assert len(big) == 1, f"expected exactly one gap, steps {steps}"
+    assert stamps[big[0]] == pytest.approx(1.0 - 1 / rate, abs=1e-3)
+    assert steps[big[0]] == pytest.approx(1.0 + 1 / rate, abs=1e-3)
+    np.testing.assert_allclose(np.delete(steps, big), 1 / rate, atol=1e-6)
+    # Positions follow the route at the requested speed; yaw is along the path.
+    route = Route(hallway().path)
+    for p, t in zip(poses, stamps, strict=True):
+        expected = route.at(speed * t)
+        np.testing.assert_allclose(p.position, expected.position, atol=1e-6)
+        np.testing.assert_allclose(abs(np.dot(p.quat, expected.quat)), 1.0, atol=1e-9)
+    assert bus.counters()["/odom"].get("dropped_wrong_type", 0) == 0
+
+
+def test_sim_pose_csv_route_as_pose_stamped(listener):
+    session, endpoint = listener
+    events = queue.Queue()
+    bus = PivotBus(session, BusTopics(pose="/robot/pose", pose_type=m.POSE_STAMPED, path="/robot/plan", domain_id=4),
+                   on_pose=events.put)
+    proc = run_tool("--connect", endpoint, "--route", f"csv:{YCORRIDOR}", "--odom-topic", "", "--pose-topic",
+                    "/robot/pose", "--path-topic", "/robot/plan", "--domain-id", "4", "--rate", "50",
+                    "--wait-subscribers", "30", "--duration", "60", "--quiet")
+    try:
+        first = drain(events, 1, timeout=60)
+        assert first, "no PoseStamped received"
+        assert wait_for(lambda: bus.counters()["/robot/plan"]["accepted"] >= 1, timeout=30)
+    finally:
+        stop_tool(proc)
+        bus.close()
+    assert proc.returncode == 0
+    data = load_path(YCORRIDOR)
+    np.testing.assert_allclose(first[0].position, data.positions[0], atol=1e-9)
+    np.testing.assert_allclose(first[0].quat, data.quats[0], atol=1e-9)
+
+
+def test_sim_pose_ends_by_itself_at_the_end_of_the_route(tmp_path):
+    route = tmp_path / "short.csv"
+    route.write_text("# x,y,z\n0,0,0\n1,0,0\n1,1,0\n")
+    proc = run_tool("--route", f"csv:{route}", "--speed", "20", "--rate", "50")
+    try:
+        out, err = proc.communicate(timeout=60)
+    finally:
+        stop_tool(proc)
+    assert proc.returncode == 0, err
+    lines = out.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("t=0.0s s=0.00m/2.00m poses=1")
+
+
+def test_sim_pose_stops_on_sigint(listener):
+    session, endpoint = listener
+    events = queue.Queue()
+    bus = PivotBus(session, BusTopics(), on_pose=events.put)
+    proc = run_tool("--connect", endpoint, "--loop", "--quiet")
+    try:
+        assert drain(events, 1, timeout=60), "sim_pose never published"  # running, handlers installed
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        stop_tool(proc)
+        bus.close()
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err
+
+
+def test_pose_noise_in_process(listener):
+    import threading
+
+    from pivotd.bus.sim_pose import build_parser, run
+
+    session, endpoint = listener
+    events = queue.Queue()
+    bus = PivotBus(session, BusTopics(), on_pose=events.put)
+    args = build_parser().parse_args(["--connect", endpoint, "--rate", "100", "--speed", "1", "--pose-noise", "0.1",
+                                      "--duration", "1.5", "--wait-subscribers", "30", "--path-topic", "", "--quiet"])
+    result = []
+    worker = threading.Thread(target=lambda: result.append(run(args)))
+    worker.start()
+    try:
+        worker.join(timeout=60)
+        poses = drain(events, 151, timeout=10)
+    finally:
+        bus.close()
+    assert result == [0]
+    assert len(poses) == 151
+    t0 = poses[0].stamp
+    route = Route(hallway().path)
+    err = np.array([p.position - route.at(p.stamp - t0).position for p in poses])
+    assert 0.07 < err.std() < 0.13
+    assert np.all(np.abs(err.mean(axis=0)) < 0.05)
