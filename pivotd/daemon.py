@@ -21,6 +21,7 @@ import numpy as np
 
 from pivotd.bus.messages import CloudMsg, PathMsg, PoseSample
 from pivotd.bus.pivot_bus import PivotBus
+from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.bus.session import open_session
 from pivotd.config import Config, load_config
 from pivotd.control import ControlLoop, TickResult
@@ -60,24 +61,6 @@ def _percentile_ms(values, q: float) -> float | None:
     return None if not values else round(float(np.percentile(np.asarray(values), q)) * 1e3, 3)
 
 
-class RateLimitedLog:
-    """Logs a message at most once per ``period`` seconds per key, counting the suppressed ones."""
-
-    def __init__(self, period: float = 5.0) -> None:
-        self.period = period
-        self._last: dict[str, float] = {}
-        self._suppressed: dict[str, int] = {}
-
-    def warning(self, key: str, msg: str) -> None:
-        now = time.monotonic()
-        if now - self._last.get(key, -1e9) >= self.period:
-            n = self._suppressed.pop(key, 0)
-            log.warning("%s%s", msg, f" ({n} similar suppressed)" if n else "")
-            self._last[key] = now
-        else:
-            self._suppressed[key] = self._suppressed.get(key, 0) + 1
-
-
 class Daemon:
     """One pivotd process. ``run()`` blocks until SIGTERM/SIGINT (or :meth:`request_stop`)."""
 
@@ -113,7 +96,7 @@ class Daemon:
         self._clear_attempts = 0
         self._last_clear = 0.0
         self._control_healthy = 0.0
-        self._rl = RateLimitedLog()
+        self._rl = RateLimitedLog(log)
         self._threads: list[threading.Thread] = []
         self._recorder = None
 
@@ -132,8 +115,6 @@ class Daemon:
     # ------------------------------------------------------------------ bus callbacks (Zenoh threads)
     def _on_pose(self, pose: PoseSample) -> None:
         self.pose = pose
-        if self._recorder is not None:
-            self._recorder.pose(pose)
 
     def _on_path(self, path: PathMsg) -> None:
         with self._lock:
@@ -232,8 +213,6 @@ class Daemon:
                         self.bus.publish_joint_state(time.time(), st.pan, st.tilt, st.pan_rate, st.tilt_rate)
                     except Exception as exc:
                         self._rl.warning("joint_states", f"joint_states: publish failed: {exc!r}")
-            if self._recorder is not None and tick.setpoint is not None:
-                self._recorder.setpoint(tick.setpoint)
 
     # ------------------------------------------------------------------ supervision (main thread)
     def _gimbal_faulted(self) -> bool:
@@ -305,7 +284,6 @@ class Daemon:
                 "pose_latency_ms_p99": None if ctl is None else _percentile_ms(list(ctl.pose_latency), 99),
             },
             "map": {"landmarks": len(self.store.snapshot()), "version": self.store.snapshot().version},
-            "counters": self.bus.counters() if self.bus is not None else {},
             "link_counters": link.counters() if link is not None else {},
             "reloads": self._reloads,
             "reload_errors": self._reload_errors,
@@ -381,12 +359,13 @@ class Daemon:
         z = cfg.zenoh
         self.session = open_session(mode=z.mode, connect=z.connect, listen=z.listen, config_file=z.config_file,
                                     multicast_scouting=z.multicast_scouting)
-        self.bus = PivotBus(self.session, build_bus_topics(cfg), node_name=cfg.name, on_pose=self._on_pose,
-                            on_path=self._on_path, on_cloud=self._on_cloud)
         if self.overrides.record is not None:
             from pivotd.recorder import Recorder
 
             self._recorder = Recorder(self.overrides.record)
+        self.bus = PivotBus(self.session, build_bus_topics(cfg), node_name=cfg.name, on_pose=self._on_pose,
+                            on_path=self._on_path, on_cloud=self._on_cloud,
+                            on_raw=self._recorder.write if self._recorder is not None else None)
         self.link = GimbalLink(cfg.gimbal.port, build_link_config(cfg), baudrate=cfg.gimbal.baud)
         self.link.start()
         self.control = build_control_loop(cfg, self.link)
