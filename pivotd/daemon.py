@@ -132,7 +132,7 @@ class Daemon:
         for layer, cloud in pending.items():
             weights = cloud.weights if cloud.weights is not None else np.ones(cloud.points.shape[0])
             lc = LandmarkCloud(points=cloud.points, weights=weights)
-            mult = self.cfg.map.targets_weight if layer == "targets" else 1.0
+            mult = float(getattr(self.cfg.map.layers, layer, 1.0))
             version = self.store.set_layer(layer, lc, weight_multiplier=mult)
             log.info("map layer %r replaced from Zenoh: %d points (map version %d)", layer, len(lc), version)
 

@@ -1,0 +1,115 @@
+"""Builders that turn a validated :class:`~pivotd.config.Config` into runtime components.
+
+One place maps config sections onto the components' own settings, so the daemon, the benchmarks
+and the demo build the same things the same way.
+"""
+
+from __future__ import annotations
+
+import math
+
+from pivotd.bus.pivot_bus import BusTopics
+from pivotd.config import Config
+from pivotd.control import ControlLoop, ControlSettings
+from pivotd.errors import ConfigError
+from pivotd.gimbal.link import LinkConfig
+from pivotd.gimbal.motion import MotionGenerator
+from pivotd.maps.filters import RetainedFilter
+from pivotd.maps.store import MapStore, load_map_store
+from pivotd.pivot.trajectory import TrajectoryOptions
+from pivotd.planner import PlannerSettings, RecedingHorizonPlanner
+
+
+def build_bus_topics(cfg: Config) -> BusTopics:
+    """Bus topics and the status key ``pivot/<name>/status`` from ``cfg.topics`` / ``cfg.name``."""
+    t = cfg.topics
+    return BusTopics(
+        domain_id=t.domain_id,
+        pose=t.pose,
+        pose_type=t.pose_type,
+        path=t.path,
+        landmarks=t.landmarks,
+        targets=t.targets,
+        joint_states=t.joint_states,
+        view_plan=t.view_plan,
+        status_key=f"pivot/{cfg.name}/status",
+        frame_id=t.frame_id,
+        max_cloud_points=t.max_cloud_points,
+    )
+
+
+def build_retained_filter(cfg: Config) -> RetainedFilter:
+    """Per-waypoint landmark filter from ``cfg.map.filters`` (occlusion on when a voxel size is set)."""
+    f = cfg.map.filters
+    return RetainedFilter(
+        min_range=f.min_range,
+        max_range=f.max_range,
+        max_view_angle_deg=None if f.max_view_angle is None else math.degrees(f.max_view_angle),
+        occlusion=f.occlusion_voxel is not None,
+    )
+
+
+def build_map_store(cfg: Config) -> MapStore:
+    """Load ``cfg.map.file`` into a new store (an empty store when no file and ``allow_empty``)."""
+    m = cfg.map
+    if m.file is None:
+        if not m.allow_empty:
+            raise ConfigError(f"{cfg.source}: map.file: required unless map.allow_empty is true")
+        return MapStore(occupancy_voxel=m.filters.occlusion_voxel)
+    return load_map_store(
+        m.file,
+        weight_property=m.weight_property,
+        occlusion_voxel=m.filters.occlusion_voxel,
+        occupancy_file=m.filters.occupancy_file,
+        allow_empty=m.allow_empty,
+    )
+
+
+def build_planner(cfg: Config) -> RecedingHorizonPlanner:
+    """Receding-horizon planner from the ``pivot`` and ``planner`` sections and the gimbal geometry."""
+    p, pl = cfg.pivot, cfg.planner
+    settings = PlannerSettings(
+        fov=p.fov,
+        lam=p.lam,
+        spacing=pl.waypoint_spacing,
+        horizon=pl.horizon,
+        max_landmarks_per_waypoint=pl.max_landmarks_per_waypoint,
+        retained_filter=build_retained_filter(cfg),
+        options=TrajectoryOptions(transition_width=p.transition_width),
+    )
+    return RecedingHorizonPlanner(settings, cfg.gimbal.mount, cfg.gimbal.limits)
+
+
+def build_link_config(cfg: Config) -> LinkConfig:
+    """CONFIG limits for the device: joint limits, and the motion limits as the device's rate limits."""
+    lim, mo = cfg.gimbal.limits, cfg.motion
+    return LinkConfig(
+        pan_min=lim.pan_min,
+        pan_max=lim.pan_max,
+        tilt_min=lim.tilt_min,
+        tilt_max=lim.tilt_max,
+        vmax_pan=mo.pan.max_velocity,
+        vmax_tilt=mo.tilt.max_velocity,
+        amax_pan=mo.pan.max_acceleration,
+        amax_tilt=mo.tilt.max_acceleration,
+        watchdog_ms=cfg.gimbal.watchdog_ms,
+    )
+
+
+def build_motion(cfg: Config) -> MotionGenerator:
+    """Jerk-limited setpoint generator at the control period."""
+    return MotionGenerator(1.0 / cfg.control.rate_hz, cfg.motion.pan, cfg.motion.tilt, cfg.gimbal.limits,
+                           deadband=cfg.motion.deadband)
+
+
+def build_control_loop(cfg: Config, link) -> ControlLoop:
+    """The control tick for ``link`` (a :class:`~pivotd.gimbal.link.GimbalLink` or compatible)."""
+    settings = ControlSettings(rate_hz=cfg.control.rate_hz, pose_timeout=cfg.control.pose_timeout_s)
+    return ControlLoop(settings, build_motion(cfg), cfg.gimbal.mount, cfg.gimbal.limits, link)
+
+
+def park_joints(cfg: Config) -> tuple[float, float]:
+    """The park pose (pan, tilt) [rad], inside the joint limits."""
+    lim = cfg.gimbal.limits
+    pan = min(max(cfg.gimbal.park_pan, lim.pan_min), lim.pan_max) if not lim.continuous_pan else cfg.gimbal.park_pan
+    return pan, min(max(cfg.gimbal.park_tilt, lim.tilt_min), lim.tilt_max)
