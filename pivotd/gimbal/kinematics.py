@@ -36,7 +36,7 @@ def rpy_to_matrix(rpy: np.ndarray) -> np.ndarray:
     )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Mount:
     """Gimbal base pose in the body frame: rotation (3, 3) base→body and translation (3,) [m]."""
 
@@ -50,6 +50,15 @@ class Mount:
         trans.setflags(write=False)
         object.__setattr__(self, "rotation", rot)
         object.__setattr__(self, "translation", trans)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Mount):
+            return NotImplemented
+        same_rotation = np.array_equal(self.rotation, other.rotation)
+        return bool(same_rotation and np.array_equal(self.translation, other.translation))
+
+    def __hash__(self) -> int:
+        return hash((self.rotation.tobytes(), self.translation.tobytes()))
 
     @classmethod
     def from_xyz_rpy(cls, xyz: np.ndarray, rpy_rad: np.ndarray) -> Mount:
