@@ -42,7 +42,8 @@ def _convert(node: yaml.Node, file: Path, constructor: yaml.constructor.SafeCons
                 raise ConfigError(f"{file}:{key_line}: key {key!r} is not a string")
             if key in out:
                 raise ConfigError(f"{file}:{key_line}: {key}: duplicate key")
-            out[key] = _convert(value_node, file, constructor)
+            value = _convert(value_node, file, constructor)
+            out[key] = Node(value.value, key_line)  # errors point at the key's line
         return Node(out, line)
     if isinstance(node, yaml.SequenceNode):
         return Node([_convert(item, file, constructor) for item in node.value], line)
