@@ -157,7 +157,7 @@ def test_hold_from_steady_velocity_matches_analytic_stop_time():
     # Wait until it cruises at exactly the target velocity with zero acceleration.
     for _ in range(400):
         s = gen.step()
-        if abs(s.velocity[0] - 1.0) < 1e-12 and abs(s.acceleration[0]) < 1e-12:
+        if abs(s.velocity[0] - 1.0) < 1e-5 and abs(s.acceleration[0]) < 1e-5:
             break
     else:  # pragma: no cover - reported as a failure
         pytest.fail("never reached steady velocity")
@@ -186,7 +186,7 @@ def test_velocity_feed_forward_is_tracked(plan_every):
     assert_stream_within_limits(P, V, A)
     t_end = 400 * DT
     np.testing.assert_allclose(P[-1], p0 + v_ff * t_end, atol=1e-6)
-    np.testing.assert_allclose(V[-1], v_ff, atol=1e-9)
+    np.testing.assert_allclose(V[-1], v_ff, atol=1e-6)
     # A consistent moving target is intercepted once and then followed without re-planning.
     assert gen.replans <= 2
 
@@ -239,3 +239,27 @@ def test_rejects_bad_parameters():
     gen = make()
     with pytest.raises(ValueError):
         gen.set_target([np.nan, 0.0])
+
+
+def test_smooth_plan_is_tracked_with_a_small_lag():
+    """A curved plan (sinusoids) fed every cycle with its velocity and acceleration: small lag, no chatter."""
+    deadband = np.deg2rad(0.05)
+    gen = make(deadband=deadband)
+    amp, omega = np.array([1.2, 0.5]), np.array([0.8, 1.3])
+
+    def plan(t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return amp * np.sin(omega * t), amp * omega * np.cos(omega * t), -amp * omega**2 * np.sin(omega * t)
+
+    errors = []
+
+    def update(k):
+        gen.set_target(*plan(k * DT))
+
+    P, V, A = record(gen, 1000, update)
+    assert_stream_within_limits(P, V, A)
+    for k in range(300, 1000):  # after the initial catch-up
+        errors.append(np.abs(P[k + 1] - plan((k + 1) * DT)[0]).max())
+    # A lag of a few mrad (≈0.2°, the deadband plus the jerk-limited feedback loop) on a 60° camera.
+    assert max(errors) < 0.01, max(errors)
+    assert np.median(errors) < 0.003, np.median(errors)
+    assert gen.replans < 500, gen.replans  # most cycles' targets are within the deadband of the model

@@ -1,20 +1,27 @@
 """Jerk-limited pan/tilt setpoint generation with Ruckig (Community), inside the joint limits.
 
-:class:`MotionGenerator` turns targets (position and velocity feed-forward, updated at any rate) into a
-setpoint stream at a constant control period ``dt``. Each (re)target computes one time-optimal Ruckig
-trajectory from the current position, velocity and acceleration; :meth:`MotionGenerator.step` samples it
-at the next multiple of ``dt``. After a trajectory ends, Ruckig continues at the target velocity, so a
-consistent moving target (position advancing at its own velocity) needs no retargeting at all.
+:class:`MotionGenerator` turns targets (position with velocity and acceleration feed-forward, updated at any
+rate) into a setpoint stream at a constant control period ``dt``; :meth:`MotionGenerator.step` samples a
+Ruckig trajectory (axes independent: pan and tilt are separate motors) at the next multiple of ``dt``,
+always starting from the current position, velocity and acceleration. Two modes:
+
+- **position** (target at rest): one time-optimal trajectory to the target, planned when the target
+  changes by more than the deadband; exact arrival, no overshoot.
+- **tracking** (target moving): every step, Ruckig's velocity interface reaches the commanded velocity
+  v_ff + feedback(error) with acceleration a_ff, where feedback = min(gain·|e|, √(a_max·|e|)) (the second
+  term is a braking curve at half the acceleration limit, so large errors close without overshoot). A
+  constant-velocity target is followed with zero steady-state error, a curved one with a small lag.
+  Between target updates the target is extrapolated (its acceleration for at most
+  ``ACCELERATION_HORIZON_S``), so targets may arrive at the plan rate.
 
 Ruckig Community ignores position limits, so they are enforced here:
 
-1. targets are clamped into the limits; a feed-forward velocity pointing out of a limit is dropped;
-2. a candidate trajectory whose position extrema leave the limits, or whose end state could not brake
-   inside them, is retried with a smaller target velocity, then without time synchronization;
-3. every step checks that a jerk-limited brake from the next setpoint stays inside the limits; if it would
-   not, the generator brakes from the current (still safe) setpoint instead and re-plans once stopped;
-4. a final guard clamps positions (only reachable from an unsafe measured state, e.g. after :meth:`reset`
-   with a velocity that cannot stop before a limit; it is counted in :attr:`MotionGenerator.guard_clamps`).
+1. targets are clamped into the limits; feed-forward pointing out of a limit the target sits on is dropped;
+2. every step checks that the fastest jerk-limited stop from the next setpoint stays inside the limits
+   (position extrema of Ruckig's braking trajectory); if it would not, the generator brakes from the current
+   setpoint (which passed the same check) instead and resumes the target once stopped;
+3. a final guard clamps positions (reachable only from an unsafe measured state given to :meth:`reset`,
+   one that cannot stop before a limit; counted in :attr:`MotionGenerator.guard_clamps`).
 
 Axes are (pan, tilt); all values in rad, rad/s, rad/s², rad/s³. With ``continuous_pan`` only tilt is bounded.
 """
@@ -31,10 +38,12 @@ from pivotd.gimbal.kinematics import JointLimits
 
 log = logging.getLogger(__name__)
 
+ACCELERATION_HORIZON_S = 0.3  # [s] how far a target's acceleration is extrapolated (then constant velocity)
+DEFAULT_GAIN = 5.0  # [1/s] position feedback of the tracking mode (time constant 0.2 s)
 _POS_TOL = 1e-9  # [rad] numerical slack on position limits
 _OK = (Result.Working, Result.Finished)
-_INTERCEPT_ITERATIONS = 12
-_VELOCITY_SCALES = (1.0, 0.5, 0.25, 0.0)
+
+State = tuple[np.ndarray, np.ndarray, np.ndarray]  # position, velocity, acceleration, each (2,)
 
 
 @dataclass(frozen=True)
@@ -64,9 +73,10 @@ class MotionSample:
 class MotionGenerator:
     """Ruckig setpoint generator for a pan/tilt gimbal at a constant control period ``dt`` [s].
 
-    ``deadband`` [rad]: a new target closer than this (per axis) to where the active target has moved by
-    now is ignored, as is a velocity change below ``velocity_deadband`` [rad/s] (default: ``deadband``/s),
-    so that noisy targets do not cause a re-plan every cycle.
+    ``deadband`` [rad]: a new target within ``deadband`` (per axis) of where the active target has moved
+    by now, with a velocity within ``velocity_deadband`` [rad/s] of it (default ``deadband`` per 0.1 s),
+    is ignored, so noisy or consistent targets neither re-plan nor jitter the tracking reference.
+    ``gain`` [1/s]: position feedback of the tracking mode.
     """
 
     def __init__(
@@ -77,12 +87,16 @@ class MotionGenerator:
         limits: JointLimits,
         deadband: float = 1e-3,
         velocity_deadband: float | None = None,
+        gain: float = DEFAULT_GAIN,
     ) -> None:
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"dt must be > 0, got {dt!r}")
         self.dt = float(dt)
         self.deadband = float(deadband)
-        self.velocity_deadband = float(deadband if velocity_deadband is None else velocity_deadband)
+        self.velocity_deadband = float(10.0 * deadband if velocity_deadband is None else velocity_deadband)
+        if not (np.isfinite(gain) and gain > 0):
+            raise ValueError(f"gain must be > 0, got {gain!r}")
+        self.gain = float(gain)
         self.limits = limits
         self._vmax = np.array([pan.max_velocity, tilt.max_velocity])
         self._amax = np.array([pan.max_acceleration, tilt.max_acceleration])
@@ -97,10 +111,10 @@ class MotionGenerator:
         self._traj: Trajectory | None = None
         self._t = 0.0  # time into the active trajectory [s], a multiple of dt
         self._clock = 0.0  # generator time [s]
-        self._target: tuple[np.ndarray, np.ndarray] | None = None  # requested (position, velocity)
+        self._target: State | None = None  # requested target state at _target_clock
         self._target_clock = 0.0
-        self._braking = False  # emergency brake before a limit; re-plan to the target once stopped
-        self.replans = 0  # trajectories computed for targets (a measure of retargeting chatter)
+        self._braking = False  # braking before a limit; re-plan to the target once stopped
+        self.replans = 0  # targets accepted (not within the deadband): a measure of retargeting chatter
         self.limit_brakes = 0  # times a step had to brake to stay inside the position limits
         self.guard_clamps = 0  # times the final guard had to clamp a position (unsafe measured state)
         self.reset(np.clip(np.zeros(2), self._lo, self._hi))
@@ -112,17 +126,23 @@ class MotionGenerator:
         return MotionSample(self._p.copy(), self._v.copy(), self._a.copy())
 
     @property
-    def target(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """The active requested target (position (2,), velocity (2,)) advanced to now, or None when holding."""
+    def target(self) -> State | None:
+        """The active target (position, velocity, acceleration; each (2,)) advanced to now, or None when holding."""
         if self._target is None:
             return None
-        p, v = self._target
-        return np.clip(p + v * (self._clock - self._target_clock), self._lo, self._hi), v.copy()
+        return self._extrapolate(*self._target, self._clock - self._target_clock)
 
     @property
     def settled(self) -> bool:
-        """True when the active trajectory has ended (at rest, or coasting at the target velocity)."""
-        return self._traj is None or self._t >= self._traj.duration - 1e-12
+        """True when at rest on a reached position target (or holding still)."""
+        at_end = self._traj is None or self._t >= self._traj.duration - 1e-12
+        return at_end and not self._tracking() and bool(np.all(np.abs(self._v) < 1e-9))
+
+    def _tracking(self) -> bool:
+        if self._target is None:
+            return False
+        _, v, a = self._target
+        return bool(np.any(v != 0.0) or np.any(a != 0.0))
 
     def reset(self, position, velocity=(0.0, 0.0), acceleration=(0.0, 0.0)) -> None:
         """Restart from a (measured) state; a moving state is braked until the next :meth:`set_target`."""
@@ -142,26 +162,27 @@ class MotionGenerator:
         if np.any(v != 0.0) or np.any(a != 0.0):
             self._start_brake()
 
-    def set_target(self, position, velocity=(0.0, 0.0)) -> None:
-        """Track ``position`` (2,) [rad] arriving with ``velocity`` (2,) [rad/s] (feed-forward).
+    def set_target(self, position, velocity=(0.0, 0.0), acceleration=(0.0, 0.0)) -> None:
+        """Track ``position`` (2,) [rad] moving with ``velocity`` (2,) [rad/s] and ``acceleration`` (2,) [rad/s²].
 
-        The position is clamped into the limits and the velocity to the axis limits; a change inside the
-        deadband of the active (moving) target is ignored.
+        Velocity and acceleration are feed-forward: pass the plan's derivatives for tight tracking of a
+        curved plan. The position is clamped into the limits, velocity and acceleration to the axis limits.
         """
         p = np.asarray(position, dtype=float).reshape(2)
         v = np.asarray(velocity, dtype=float).reshape(2)
-        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(v))):
+        a = np.asarray(acceleration, dtype=float).reshape(2)
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(v)) and np.all(np.isfinite(a))):
             raise ValueError("target must be finite")
-        p = np.clip(p, self._lo, self._hi)
-        v = np.clip(v, -self._vmax, self._vmax)
+        new = self._extrapolate(p, np.clip(v, -self._vmax, self._vmax), np.clip(a, -self._amax, self._amax), 0.0)
         current = self.target
         if current is not None:
-            cp, cv = current
-            if np.all(np.abs(p - cp) <= self.deadband) and np.all(np.abs(v - cv) <= self.velocity_deadband):
+            cp, cv, _ = current
+            if np.all(np.abs(new[0] - cp) <= self.deadband) and np.all(np.abs(new[1] - cv) <= self.velocity_deadband):
                 return
-        self._target = (p, v)
+        self._target = new
         self._target_clock = self._clock
-        if not self._braking:
+        self.replans += 1
+        if not self._braking and not self._tracking():
             self._plan_to_target()
 
     def hold(self) -> None:
@@ -172,6 +193,13 @@ class MotionGenerator:
 
     def step(self) -> MotionSample:
         """Advance exactly one control period and return the new setpoint."""
+        if self._traj is None and not self._tracking():
+            self._clock += self.dt
+            return self.state
+        if not self._braking and self._tracking():
+            traj = self._tracking_trajectory()
+            if traj is not None:
+                self._traj, self._t = traj, 0.0
         if self._traj is None:
             self._clock += self.dt
             return self.state
@@ -183,10 +211,10 @@ class MotionGenerator:
             t_next = self.dt
             p, v, a = self._sample(self._traj, t_next)
         clipped = np.clip(p, self._lo, self._hi)
-        if np.any(np.abs(clipped - p) > _POS_TOL):
+        hit = np.abs(clipped - p) > _POS_TOL
+        if np.any(hit):
             self.guard_clamps += 1
             log.warning("setpoint %s clamped into the joint limits", p)
-            hit = np.abs(clipped - p) > _POS_TOL
             v[hit] = 0.0
             a[hit] = 0.0
         self._p, self._v, self._a = clipped, v, a
@@ -194,12 +222,33 @@ class MotionGenerator:
         self._clock += self.dt
         if self._braking and self._t >= self._traj.duration - 1e-12:
             self._braking = False
-            if self._target is not None:
+            if self._target is not None and not self._tracking():
                 self._plan_to_target()
         return self.state
 
-    # ------------------------------------------------------------------ internals
-    def _input(self, sync: Synchronization) -> InputParameter:
+    # ------------------------------------------------------------------ target model
+    def _extrapolate(self, p: np.ndarray, v: np.ndarray, a: np.ndarray, tau) -> State:
+        """A target state advanced by ``tau`` [s] (scalar or per axis (2,)).
+
+        The acceleration acts for at most ACCELERATION_HORIZON_S and until the velocity limit, then the
+        velocity stays constant; the position is clamped into the limits, where motion pointing outwards
+        is dropped.
+        """
+        tau = np.broadcast_to(np.asarray(tau, dtype=float), p.shape)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_cap = np.where(a > 0, (self._vmax - v) / a, np.where(a < 0, (-self._vmax - v) / a, np.inf))
+        t_acc = np.minimum(tau, np.minimum(np.maximum(t_cap, 0.0), ACCELERATION_HORIZON_S))
+        v_end = np.clip(v + a * t_acc, -self._vmax, self._vmax)
+        p_end = p + v * t_acc + 0.5 * a * t_acc**2 + v_end * (tau - t_acc)
+        a_end = np.where(t_acc < tau, 0.0, a)
+        clipped = np.clip(p_end, self._lo, self._hi)
+        outwards_lo = (clipped <= self._lo) & ((v_end < 0) | ((v_end == 0) & (a_end < 0)))
+        outwards_hi = (clipped >= self._hi) & ((v_end > 0) | ((v_end == 0) & (a_end > 0)))
+        stop = (clipped != p_end) | outwards_lo | outwards_hi
+        return clipped, np.where(stop, 0.0, v_end), np.where(stop, 0.0, a_end)
+
+    # ------------------------------------------------------------------ Ruckig
+    def _input(self) -> InputParameter:
         inp = InputParameter(2)
         inp.current_position = self._p.tolist()
         inp.current_velocity = self._v.tolist()
@@ -207,7 +256,7 @@ class MotionGenerator:
         inp.max_velocity = self._vmax.tolist()
         inp.max_acceleration = self._amax.tolist()
         inp.max_jerk = self._jmax.tolist()
-        inp.synchronization = sync
+        inp.synchronization = Synchronization.No
         return inp
 
     def _calculate(self, inp: InputParameter) -> Trajectory | None:
@@ -216,7 +265,7 @@ class MotionGenerator:
         return traj if result in _OK else None
 
     @staticmethod
-    def _sample(traj: Trajectory, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _sample(traj: Trajectory, t: float) -> State:
         p, v, a = traj.at_time(t)
         return np.array(p), np.array(v), np.array(a)
 
@@ -226,7 +275,9 @@ class MotionGenerator:
                 return False
         return True
 
-    def _brake_trajectory(self, p: np.ndarray, v: np.ndarray, a: np.ndarray) -> Trajectory | None:
+    def _velocity_trajectory(
+        self, p: np.ndarray, v: np.ndarray, a: np.ndarray, v_goal: np.ndarray, a_goal: np.ndarray | None = None
+    ) -> Trajectory | None:
         inp = InputParameter(2)
         inp.current_position = p.tolist()
         inp.current_velocity = v.tolist()
@@ -236,8 +287,8 @@ class MotionGenerator:
         inp.max_jerk = self._jmax.tolist()
         inp.control_interface = ControlInterface.Velocity
         inp.synchronization = Synchronization.No
-        inp.target_velocity = [0.0, 0.0]
-        inp.target_acceleration = [0.0, 0.0]
+        inp.target_velocity = v_goal.tolist()
+        inp.target_acceleration = [0.0, 0.0] if a_goal is None else a_goal.tolist()
         return self._calculate(inp)
 
     def _brake_stays_inside(self, p: np.ndarray, v: np.ndarray, a: np.ndarray) -> bool:
@@ -246,87 +297,50 @@ class MotionGenerator:
             return False
         if not (np.any(v != 0.0) or np.any(a != 0.0)):
             return True
-        brake = self._brake_trajectory(p, v, a)
+        brake = self._velocity_trajectory(p, v, a, np.zeros(2))
         return brake is not None and self._inside(brake)
 
     def _start_brake(self, keep_target: bool = False) -> None:
-        traj = self._brake_trajectory(self._p, self._v, self._a)
-        if traj is None:  # cannot happen for finite states with positive limits; stop dead as a last resort
+        traj = self._velocity_trajectory(self._p, self._v, self._a, np.zeros(2))
+        if traj is None:  # not expected for finite states and positive limits; stop dead as a last resort
             log.error("brake trajectory failed from %s %s %s; stopping", self._p, self._v, self._a)
             self._v[:] = 0.0
             self._a[:] = 0.0
             self._traj = None
             return
-        self._traj = traj
-        self._t = 0.0
+        self._traj, self._t = traj, 0.0
         self._braking = keep_target and self._target is not None
 
-    def _intercept(self, p: np.ndarray, v: np.ndarray, sync: Synchronization) -> tuple[np.ndarray, np.ndarray]:
-        """Target state on the moving target's line p + v·T that the trajectory reaches at its end T.
-
-        Solves g(T) = duration(goal(T)) − T = 0 by the secant method (fixed-point steps as a fallback);
-        where the line leaves the joint range the goal is clamped and its velocity dropped.
-        """
-        if not np.any(v != 0.0):
-            return p, v
-
-        def goal(T: float) -> tuple[np.ndarray, np.ndarray]:
-            line = p + v * T
-            gp = np.clip(line, self._lo, self._hi)
-            return gp, np.where(gp != line, 0.0, v)
-
-        def g(T: float) -> float | None:
-            traj = self._calculate(self._position_input(*goal(T), sync))
-            return None if traj is None else traj.duration - T
-
-        T0, g0 = 0.0, g(0.0)
-        if g0 is None:
-            return goal(0.0)
-        T1 = T0 + g0
-        for _ in range(_INTERCEPT_ITERATIONS):
-            g1 = g(T1)
-            if g1 is None:
-                break
-            if abs(g1) < 1e-9:
-                break
-            slope = (g1 - g0) / (T1 - T0) if T1 != T0 else 0.0
-            T_next = T1 - g1 / slope if slope != 0.0 else T1 + g1
-            if not np.isfinite(T_next) or T_next < 0.0:
-                T_next = T1 + g1
-            T0, g0, T1 = T1, g1, T_next
-        return goal(T1)
-
-    def _position_input(self, p: np.ndarray, v: np.ndarray, sync: Synchronization) -> InputParameter:
-        inp = self._input(sync)
-        inp.target_position = p.tolist()
-        inp.target_velocity = v.tolist()
-        inp.target_acceleration = [0.0, 0.0]
-        return inp
+    def _position_trajectory(self, goal: State) -> Trajectory | None:
+        inp = self._input()
+        inp.target_position = goal[0].tolist()
+        inp.target_velocity = goal[1].tolist()
+        inp.target_acceleration = goal[2].tolist()
+        return self._calculate(inp)
 
     def _plan_to_target(self) -> None:
+        """Position mode: one time-optimal trajectory to the target at rest (clamped, limit-checked)."""
         assert self._target is not None
-        req_p, req_v = self._target
-        req_p = np.clip(req_p + req_v * (self._clock - self._target_clock), self._lo, self._hi)
-        # A feed-forward velocity pointing out of a limit the target sits on is dropped.
-        req_v = np.where(((req_p <= self._lo) & (req_v < 0)) | ((req_p >= self._hi) & (req_v > 0)), 0.0, req_v)
-        self.replans += 1
-        fallback: Trajectory | None = None
-        for sync in (Synchronization.Time, Synchronization.No):
-            for scale in _VELOCITY_SCALES:
-                goal_p, goal_v = self._intercept(req_p, req_v * scale, sync)
-                traj = self._calculate(self._position_input(goal_p, goal_v, sync))
-                if traj is None:
-                    continue
-                fallback = fallback or traj
-                end_ok = not np.any(goal_v != 0.0) or self._brake_stays_inside(goal_p, goal_v, np.zeros(2))
-                if end_ok and self._inside(traj):
-                    self._traj, self._t = traj, 0.0
-                    return
-                if not np.any(req_v != 0.0):
-                    break  # scaling a zero velocity changes nothing
-        if fallback is None:
-            log.warning("no trajectory to target %s; holding", req_p)
+        p, _, _ = self._extrapolate(*self._target, self._clock - self._target_clock)
+        traj = self._position_trajectory((p, np.zeros(2), np.zeros(2)))
+        if traj is None:
+            log.warning("no trajectory to target %s; holding", p)
             self._start_brake(keep_target=False)
             return
-        # The current state cannot avoid the limits' neighbourhood on the way; step() brakes in time.
-        self._traj, self._t = fallback, 0.0
+        # From a state that cannot avoid passing near a limit, step() still brakes in time.
+        self._traj, self._t = traj, 0.0
+
+    def _tracking_trajectory(self) -> Trajectory | None:
+        """Tracking mode: reach v_cmd = v_ff + feedback(position error), with a_ff, from the current state."""
+        assert self._target is not None
+        p_t, v_t, a_t = self._extrapolate(*self._target, self._clock - self._target_clock)
+        error = p_t - self._p
+        feedback = np.sign(error) * np.minimum(self.gain * np.abs(error), np.sqrt(self._amax * np.abs(error)))
+        v_cmd = v_t + feedback
+        saturated = np.abs(v_cmd) >= self._vmax
+        v_cmd = np.clip(v_cmd, -self._vmax, self._vmax)
+        a_cmd = np.where(saturated, 0.0, a_t)
+        traj = self._velocity_trajectory(self._p, self._v, self._a, v_cmd, a_cmd)
+        if traj is None:  # e.g. an acceleration the velocity limit leaves no room for
+            traj = self._velocity_trajectory(self._p, self._v, self._a, v_cmd, np.zeros(2))
+        return traj
