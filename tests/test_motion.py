@@ -187,8 +187,6 @@ def test_velocity_feed_forward_is_tracked(plan_every):
     t_end = 400 * DT
     np.testing.assert_allclose(P[-1], p0 + v_ff * t_end, atol=1e-6)
     np.testing.assert_allclose(V[-1], v_ff, atol=1e-6)
-    # A consistent moving target is intercepted once and then followed without re-planning.
-    assert gen.replans <= 2
 
 
 def test_moving_target_into_limit_stops_inside():
@@ -199,8 +197,8 @@ def test_moving_target_into_limit_stops_inside():
     P, V, A = record(gen, 500)
     assert_stream_within_limits(P, V, A)
     assert gen.guard_clamps == 0
-    np.testing.assert_allclose(V[-1], 0.0, atol=1e-9)
-    assert P[-1, 0] > HI[0] - 0.3 and P[-1, 1] > HI[1] - 0.3
+    np.testing.assert_allclose(V[-1], 0.0, atol=1e-6)
+    np.testing.assert_allclose(P[-1], HI, atol=1e-6)  # the target stopped at the limits; so did the gimbal
 
 
 def test_deadband_suppresses_retarget_chatter():
@@ -241,25 +239,20 @@ def test_rejects_bad_parameters():
         gen.set_target([np.nan, 0.0])
 
 
-def test_smooth_plan_is_tracked_with_a_small_lag():
-    """A curved plan (sinusoids) fed every cycle with its velocity and acceleration: small lag, no chatter."""
-    deadband = np.deg2rad(0.05)
-    gen = make(deadband=deadband)
+def test_smooth_plan_is_tracked_with_a_small_lag_and_smooth_jerk():
+    """A curved plan (sinusoids) fed every cycle with its velocity and acceleration."""
+    gen = make(deadband=np.deg2rad(0.05))
     amp, omega = np.array([1.2, 0.5]), np.array([0.8, 1.3])
 
     def plan(t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return amp * np.sin(omega * t), amp * omega * np.cos(omega * t), -amp * omega**2 * np.sin(omega * t)
 
-    errors = []
-
-    def update(k):
-        gen.set_target(*plan(k * DT))
-
-    P, V, A = record(gen, 1000, update)
+    P, V, A = record(gen, 1500, lambda k: gen.set_target(*plan(k * DT)))
     assert_stream_within_limits(P, V, A)
-    for k in range(300, 1000):  # after the initial catch-up
-        errors.append(np.abs(P[k + 1] - plan((k + 1) * DT)[0]).max())
-    # A lag of a few mrad (≈0.2°, the deadband plus the jerk-limited feedback loop) on a 60° camera.
-    assert max(errors) < 0.01, max(errors)
-    assert np.median(errors) < 0.003, np.median(errors)
-    assert gen.replans < 500, gen.replans  # most cycles' targets are within the deadband of the model
+    truth = np.array([plan(k * DT)[0] for k in range(P.shape[0])])
+    errors = np.abs(P - truth).max(axis=1)[300:]  # after the initial catch-up
+    assert errors.max() < 2e-3, errors.max()  # 0.11°
+    assert np.median(errors) < 1.5e-3, np.median(errors)
+    # No jerk chatter: the setpoints' jerk stays near the plan's own (≤ 1.1 rad/s³), far below the limits.
+    jerk = np.diff(P, n=3, axis=0)[300:] / DT**3
+    assert np.all(np.sqrt(np.mean(jerk**2, axis=0)) < 0.1 * JMAX)

@@ -5,8 +5,8 @@ rate) into a setpoint stream at a constant control period ``dt``; :meth:`MotionG
 Ruckig trajectory (axes independent: pan and tilt are separate motors) at the next multiple of ``dt``,
 always starting from the current position, velocity and acceleration. Two modes:
 
-- **position** (target at rest): one time-optimal trajectory to the target, planned when the target
-  changes by more than the deadband; exact arrival, no overshoot.
+- **position** (target at rest): one time-optimal trajectory to the target, re-planned only when the
+  target moves by more than the deadband (no re-planning chatter from noisy targets); exact arrival.
 - **tracking** (target moving): every step, Ruckig's velocity interface reaches the commanded velocity
   v_ff + feedback(error) with acceleration a_ff, where feedback = min(gain·|e|, √(a_max·|e|)) (the second
   term is a braking curve at half the acceleration limit, so large errors close without overshoot). A
@@ -73,10 +73,9 @@ class MotionSample:
 class MotionGenerator:
     """Ruckig setpoint generator for a pan/tilt gimbal at a constant control period ``dt`` [s].
 
-    ``deadband`` [rad]: a new target within ``deadband`` (per axis) of where the active target has moved
-    by now, with a velocity within ``velocity_deadband`` [rad/s] of it (default ``deadband`` per 0.1 s),
-    is ignored, so noisy or consistent targets neither re-plan nor jitter the tracking reference.
-    ``gain`` [1/s]: position feedback of the tracking mode.
+    ``deadband`` [rad]: a rest target within ``deadband`` (per axis) of the active rest target is ignored,
+    so a noisy target does not re-plan every cycle. Moving targets are always taken (tracking follows them
+    continuously; a deadband would only add reference error). ``gain`` [1/s]: tracking feedback.
     """
 
     def __init__(
@@ -86,14 +85,12 @@ class MotionGenerator:
         tilt: AxisLimits,
         limits: JointLimits,
         deadband: float = 1e-3,
-        velocity_deadband: float | None = None,
         gain: float = DEFAULT_GAIN,
     ) -> None:
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"dt must be > 0, got {dt!r}")
         self.dt = float(dt)
         self.deadband = float(deadband)
-        self.velocity_deadband = float(10.0 * deadband if velocity_deadband is None else velocity_deadband)
         if not (np.isfinite(gain) and gain > 0):
             raise ValueError(f"gain must be > 0, got {gain!r}")
         self.gain = float(gain)
@@ -101,6 +98,8 @@ class MotionGenerator:
         self._vmax = np.array([pan.max_velocity, tilt.max_velocity])
         self._amax = np.array([pan.max_acceleration, tilt.max_acceleration])
         self._jmax = np.array([pan.max_jerk, tilt.max_jerk])
+        # Loop stability needs the feedback slower than the jerk-limited acceleration response (≈ a/j).
+        self._gain = np.minimum(self.gain, 0.8 * self._jmax / self._amax)
         pan_lo, pan_hi = (-np.inf, np.inf) if limits.continuous_pan else (limits.pan_min, limits.pan_max)
         self._lo = np.array([pan_lo, limits.tilt_min], dtype=float)
         self._hi = np.array([pan_hi, limits.tilt_max], dtype=float)
@@ -114,7 +113,7 @@ class MotionGenerator:
         self._target: State | None = None  # requested target state at _target_clock
         self._target_clock = 0.0
         self._braking = False  # braking before a limit; re-plan to the target once stopped
-        self.replans = 0  # targets accepted (not within the deadband): a measure of retargeting chatter
+        self.replans = 0  # targets accepted (outside the deadband): a measure of retargeting chatter
         self.limit_brakes = 0  # times a step had to brake to stay inside the position limits
         self.guard_clamps = 0  # times the final guard had to clamp a position (unsafe measured state)
         self.reset(np.clip(np.zeros(2), self._lo, self._hi))
@@ -174,11 +173,10 @@ class MotionGenerator:
         if not (np.all(np.isfinite(p)) and np.all(np.isfinite(v)) and np.all(np.isfinite(a))):
             raise ValueError("target must be finite")
         new = self._extrapolate(p, np.clip(v, -self._vmax, self._vmax), np.clip(a, -self._amax, self._amax), 0.0)
-        current = self.target
-        if current is not None:
-            cp, cv, _ = current
-            if np.all(np.abs(new[0] - cp) <= self.deadband) and np.all(np.abs(new[1] - cv) <= self.velocity_deadband):
-                return
+        at_rest = not (np.any(new[1] != 0.0) or np.any(new[2] != 0.0))
+        resting = self._target is not None and not self._tracking()
+        if at_rest and resting and np.all(np.abs(new[0] - self._target[0]) <= self.deadband):
+            return
         self._target = new
         self._target_clock = self._clock
         self.replans += 1
@@ -331,16 +329,33 @@ class MotionGenerator:
         self._traj, self._t = traj, 0.0
 
     def _tracking_trajectory(self) -> Trajectory | None:
-        """Tracking mode: reach v_cmd = v_ff + feedback(position error), with a_ff, from the current state."""
+        """Tracking mode: Ruckig's velocity interface towards v_cmd (acceleration 0 at arrival), where
+
+        v_cmd = v_ff + a_ff·|a_ff| / 2j + feedback(position error).
+
+        The middle term is the velocity an acceleration adds while it is removed at full jerk: with it, a
+        plan accelerating at a_ff is followed without lag while every re-plan still ends at zero
+        acceleration, which keeps the profiles smooth (a target acceleration makes Ruckig switch between
+        profile branches from cycle to cycle).
+        """
         assert self._target is not None
         p_t, v_t, a_t = self._extrapolate(*self._target, self._clock - self._target_clock)
         error = p_t - self._p
-        feedback = np.sign(error) * np.minimum(self.gain * np.abs(error), np.sqrt(self._amax * np.abs(error)))
-        v_cmd = v_t + feedback
-        saturated = np.abs(v_cmd) >= self._vmax
-        v_cmd = np.clip(v_cmd, -self._vmax, self._vmax)
-        a_cmd = np.where(saturated, 0.0, a_t)
-        traj = self._velocity_trajectory(self._p, self._v, self._a, v_cmd, a_cmd)
-        if traj is None:  # e.g. an acceleration the velocity limit leaves no room for
-            traj = self._velocity_trajectory(self._p, self._v, self._a, v_cmd, np.zeros(2))
-        return traj
+        feedback = np.sign(error) * np.minimum(self._gain * np.abs(error), np.sqrt(self._amax * np.abs(error)))
+        v_cmd = np.clip(v_t + a_t * np.abs(a_t) / (2.0 * self._jmax) + feedback, -self._vmax, self._vmax)
+        traj = self._velocity_trajectory(self._p, self._v, self._a, v_cmd)
+        if traj is not None:
+            _, v1, a1 = self._sample(traj, self.dt)
+            if self._velocity_safe(v1, a1):
+                return traj
+        # Ruckig's velocity interface does not enforce max_velocity. When the next setpoint could not remove
+        # its acceleration before the limit, remove it at full jerk now: the velocity then peaks at
+        # v + a|a|/2j, inside the limit because the current state passed this check.
+        v_peak = np.clip(self._v + self._a * np.abs(self._a) / (2.0 * self._jmax), -self._vmax, self._vmax)
+        return self._velocity_trajectory(self._p, self._v, self._a, v_peak)
+
+    def _velocity_safe(self, v: np.ndarray, a: np.ndarray) -> bool:
+        """Whether |v| stays ≤ v_max when the acceleration a is removed at full jerk (peak v + a|a|/2j)."""
+        peak = v + a * np.abs(a) / (2.0 * self._jmax)
+        limit = self._vmax * (1.0 + 1e-9)
+        return bool(np.all(np.abs(v) <= limit) and np.all(np.abs(peak) <= limit))
