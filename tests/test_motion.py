@@ -90,6 +90,18 @@ def test_moving_start_state_then_abrupt_reversal():
     assert_stream_within_limits(P, V, A)
     assert gen.guard_clamps == 0
     assert P[:, 0].max() > HI[0] - 0.5  # it did keep going first (continuity of the measured state)
+    np.testing.assert_allclose(P[-1], [LO[0], HI[1]], atol=1e-4)  # then reached the target, clamped at the limits
+
+
+def test_braking_at_a_limit_then_resuming_a_rest_target():
+    gen = make()
+    gen.reset([HI[0] - 0.25, 0.0], velocity=[1.0, 0.0], acceleration=[0.0, 0.0])
+    gen.set_target([HI[0], 0.5])  # at the limit: the time-optimal path would arrive too fast
+    P, V, A = record(gen, 400)
+    assert_stream_within_limits(P, V, A)
+    assert gen.guard_clamps == 0
+    np.testing.assert_allclose(P[-1], [HI[0], 0.5], atol=1e-9)
+    assert gen.settled
 
 
 def test_reset_moving_without_target_brakes_to_rest():

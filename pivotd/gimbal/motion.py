@@ -137,6 +137,10 @@ class MotionGenerator:
         at_end = self._traj is None or self._t >= self._traj.duration - 1e-12
         return at_end and not self._tracking() and bool(np.all(np.abs(self._v) < 1e-9))
 
+    def _traj_ends_at_rest(self) -> bool:
+        _, v_end, a_end = self._sample(self._traj, self._traj.duration)
+        return bool(np.all(np.abs(v_end) < 1e-12) and np.all(np.abs(a_end) < 1e-12))
+
     def _tracking(self) -> bool:
         if self._target is None:
             return False
@@ -199,6 +203,12 @@ class MotionGenerator:
             if traj is not None:
                 self._traj, self._t = traj, 0.0
         if self._traj is None:
+            self._clock += self.dt
+            return self.state
+        resting = not self._braking and not self._tracking() and self._t >= self._traj.duration
+        if resting and self._traj_ends_at_rest():
+            self._v[:] = 0.0  # at rest on the target: nothing to sample or check
+            self._a[:] = 0.0
             self._clock += self.dt
             return self.state
         t_next = self._t + self.dt
