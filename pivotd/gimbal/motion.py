@@ -7,12 +7,15 @@ always starting from the current position, velocity and acceleration. Two modes:
 
 - **position** (target at rest): one time-optimal trajectory to the target, re-planned only when the
   target moves by more than the deadband (no re-planning chatter from noisy targets); exact arrival.
-- **tracking** (target moving): every step, Ruckig's velocity interface reaches the commanded velocity
-  v_ff + feedback(error) with acceleration a_ff, where feedback = min(gain·|e|, √(a_max·|e|)) (the second
-  term is a braking curve at half the acceleration limit, so large errors close without overshoot). A
-  constant-velocity target is followed with zero steady-state error, a curved one with a small lag.
-  Between target updates the target is extrapolated (its acceleration for at most
-  ``ACCELERATION_HORIZON_S``), so targets may arrive at the plan rate.
+- **tracking** (target moving): every step, Ruckig's velocity interface heads for
+  v_cmd = v_ff + a_ff·|a_ff|/2j + feedback(error) with zero acceleration at arrival, where
+  feedback = min(gain·|e|, √(a_max·|e|)) (the second term is a braking curve at half the acceleration
+  limit, so large errors close without overshoot) and the middle term leads by the velocity an
+  acceleration adds while it is removed at full jerk. Constant-velocity targets are followed without
+  steady-state error, curved ones with a small lag and smooth jerk. Between target updates the target is
+  extrapolated (its acceleration for at most ``ACCELERATION_HORIZON_S``), so targets may arrive at the
+  plan rate. Ruckig's velocity interface ignores max_velocity, so v_cmd is clipped and an acceleration
+  that would carry the velocity past the limit is removed at full jerk.
 
 Ruckig Community ignores position limits, so they are enforced here:
 
