@@ -23,14 +23,16 @@ def make(**kwargs) -> MotionGenerator:
     return MotionGenerator(DT, PAN, TILT, LIMITS, **kwargs)
 
 
-def assert_stream_within_limits(positions: np.ndarray, velocities: np.ndarray, accelerations: np.ndarray) -> None:
+def assert_stream_within_limits(
+    positions: np.ndarray, velocities: np.ndarray, accelerations: np.ndarray, dt: float = DT
+) -> None:
     """positions (K, 2) starting with the state before the first step; derivatives by finite differences."""
     rel = 1.0 + 1e-6
     assert np.all(positions >= LO - 1e-9), positions.min(axis=0)
     assert np.all(positions <= HI + 1e-9), positions.max(axis=0)
-    v_fd = np.diff(positions, axis=0) / DT
-    a_fd = np.diff(positions, n=2, axis=0) / DT**2
-    j_fd = np.diff(positions, n=3, axis=0) / DT**3
+    v_fd = np.diff(positions, axis=0) / dt
+    a_fd = np.diff(positions, n=2, axis=0) / dt**2
+    j_fd = np.diff(positions, n=3, axis=0) / dt**3
     assert np.all(np.abs(v_fd) <= VMAX * rel + 1e-9), np.abs(v_fd).max(axis=0)
     assert np.all(np.abs(a_fd) <= AMAX * rel + 1e-6), np.abs(a_fd).max(axis=0)
     assert np.all(np.abs(j_fd) <= JMAX * rel + 1e-3), np.abs(j_fd).max(axis=0)
@@ -52,10 +54,10 @@ def record(gen: MotionGenerator, steps: int, before_step=None) -> tuple[np.ndarr
     return np.array(P), np.array(V), np.array(A)
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2, 3])
-def test_random_abrupt_targets_never_exceed_limits(seed):
+@pytest.mark.parametrize(("seed", "dt"), [(0, DT), (1, DT), (2, DT), (3, DT), (4, 0.005)])
+def test_random_abrupt_targets_never_exceed_limits(seed, dt):
     rng = np.random.default_rng(seed)
-    gen = make()
+    gen = MotionGenerator(dt, PAN, TILT, LIMITS)
     gen.reset(rng.uniform(LO, HI))
     next_change = 0
 
@@ -63,7 +65,7 @@ def test_random_abrupt_targets_never_exceed_limits(seed):
         nonlocal next_change
         if k < next_change:
             return
-        next_change = k + int(rng.integers(1, 80))
+        next_change = k + int(rng.integers(1, int(0.8 / dt)))
         kind = rng.uniform()
         if kind < 0.1:
             gen.hold()
@@ -74,8 +76,8 @@ def test_random_abrupt_targets_never_exceed_limits(seed):
         else:  # anywhere, also outside the limits, random feed-forward
             gen.set_target(rng.uniform(LO - 1.0, HI + 1.0), rng.uniform(-1.2, 1.2, 2) * VMAX)
 
-    P, V, A = record(gen, 3000, retarget)
-    assert_stream_within_limits(P, V, A)
+    P, V, A = record(gen, round(30.0 / dt), retarget)
+    assert_stream_within_limits(P, V, A, dt)
     assert gen.guard_clamps == 0
     # The motion is not trivial: both axes travelled a lot.
     assert np.all(np.abs(np.diff(P, axis=0)).sum(axis=0) > 5.0)
