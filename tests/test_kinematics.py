@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from pivotd.geometry import angle_between, matrix_to_quat, normalize, pan_tilt_to_direction, so3_exp
 from pivotd.gimbal.kinematics import (
@@ -12,6 +14,7 @@ from pivotd.gimbal.kinematics import (
     joints_to_world_direction,
     rpy_to_matrix,
     world_direction_to_joints,
+    world_directions_to_joints,
 )
 
 WIDE = JointLimits(pan_min=-np.pi, pan_max=np.pi, tilt_min=-np.pi / 2, tilt_max=np.pi / 2)
@@ -194,3 +197,32 @@ def test_rejects_degenerate_direction():
         world_direction_to_joints(np.zeros(3), np.array([0, 0, 0, 1.0]), Mount(), WIDE)
     with pytest.raises(ValueError):
         world_direction_to_joints(np.array([np.nan, 0, 1]), np.array([0, 0, 0, 1.0]), Mount(), WIDE)
+
+
+def test_sequence_is_continuous_and_matches_single_calls():
+    limits = JointLimits(pan_min=-2 * np.pi, pan_max=2 * np.pi, tilt_min=-1.0, tilt_max=1.0)
+    headings = np.linspace(0.0, 1.8 * np.pi, 50)  # sweeps past +π
+    dirs = np.stack([np.cos(headings), np.sin(headings), np.full(50, -0.2)], axis=1)
+    q = np.array([0.0, 0.0, 0.0, 1.0])
+    pan, tilt, clamped = world_directions_to_joints(dirs, q, Mount(), limits)
+    assert not clamped.any()
+    assert np.all(np.abs(np.diff(pan)) < 0.2)  # no jump of 2π at ±π
+    np.testing.assert_allclose(pan, headings, atol=1e-9)
+    single = world_direction_to_joints(dirs[10], q, Mount(), limits, previous_pan=pan[9])
+    assert single[0] == pytest.approx(pan[10]) and single[1] == pytest.approx(tilt[10])
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    q=st.lists(st.floats(-1, 1), min_size=4, max_size=4).filter(lambda v: np.linalg.norm(v) > 0.1),
+    rpy=st.lists(st.floats(-np.pi, np.pi), min_size=3, max_size=3),
+    pan=st.floats(-3.0, 3.0),
+    tilt=st.floats(-1.5, 1.5),
+)
+def test_property_joint_round_trip(q, rpy, pan, tilt):
+    mount = Mount.from_xyz_rpy([0.1, 0.0, 0.2], rpy)
+    d = joints_to_world_direction(pan, tilt, np.array(q), mount)
+    p2, t2, clamped = world_direction_to_joints(d, np.array(q), mount, WIDE, previous_pan=pan)
+    assert not clamped
+    assert float(angle_between(joints_to_world_direction(p2, t2, np.array(q), mount), d)) < 1e-9
+    assert abs(t2 - tilt) < 1e-7 and abs(p2 - pan) < 1e-6

@@ -171,3 +171,28 @@ def world_direction_to_joints(
                 best, best_err = (pan_k, tilt_k), err
     assert best is not None
     return best[0], best[1], True
+
+
+def world_directions_to_joints(
+    directions: np.ndarray,
+    body_quats: np.ndarray,
+    mount: Mount,
+    limits: JointLimits,
+    previous_pan: float | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Joint angles for a sequence of world ``directions`` (N, 3) at attitudes ``body_quats`` (N, 4) or (4,).
+
+    Each element is solved like :func:`world_direction_to_joints` with the previous element's pan as the
+    reference, so a plan becomes a continuous joint trajectory (unwrapped for continuous pan).
+    Returns pan (N,), tilt (N,) [rad] and clamped (N,) bool.
+    """
+    directions = np.asarray(directions, dtype=float).reshape(-1, 3)
+    quats = np.broadcast_to(np.asarray(body_quats, dtype=float), (directions.shape[0], 4))
+    pan = np.empty(directions.shape[0])
+    tilt = np.empty(directions.shape[0])
+    clamped = np.zeros(directions.shape[0], dtype=bool)
+    reference = previous_pan
+    for i in range(directions.shape[0]):
+        pan[i], tilt[i], clamped[i] = world_direction_to_joints(directions[i], quats[i], mount, limits, reference)
+        reference = float(pan[i])
+    return pan, tilt, clamped
