@@ -4,6 +4,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from pivotd.gimbal.kinematics import JointLimits
 from pivotd.gimbal.motion import AxisLimits, MotionGenerator
@@ -270,3 +272,39 @@ def test_smooth_plan_is_tracked_with_a_small_lag_and_smooth_jerk():
     # No jerk chatter: the setpoints' jerk stays near the plan's own (≤ 1.1 rad/s³), far below the limits.
     jerk = np.diff(P, n=3, axis=0)[300:] / DT**3
     assert np.all(np.sqrt(np.mean(jerk**2, axis=0)) < 0.1 * JMAX)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    dt=st.sampled_from([0.005, 0.01]),
+    vmax=st.floats(0.3, 4.0),
+    amax=st.floats(0.5, 10.0),
+    jmax=st.floats(2.0, 100.0),
+)
+def test_property_limits_hold_for_any_axis_limits(seed, dt, vmax, amax, jmax):
+    """Random kinematic limits, a moving start state that can still brake, abrupt random targets."""
+    rng = np.random.default_rng(seed)
+    axis = AxisLimits(vmax, amax, jmax)
+    limits = JointLimits(pan_min=-1.0, pan_max=1.5, tilt_min=-0.5, tilt_max=0.7)
+    lo, hi = np.array([-1.0, -0.5]), np.array([1.5, 0.7])
+    gen = MotionGenerator(dt, axis, axis, limits)
+    v0 = rng.uniform(-0.3, 0.3, 2) * vmax
+    stop = v0**2 / (2 * amax) + np.abs(v0) * amax / jmax  # generous jerk-limited stopping distance
+    start = np.clip(np.where(v0 > 0, hi - stop, lo + stop) - np.sign(v0) * 0.05, lo, hi)
+    gen.reset(start, velocity=v0)
+    P = [gen.state.position]
+    for k in range(400):
+        if k % 37 == 0:
+            if rng.uniform() < 0.5:
+                gen.set_target(rng.uniform(lo - 0.5, hi + 0.5))
+            else:
+                gen.set_target(rng.uniform(lo, hi), rng.uniform(-1.0, 1.0, 2) * vmax, rng.uniform(-1, 1, 2) * amax)
+        P.append(gen.step().position)
+    P = np.array(P)
+    assert np.all(lo - 1e-9 <= P) and np.all(hi + 1e-9 >= P)
+    rel = 1.0 + 1e-6
+    assert np.all(np.abs(np.diff(P, axis=0)) / dt <= vmax * rel + 1e-9)
+    assert np.all(np.abs(np.diff(P, n=2, axis=0)) / dt**2 <= amax * rel + 1e-6)
+    assert np.all(np.abs(np.diff(P, n=3, axis=0)) / dt**3 <= jmax * rel + 1e-3)
+    assert gen.guard_clamps == 0
