@@ -21,6 +21,7 @@ import yaml
 from pivotd.errors import ConfigError
 
 _MISSING = object()
+_YAML12_FLOAT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
 
 
 @dataclass(frozen=True)
@@ -133,6 +134,10 @@ class Section:
         if not given:
             return value
         what = "an integer" if integer else "a number"
+        if isinstance(value, str) and _YAML12_FLOAT.fullmatch(value.strip()):
+            value = float(value)  # YAML 1.2 reads 1e3 as a number; PyYAML (YAML 1.1) leaves it a string
+            if integer and value.is_integer():
+                value = int(value)
         if isinstance(value, bool) or not isinstance(value, int | float) or (integer and not isinstance(value, int)):
             raise self.error(key, f"must be {what}, got {_kind(value)} {value!r}")
         if not math.isfinite(value):

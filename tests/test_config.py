@@ -179,3 +179,11 @@ def test_configs_are_comparable_for_reload():
     b = load_config(CONFIG_DIR / "demo.yaml")
     assert a == b
     assert a != load_config(CONFIG_DIR / "spot.yaml")
+
+
+def test_exponent_numbers_are_numbers(tmp_path):
+    """PyYAML (YAML 1.1) reads 1e3 as a string; the config accepts it as YAML 1.2 does."""
+    text = MINIMAL + "motion:\n  pan: {max_jerk_deg_s3: 1e3}\ntopics: {max_cloud_points: 2e5}\n"
+    cfg = load_config(write(tmp_path, text, "ok.yaml"))
+    assert cfg.motion.pan.max_jerk == pytest.approx(math.radians(1000.0))
+    assert cfg.topics.max_cloud_points == 200000
