@@ -43,6 +43,8 @@ log = logging.getLogger(__name__)
 
 ACCELERATION_HORIZON_S = 0.3  # [s] how far a target's acceleration is extrapolated (then constant velocity)
 DEFAULT_GAIN = 5.0  # [1/s] position feedback of the tracking mode (time constant 0.2 s)
+_FF_POWER = 2.0  # feed-forward scale = feasibility ** _FF_POWER
+_FEASIBILITY_TAU_S = 1.0  # [s] recovery time constant of the feasibility estimate (drops are immediate)
 _POS_TOL = 1e-9  # [rad] numerical slack on position limits
 _OK = (Result.Working, Result.Finished)
 
@@ -103,6 +105,9 @@ class MotionGenerator:
         self._jmax = np.array([pan.max_jerk, tilt.max_jerk])
         # Loop stability needs the feedback slower than the jerk-limited acceleration response (≈ a/j).
         self._gain = np.minimum(self.gain, 0.8 * self._jmax / self._amax)
+        self._feasibility = np.ones(2)  # smoothed share of the reference's motion the axes can follow
+        self._ref_acceleration: np.ndarray | None = None
+        self._ref_clock = 0.0
         pan_lo, pan_hi = (-np.inf, np.inf) if limits.continuous_pan else (limits.pan_min, limits.pan_max)
         self._lo = np.array([pan_lo, limits.tilt_min], dtype=float)
         self._hi = np.array([pan_hi, limits.tilt_max], dtype=float)
@@ -144,6 +149,20 @@ class MotionGenerator:
         _, v_end, a_end = self._sample(self._traj, self._traj.duration)
         return bool(np.all(np.abs(v_end) < 1e-12) and np.all(np.abs(a_end) < 1e-12))
 
+    def _update_feasibility(self, a: np.ndarray) -> None:
+        """Track how far the reference's acceleration and jerk (from successive targets) exceed the limits."""
+        elapsed = self._clock - self._ref_clock
+        if self._ref_acceleration is not None and elapsed > 0.0:
+            jerk = np.abs(a - self._ref_acceleration) / elapsed
+            ratio = np.minimum.reduce(
+                [np.ones(2), self._amax / np.maximum(np.abs(a), 1e-12), self._jmax / np.maximum(jerk, 1e-12)]
+            )
+            w = min(1.0, elapsed / _FEASIBILITY_TAU_S)
+            self._feasibility = np.minimum(ratio, self._feasibility + w * (ratio - self._feasibility))
+        if self._ref_acceleration is None or elapsed > 0.0:
+            self._ref_acceleration = a.copy()
+            self._ref_clock = self._clock
+
     def _tracking(self) -> bool:
         if self._target is None:
             return False
@@ -179,6 +198,7 @@ class MotionGenerator:
         a = np.asarray(acceleration, dtype=float).reshape(2)
         if not (np.all(np.isfinite(p)) and np.all(np.isfinite(v)) and np.all(np.isfinite(a))):
             raise ValueError("target must be finite")
+        self._update_feasibility(a)
         new = self._extrapolate(p, np.clip(v, -self._vmax, self._vmax), np.clip(a, -self._amax, self._amax), 0.0)
         at_rest = not (np.any(new[1] != 0.0) or np.any(new[2] != 0.0))
         resting = self._target is not None and not self._tracking()
@@ -355,7 +375,10 @@ class MotionGenerator:
         p_t, v_t, a_t = self._extrapolate(*self._target, self._clock - self._target_clock)
         error = p_t - self._p
         feedback = np.sign(error) * np.minimum(self._gain * np.abs(error), np.sqrt(self._amax * np.abs(error)))
-        v_cmd = np.clip(v_t + a_t * np.abs(a_t) / (2.0 * self._jmax) + feedback, -self._vmax, self._vmax)
+        # Feed-forward of a reference the axes cannot follow (beyond their acceleration or jerk) arrives too
+        # late and pumps the loop into a limit cycle; it is scaled down with the reference's feasibility.
+        ff = (v_t + a_t * np.abs(a_t) / (2.0 * self._jmax)) * self._feasibility**_FF_POWER
+        v_cmd = np.clip(ff + feedback, -self._vmax, self._vmax)
         traj = self._velocity_trajectory(self._p, self._v, self._a, v_cmd)
         if traj is not None:
             _, v1, a1 = self._sample(traj, self.dt)
