@@ -80,7 +80,10 @@ class MotionGenerator:
 
     ``deadband`` [rad]: a rest target within ``deadband`` (per axis) of the active rest target is ignored,
     so a noisy target does not re-plan every cycle. Moving targets are always taken (tracking follows them
-    continuously; a deadband would only add reference error). ``gain`` [1/s]: tracking feedback.
+    continuously; a deadband would only add reference error). ``gain`` [1/s]: tracking feedback, capped
+    per axis at 0.8·j_max/a_max for stability. Feed-forward is scaled down while the reference (judged from
+    successive targets) accelerates or jerks beyond the axis limits, so an unfollowable reference is damped
+    rather than amplified. Counters for status: ``replans``, ``limit_brakes``, ``guard_clamps``.
     """
 
     def __init__(
@@ -144,30 +147,6 @@ class MotionGenerator:
         """True when at rest on a reached position target (or holding still)."""
         at_end = self._traj is None or self._t >= self._traj.duration - 1e-12
         return at_end and not self._tracking() and bool(np.all(np.abs(self._v) < 1e-9))
-
-    def _traj_ends_at_rest(self) -> bool:
-        _, v_end, a_end = self._sample(self._traj, self._traj.duration)
-        return bool(np.all(np.abs(v_end) < 1e-12) and np.all(np.abs(a_end) < 1e-12))
-
-    def _update_feasibility(self, a: np.ndarray) -> None:
-        """Track how far the reference's acceleration and jerk (from successive targets) exceed the limits."""
-        elapsed = self._clock - self._ref_clock
-        if self._ref_acceleration is not None and elapsed > 0.0:
-            jerk = np.abs(a - self._ref_acceleration) / elapsed
-            ratio = np.minimum.reduce(
-                [np.ones(2), self._amax / np.maximum(np.abs(a), 1e-12), self._jmax / np.maximum(jerk, 1e-12)]
-            )
-            w = min(1.0, elapsed / _FEASIBILITY_TAU_S)
-            self._feasibility = np.minimum(ratio, self._feasibility + w * (ratio - self._feasibility))
-        if self._ref_acceleration is None or elapsed > 0.0:
-            self._ref_acceleration = a.copy()
-            self._ref_clock = self._clock
-
-    def _tracking(self) -> bool:
-        if self._target is None:
-            return False
-        _, v, a = self._target
-        return bool(np.any(v != 0.0) or np.any(a != 0.0))
 
     def reset(self, position, velocity=(0.0, 0.0), acceleration=(0.0, 0.0)) -> None:
         """Restart from a (measured) state; a moving state is braked until the next :meth:`set_target`."""
@@ -258,6 +237,30 @@ class MotionGenerator:
         return self.state
 
     # ------------------------------------------------------------------ target model
+    def _traj_ends_at_rest(self) -> bool:
+        _, v_end, a_end = self._sample(self._traj, self._traj.duration)
+        return bool(np.all(np.abs(v_end) < 1e-12) and np.all(np.abs(a_end) < 1e-12))
+
+    def _update_feasibility(self, a: np.ndarray) -> None:
+        """Track how far the reference's acceleration and jerk (from successive targets) exceed the limits."""
+        elapsed = self._clock - self._ref_clock
+        if self._ref_acceleration is not None and elapsed > 0.0:
+            jerk = np.abs(a - self._ref_acceleration) / elapsed
+            ratio = np.minimum.reduce(
+                [np.ones(2), self._amax / np.maximum(np.abs(a), 1e-12), self._jmax / np.maximum(jerk, 1e-12)]
+            )
+            w = min(1.0, elapsed / _FEASIBILITY_TAU_S)
+            self._feasibility = np.minimum(ratio, self._feasibility + w * (ratio - self._feasibility))
+        if self._ref_acceleration is None or elapsed > 0.0:
+            self._ref_acceleration = a.copy()
+            self._ref_clock = self._clock
+
+    def _tracking(self) -> bool:
+        if self._target is None:
+            return False
+        _, v, a = self._target
+        return bool(np.any(v != 0.0) or np.any(a != 0.0))
+
     def _extrapolate(self, p: np.ndarray, v: np.ndarray, a: np.ndarray, tau) -> State:
         """A target state advanced by ``tau`` [s] (scalar or per axis (2,)).
 
