@@ -1,0 +1,69 @@
+"""``pivotd check --config FILE``: validate a config, load its map, print a concise summary.
+
+Exits 0 when everything is usable; a bad config or map raises ConfigError / InputError, which the CLI
+prints as one line before exiting 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+import numpy as np
+
+from pivotd.config import Config, load_config
+from pivotd.maps.formats import LandmarkCloud, load_landmarks
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", required=True, metavar="FILE", help="pivotd YAML config to validate")
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = load_config(args.config)
+    cloud = load_landmarks(cfg.map.file) if cfg.map.file is not None else None
+    sys.stdout.write("\n".join(summary_lines(cfg, cloud)) + "\n")
+    return 0
+
+
+def _deg(rad: float) -> str:
+    return f"{math.degrees(rad):g}"
+
+
+def summary_lines(cfg: Config, cloud: LandmarkCloud | None) -> list[str]:
+    """Human-readable summary of a validated config and its loaded map (one item per line)."""
+    z, t, g, m, c = cfg.zenoh, cfg.topics, cfg.gimbal, cfg.motion, cfg.control
+    lim = g.limits
+    if cloud is None:
+        map_line = f"map: none (landmarks from {t.landmarks})"
+    else:
+        lo, hi = cloud.points.min(axis=0), cloud.points.max(axis=0)
+        bounds = " ".join(f"[{a:.2f}, {b:.2f}]" for a, b in zip(lo, hi, strict=True))
+        weights = "" if np.all(cloud.weights == 1.0) else f", weights {cloud.weights.min():g}..{cloud.weights.max():g}"
+        map_line = f"map: {cfg.map.file} ({len(cloud)} landmarks, bounds x y z {bounds} m{weights})"
+    pan_range = "continuous" if lim.continuous_pan else f"[{_deg(lim.pan_min)}, {_deg(lim.pan_max)}]"
+    f = cfg.map.filters
+    return [
+        f"config: {cfg.source} OK",
+        f"node: {cfg.name} (status key {cfg.status_key})",
+        f"zenoh: {z.mode}, connect {list(z.connect)}, listen {list(z.listen)}, "
+        f"multicast scouting {'on' if z.multicast_scouting else 'off'}"
+        + (f", config file {z.config_file}" if z.config_file else ""),
+        f"topics (domain {t.domain_id}): pose {t.pose} [{t.pose_type}], path {t.path}, landmarks {t.landmarks}, "
+        f"targets {t.targets}, joint states {t.joint_states}, view plan {t.view_plan}, frame {t.frame_id}",
+        map_line,
+        f"filters: range {f.min_range:g}..{f.max_range:g} m"
+        + (f", view angle ≤ {f.max_view_angle_deg:g}°" if f.max_view_angle is not None else ""),
+        f"pivot: fov {cfg.pivot.fov_deg:g}° (α {math.degrees(cfg.pivot.half_angle):g}°), λ {cfg.pivot.lam:g}, "
+        f"transition width {_deg(cfg.pivot.transition_width)}°, {cfg.pivot.iterations} iterations",
+        f"planner: spacing {cfg.planner.waypoint_spacing:g} m, horizon {cfg.planner.horizon} waypoints, "
+        f"replan {cfg.planner.replan_hz:g} Hz",
+        f"gimbal: port {g.port} @ {g.baud} baud, pan {pan_range}°, tilt [{_deg(lim.tilt_min)}, {_deg(lim.tilt_max)}]°, "
+        f"park ({_deg(g.park_pan)}, {_deg(g.park_tilt)})°, watchdog {g.watchdog_ms} ms",
+        f"motion: pan {_deg(m.pan.max_velocity)}°/s {_deg(m.pan.max_acceleration)}°/s² "
+        f"{_deg(m.pan.max_jerk)}°/s³; tilt {_deg(m.tilt.max_velocity)}°/s {_deg(m.tilt.max_acceleration)}°/s² "
+        f"{_deg(m.tilt.max_jerk)}°/s³; deadband {_deg(m.deadband)}°",
+        f"control: {c.rate_hz:g} Hz, pose timeout {c.pose_timeout_s:g} s, status {c.status_hz:g} Hz, "
+        f"joint states {c.joint_state_hz:g} Hz",
+    ]

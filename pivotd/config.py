@@ -1,0 +1,489 @@
+"""pivotd configuration: YAML -> typed, validated, frozen dataclasses (docs/CONFIG.md).
+
+Angles in YAML carry a ``_deg`` suffix (``_deg_s``, ``_deg_s2``, ``_deg_s3`` for rates); the dataclasses hold
+SI values (radians, seconds, metres) under the name without the suffix, with ``*_deg`` properties for
+display. Relative file paths resolve against the directory of the config file. Every problem raises
+:class:`~pivotd.errors.ConfigError` naming the file, line and key path, e.g.
+``spot.yaml:41: gimbal.limits.tilt_max_deg: must be > tilt_min_deg (-45)``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from pivotd.config_reader import Section, read_yaml
+from pivotd.errors import ConfigError, InputError
+from pivotd.gimbal.kinematics import JointLimits, Mount
+from pivotd.gimbal.motion import AxisLimits
+
+POSE_TYPES = ("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped")
+LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
+ZENOH_MODES = ("peer", "client")
+CONTROL_RATE_RANGE_HZ = (100.0, 200.0)
+
+_NAME_RE = r"[A-Za-z0-9_][A-Za-z0-9_\-]*"
+_TOPIC_RE = r"/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*"
+_FRAME_RE = r"[A-Za-z_][A-Za-z0-9_/]*"
+_ENDPOINT_RE = re.compile(r"(?P<proto>[a-z][a-z0-9\-]*)/(?P<addr>[^#]+)(#.*)?")
+_IP_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws")
+
+
+@dataclass(frozen=True)
+class ZenohConfig:
+    """Zenoh session. Endpoints are locators such as ``tcp/127.0.0.1:7447``."""
+
+    mode: str = "peer"
+    connect: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()
+    config_file: Path | None = None  # a Zenoh JSON5 config (TLS, auth) applied before the keys above
+    multicast_scouting: bool = False
+
+
+@dataclass(frozen=True)
+class TopicsConfig:
+    """ROS 2 topics (rmw_zenoh key expressions are built from these) and their limits."""
+
+    domain_id: int = 0
+    pose: str = "/odom"
+    pose_type: str = "nav_msgs/msg/Odometry"
+    path: str = "/plan"
+    landmarks: str = "/pivot/landmarks"
+    targets: str = "/pivot/targets"
+    joint_states: str = "/pivot/joint_states"
+    view_plan: str = "/pivot/view_plan"
+    frame_id: str = "map"
+    max_cloud_points: int = 1_000_000
+
+
+@dataclass(frozen=True)
+class MapFilters:
+    """Per-waypoint landmark filters: ranges [m], view angle [rad] (None = off), occlusion voxel [m]."""
+
+    min_range: float = 0.0
+    max_range: float = 20.0
+    max_view_angle: float | None = None
+    occlusion_voxel: float | None = None
+    occupancy_file: Path | None = None
+
+    @property
+    def max_view_angle_deg(self) -> float | None:
+        return None if self.max_view_angle is None else math.degrees(self.max_view_angle)
+
+
+@dataclass(frozen=True)
+class MapLayers:
+    """Weight multipliers of the landmark map and of the semantic targets."""
+
+    landmarks: float = 1.0
+    targets: float = 1.0
+
+
+@dataclass(frozen=True)
+class MapConfig:
+    """Landmark map file (None only with ``allow_empty``: landmarks then arrive on the landmarks topic)."""
+
+    file: Path | None = None
+    weight_property: str | None = None
+    allow_empty: bool = False
+    filters: MapFilters = field(default_factory=MapFilters)
+    layers: MapLayers = field(default_factory=MapLayers)
+
+
+@dataclass(frozen=True)
+class PivotConfig:
+    """Optimizer settings: full cone opening ``fov`` [rad] (α = fov/2), smoothness weight ``lam`` (λ)."""
+
+    fov: float = math.radians(60.0)
+    lam: float = 0.6
+    transition_width: float = math.radians(4.0)
+    iterations: int = 50
+    starts: int = 8
+
+    @property
+    def fov_deg(self) -> float:
+        return math.degrees(self.fov)
+
+    @property
+    def half_angle(self) -> float:
+        """The paper's α [rad]."""
+        return 0.5 * self.fov
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Receding horizon: waypoint spacing [m], horizon [waypoints], replanning rate [Hz]."""
+
+    waypoint_spacing: float = 0.5
+    horizon: int = 20
+    replan_hz: float = 5.0
+    max_landmarks_per_waypoint: int = 2000
+
+
+@dataclass(frozen=True)
+class GimbalConfig:
+    """Serial link, mount, joint limits [rad], park pose [rad], device watchdog [ms], park timeout [s]."""
+
+    port: str = "mock://"
+    baud: int = 115200
+    mount: Mount = field(default_factory=Mount)
+    limits: JointLimits = field(default_factory=JointLimits)
+    park_pan: float = 0.0
+    park_tilt: float = 0.0
+    watchdog_ms: int = 250
+    park_timeout_s: float = 3.0
+
+
+@dataclass(frozen=True)
+class MotionConfig:
+    """Per-axis kinematic limits (SI) and the retarget deadband [rad]."""
+
+    pan: AxisLimits = field(default_factory=lambda: _axis_limits_deg(90.0, 180.0, 900.0))
+    tilt: AxisLimits = field(default_factory=lambda: _axis_limits_deg(90.0, 180.0, 900.0))
+    deadband: float = math.radians(0.05)
+
+
+@dataclass(frozen=True)
+class ControlConfig:
+    """Control loop rate [Hz], stale-pose timeout [s], status and joint-state publication rates [Hz]."""
+
+    rate_hz: float = 100.0
+    pose_timeout_s: float = 0.5
+    status_hz: float = 2.0
+    joint_state_hz: float = 50.0
+
+    @property
+    def dt(self) -> float:
+        """Control period [s]."""
+        return 1.0 / self.rate_hz
+
+
+@dataclass(frozen=True)
+class LoggingConfig:
+    level: str = "INFO"
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Simulated robot for the demo: route file (None = the built-in hallway), speed [m/s], pose rate [Hz]."""
+
+    route: Path | None = None
+    speed: float = 0.8
+    pose_hz: float = 50.0
+    loop: bool = True
+
+
+@dataclass(frozen=True)
+class Config:
+    """A complete, validated pivotd configuration."""
+
+    name: str = "pivotd"
+    zenoh: ZenohConfig = field(default_factory=ZenohConfig)
+    topics: TopicsConfig = field(default_factory=TopicsConfig)
+    map: MapConfig = field(default_factory=MapConfig)
+    pivot: PivotConfig = field(default_factory=PivotConfig)
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+    gimbal: GimbalConfig = field(default_factory=GimbalConfig)
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    control: ControlConfig = field(default_factory=ControlConfig)
+    logging: LoggingConfig = field(default_factory=LoggingConfig)
+    sim: SimConfig | None = None
+    source: Path | None = None  # the file this was loaded from
+
+    @property
+    def status_key(self) -> str:
+        """Plain Zenoh key of the JSON status: ``pivot/<name>/status``."""
+        return f"pivot/{self.name}/status"
+
+    def with_overrides(
+        self,
+        port: str | None = None,
+        connect: list[str] | tuple[str, ...] | None = None,
+        listen: list[str] | tuple[str, ...] | None = None,
+    ) -> Config:
+        """A copy with the command-line overrides (``--port``, ``--connect``, ``--listen``) applied and checked."""
+        cfg = self
+        if port is not None:
+            if not port.strip():
+                raise _cli_error("--port", "must not be empty")
+            cfg = replace(cfg, gimbal=replace(cfg.gimbal, port=port))
+        zenoh = cfg.zenoh
+        for option, values in (("--connect", connect), ("--listen", listen)):
+            if not values:
+                continue
+            for endpoint in values:
+                problem = endpoint_problem(endpoint, listen=option == "--listen")
+                if problem:
+                    raise _cli_error(option, f"{endpoint!r}: {problem}")
+            zenoh = replace(zenoh, **{option[2:]: tuple(values)})
+        return replace(cfg, zenoh=zenoh)
+
+
+def _cli_error(option: str, message: str) -> InputError:
+    return InputError(f"{option}: {message}")
+
+
+def _axis_limits_deg(v: float, a: float, j: float) -> AxisLimits:
+    return AxisLimits(math.radians(v), math.radians(a), math.radians(j))
+
+
+def endpoint_problem(endpoint: str, listen: bool = False) -> str | None:
+    """Why ``endpoint`` is not a Zenoh locator like ``tcp/127.0.0.1:7447`` (None when it is fine)."""
+    m = _ENDPOINT_RE.fullmatch(endpoint.strip())
+    if m is None:
+        return "expected <protocol>/<address>, e.g. tcp/127.0.0.1:7447"
+    if m["proto"] in _IP_PROTOCOLS:
+        host, sep, port = m["addr"].rpartition(":")
+        if not sep or not host or not port.isdigit():
+            return "expected <host>:<port> after the protocol"
+        low = 0 if listen else 1
+        if not low <= int(port) <= 65535:
+            return f"port must be {low}..65535"
+    return None
+
+
+# ---------------------------------------------------------------------------- loading
+def load_config(path: str | Path) -> Config:
+    """Read and validate a config file; raises ConfigError naming file, line and key on any problem."""
+    path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{path}: is a directory, expected a YAML config file")
+    root = Section(path, read_yaml(path))
+    name = root.string("name", "pivotd", pattern=_NAME_RE, pattern_help="letters, digits, '_' and '-' only")
+    control = _control(root.section("control"))
+    cfg = Config(
+        name=name,
+        zenoh=_zenoh(root.section("zenoh")),
+        topics=_topics(root.section("topics")),
+        map=_map(root.section("map")),
+        pivot=_pivot(root.section("pivot")),
+        planner=_planner(root.section("planner"), control),
+        gimbal=_gimbal(root.section("gimbal"), control),
+        motion=_motion(root.section("motion")),
+        control=control,
+        logging=_logging(root.section("logging")),
+        sim=_sim(root.section("sim")) if root.has("sim") else None,
+        source=path.resolve(),
+    )
+    root.finish()
+    return cfg
+
+
+def _zenoh(s: Section) -> ZenohConfig:
+    d = ZenohConfig()
+    mode = s.string("mode", d.mode, choices=ZENOH_MODES)
+    connect = s.string_list("connect", d.connect, check=endpoint_problem)
+    listen = s.string_list("listen", d.listen, check=lambda e: endpoint_problem(e, listen=True))
+    config_file = s.path_value("config_file", None)
+    scouting = s.boolean("multicast_scouting", d.multicast_scouting)
+    if mode == "client" and not connect and not scouting and config_file is None:
+        raise s.error("connect", "client mode needs a router endpoint (or multicast_scouting: true)")
+    s.finish()
+    return ZenohConfig(mode, connect, listen, config_file, scouting)
+
+
+def _topics(s: Section) -> TopicsConfig:
+    d = TopicsConfig()
+    help_topic = "a ROS 2 topic name such as /pivot/landmarks"
+
+    def topic(key: str) -> str:
+        return s.string(key, getattr(d, key), pattern=_TOPIC_RE, pattern_help=help_topic)
+
+    out = TopicsConfig(
+        domain_id=s.number("domain_id", d.domain_id, min=0, max=232, integer=True),
+        pose=topic("pose"),
+        pose_type=s.string("pose_type", d.pose_type, choices=POSE_TYPES),
+        path=topic("path"),
+        landmarks=topic("landmarks"),
+        targets=topic("targets"),
+        joint_states=topic("joint_states"),
+        view_plan=topic("view_plan"),
+        frame_id=s.string("frame_id", d.frame_id, pattern=_FRAME_RE, pattern_help="a TF frame name"),
+        max_cloud_points=s.number("max_cloud_points", d.max_cloud_points, min=1, integer=True),
+    )
+    s.finish()
+    return out
+
+
+def _map(s: Section) -> MapConfig:
+    d = MapConfig()
+    allow_empty = s.boolean("allow_empty", d.allow_empty)
+    file = s.path_value("file", None)
+    if file is None and not allow_empty:
+        raise s.error("file", "required key is missing (or set map.allow_empty: true)")
+    if file is not None and file.is_dir() and not (file / "points3D.bin").exists() and not (
+        file / "points3D.txt"
+    ).exists():
+        raise s.error("file", f"{file} is a directory without a COLMAP points3D file")
+    weight_property = s.string("weight_property", None)
+    f = s.section("filters")
+    fd = MapFilters()
+    min_range = f.number("min_range", fd.min_range, min=0.0)
+    max_range = f.number("max_range", fd.max_range, min=0.0, min_open=True)
+    if max_range <= min_range:
+        raise f.error("max_range", f"must be > min_range ({min_range:g})")
+    view_deg = f.number("max_view_angle_deg", None, min=0.0, max=180.0, min_open=True)
+    filters = MapFilters(
+        min_range=min_range,
+        max_range=max_range,
+        max_view_angle=None if view_deg is None else math.radians(view_deg),
+        occlusion_voxel=f.number("occlusion_voxel", None, min=0.0, min_open=True),
+        occupancy_file=f.path_value("occupancy_file", None),
+    )
+    f.finish()
+    layers_s = s.section("layers")
+    layers = MapLayers(
+        landmarks=layers_s.number("landmarks", MapLayers.landmarks, min=0.0),
+        targets=layers_s.number("targets", MapLayers.targets, min=0.0),
+    )
+    layers_s.finish()
+    s.finish()
+    return MapConfig(file, weight_property, allow_empty, filters, layers)
+
+
+def _pivot(s: Section) -> PivotConfig:
+    d = PivotConfig()
+    fov_deg = s.number("fov_deg", d.fov_deg, min=0.0, max=180.0, min_open=True, max_open=True)
+    width_deg = s.number("transition_width_deg", math.degrees(d.transition_width), min=0.0, max=45.0, min_open=True)
+    out = PivotConfig(
+        fov=math.radians(fov_deg),
+        lam=s.number("lambda", d.lam, min=0.0),
+        transition_width=math.radians(width_deg),
+        iterations=s.number("iterations", d.iterations, min=1, max=10_000, integer=True),
+        starts=s.number("starts", d.starts, min=1, max=1000, integer=True),
+    )
+    s.finish()
+    return out
+
+
+def _planner(s: Section, control: ControlConfig) -> PlannerConfig:
+    d = PlannerConfig()
+    out = PlannerConfig(
+        waypoint_spacing=s.number("waypoint_spacing", d.waypoint_spacing, min=0.0, min_open=True),
+        horizon=s.number("horizon", d.horizon, min=1, max=10_000, integer=True),
+        replan_hz=s.number("replan_hz", d.replan_hz, min=0.0, max=control.rate_hz, min_open=True),
+        max_landmarks_per_waypoint=s.number(
+            "max_landmarks_per_waypoint", d.max_landmarks_per_waypoint, min=1, integer=True
+        ),
+    )
+    s.finish()
+    return out
+
+
+def _gimbal(s: Section, control: ControlConfig) -> GimbalConfig:
+    d = GimbalConfig()
+    port = s.string("port", d.port)
+    if not port.strip():
+        raise s.error("port", "must not be empty (a device such as /dev/ttyUSB0 or a pyserial URL)")
+    baud = s.number("baud", d.baud, min=1, integer=True)
+
+    m = s.section("mount")
+    xyz = m.vector("xyz", (0.0, 0.0, 0.0))
+    rpy_deg = m.vector("rpy_deg", (0.0, 0.0, 0.0))
+    m.finish()
+    mount = Mount.from_xyz_rpy(xyz, [math.radians(a) for a in rpy_deg])
+
+    lim = s.section("limits")
+    continuous = lim.boolean("continuous_pan", False)
+    pan_min = lim.number("pan_min_deg", -170.0, min=-720.0, max=720.0)
+    pan_max = lim.number("pan_max_deg", 170.0, min=-720.0, max=720.0)
+    tilt_min = lim.number("tilt_min_deg", -90.0, min=-180.0, max=180.0)
+    tilt_max = lim.number("tilt_max_deg", 90.0, min=-180.0, max=180.0)
+    if pan_max <= pan_min:
+        raise lim.error("pan_max_deg", f"must be > pan_min_deg ({pan_min:g})")
+    if tilt_max <= tilt_min:
+        raise lim.error("tilt_max_deg", f"must be > tilt_min_deg ({tilt_min:g})")
+    lim.finish()
+    limits = JointLimits(
+        pan_min=math.radians(pan_min),
+        pan_max=math.radians(pan_max),
+        tilt_min=math.radians(tilt_min),
+        tilt_max=math.radians(tilt_max),
+        continuous_pan=continuous,
+    )
+
+    park = s.section("park")
+    park_pan = park.number("pan_deg", 0.0)
+    park_tilt = park.number("tilt_deg", 0.0)
+    if not continuous and not pan_min <= park_pan <= pan_max:
+        raise park.error("pan_deg", f"must lie within the pan limits [{pan_min:g}, {pan_max:g}]")
+    if not tilt_min <= park_tilt <= tilt_max:
+        raise park.error("tilt_deg", f"must lie within the tilt limits [{tilt_min:g}, {tilt_max:g}]")
+    park.finish()
+
+    period_ms = 1000.0 / control.rate_hz
+    watchdog_ms = s.number("watchdog_ms", d.watchdog_ms, min=1, max=65535, integer=True)
+    if watchdog_ms < 3 * period_ms:
+        raise s.error("watchdog_ms", f"must be ≥ 3 control periods ({3 * period_ms:g} ms at {control.rate_hz:g} Hz)")
+    out = GimbalConfig(
+        port=port,
+        baud=baud,
+        mount=mount,
+        limits=limits,
+        park_pan=math.radians(park_pan),
+        park_tilt=math.radians(park_tilt),
+        watchdog_ms=watchdog_ms,
+        park_timeout_s=s.number("park_timeout_s", d.park_timeout_s, min=0.0, min_open=True),
+    )
+    s.finish()
+    return out
+
+
+def _axis(s: Section, default: AxisLimits) -> AxisLimits:
+    def deg(key: str, value: float) -> float:
+        return math.radians(s.number(key, math.degrees(value), min=0.0, min_open=True))
+
+    out = AxisLimits(
+        max_velocity=deg("max_velocity_deg_s", default.max_velocity),
+        max_acceleration=deg("max_acceleration_deg_s2", default.max_acceleration),
+        max_jerk=deg("max_jerk_deg_s3", default.max_jerk),
+    )
+    s.finish()
+    return out
+
+
+def _motion(s: Section) -> MotionConfig:
+    d = MotionConfig()
+    out = MotionConfig(
+        pan=_axis(s.section("pan"), d.pan),
+        tilt=_axis(s.section("tilt"), d.tilt),
+        deadband=math.radians(s.number("deadband_deg", math.degrees(d.deadband), min=0.0, max=10.0)),
+    )
+    s.finish()
+    return out
+
+
+def _control(s: Section) -> ControlConfig:
+    d = ControlConfig()
+    lo, hi = CONTROL_RATE_RANGE_HZ
+    rate = s.number("rate_hz", d.rate_hz, min=lo, max=hi)
+    out = ControlConfig(
+        rate_hz=rate,
+        pose_timeout_s=s.number("pose_timeout_s", d.pose_timeout_s, min=0.0, min_open=True),
+        status_hz=s.number("status_hz", d.status_hz, min=1.0, max=5.0),
+        joint_state_hz=s.number("joint_state_hz", d.joint_state_hz, min=0.0, max=rate, min_open=True),
+    )
+    s.finish()
+    return out
+
+
+def _logging(s: Section) -> LoggingConfig:
+    level = s.string("level", "INFO")
+    if level.upper() not in LOG_LEVELS:
+        raise s.error("level", f"must be one of {', '.join(LOG_LEVELS)}; got {level!r}")
+    s.finish()
+    return LoggingConfig(level.upper())
+
+
+def _sim(s: Section) -> SimConfig:
+    d = SimConfig()
+    out = SimConfig(
+        route=s.path_value("route", None),
+        speed=s.number("speed", d.speed, min=0.0, max=10.0, min_open=True),
+        pose_hz=s.number("pose_hz", d.pose_hz, min=1.0, max=1000.0),
+        loop=s.boolean("loop", d.loop),
+    )
+    s.finish()
+    return out

@@ -1,0 +1,249 @@
+"""Typed access to a YAML document that keeps line numbers, for configuration files.
+
+:func:`read_yaml` parses a file into :class:`Node` values (Python value + 1-based line). A :class:`Section`
+reads the keys of one mapping with type and range checks and, in :meth:`Section.finish`, rejects keys
+nobody asked for. Every problem raises :class:`~pivotd.errors.ConfigError` as
+``<file>:<line>: <key.path>: <what is wrong>``.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from pivotd.errors import ConfigError
+
+_MISSING = object()
+_YAML12_FLOAT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+
+
+@dataclass(frozen=True)
+class Node:
+    """A YAML value: scalars as Python values, mappings as dict[str, Node], sequences as list[Node]."""
+
+    value: Any
+    line: int | None
+
+
+def _convert(node: yaml.Node, file: Path, constructor: yaml.constructor.SafeConstructor) -> Node:
+    line = node.start_mark.line + 1
+    if isinstance(node, yaml.MappingNode):
+        out: dict[str, Node] = {}
+        for key_node, value_node in node.value:
+            key = constructor.construct_object(key_node, deep=True)
+            key_line = key_node.start_mark.line + 1
+            if not isinstance(key, str):
+                raise ConfigError(f"{file}:{key_line}: key {key!r} is not a string")
+            if key in out:
+                raise ConfigError(f"{file}:{key_line}: {key}: duplicate key")
+            value = _convert(value_node, file, constructor)
+            out[key] = Node(value.value, key_line)  # errors point at the key's line
+        return Node(out, line)
+    if isinstance(node, yaml.SequenceNode):
+        return Node([_convert(item, file, constructor) for item in node.value], line)
+    return Node(constructor.construct_object(node, deep=True), line)
+
+
+def read_yaml(path: Path) -> Node:
+    """Parse one YAML document into a :class:`Node` tree; an empty file gives an empty mapping."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such config file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read config file ({exc})") from None
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+        if root is None:
+            return Node({}, 1)
+        return _convert(root, path, yaml.constructor.SafeConstructor())
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
+        raise ConfigError(f"{where}: YAML syntax error: {exc.problem or exc}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: YAML error: {exc}") from None
+
+
+class Section:
+    """Typed reader of one YAML mapping at dotted key ``path`` in ``file``."""
+
+    def __init__(self, file: Path, node: Node | None, path: str = "") -> None:
+        self.file = file
+        self.path = path
+        self.line = node.line if node is not None else None
+        if node is not None and not isinstance(node.value, dict):
+            raise self.error_at(node.line, path or "(top level)", f"must be a mapping, got {_kind(node.value)}")
+        self._items: dict[str, Node] = dict(node.value) if node is not None else {}
+        self._used: set[str] = set()
+
+    # -------------------------------------------------------------- errors
+    def key_path(self, key: str) -> str:
+        return f"{self.path}.{key}" if self.path else key
+
+    def error_at(self, line: int | None, key_path: str, message: str) -> ConfigError:
+        where = f"{self.file}:{line}" if line is not None else str(self.file)
+        return ConfigError(f"{where}: {key_path}: {message}")
+
+    def error(self, key: str, message: str) -> ConfigError:
+        """A ConfigError for ``key`` of this section, at the key's line (or the section's)."""
+        node = self._items.get(key)
+        return self.error_at(node.line if node is not None else self.line, self.key_path(key), message)
+
+    # -------------------------------------------------------------- access
+    def has(self, key: str) -> bool:
+        return key in self._items and self._items[key].value is not None
+
+    def section(self, key: str) -> Section:
+        """The sub-mapping at ``key`` (empty when absent or null)."""
+        self._used.add(key)
+        node = self._items.get(key)
+        if node is not None and node.value is None:
+            node = None
+        return Section(self.file, node, self.key_path(key))
+
+    def _raw(self, key: str, default: Any) -> tuple[Any, bool]:
+        self._used.add(key)
+        node = self._items.get(key)
+        if node is None or node.value is None:
+            if default is _MISSING:
+                raise self.error(key, "required key is missing")
+            return default, False
+        return node.value, True
+
+    def number(
+        self,
+        key: str,
+        default: Any = _MISSING,
+        *,
+        min: float | None = None,
+        max: float | None = None,
+        min_open: bool = False,
+        max_open: bool = False,
+        integer: bool = False,
+    ) -> Any:
+        """A finite number (int when ``integer``) within [min, max] (open ends with ``*_open``)."""
+        value, given = self._raw(key, default)
+        if not given:
+            return value
+        what = "an integer" if integer else "a number"
+        if isinstance(value, str) and _YAML12_FLOAT.fullmatch(value.strip()):
+            value = float(value)  # YAML 1.2 reads 1e3 as a number; PyYAML (YAML 1.1) leaves it a string
+            if integer and value.is_integer():
+                value = int(value)
+        if isinstance(value, bool) or not isinstance(value, int | float) or (integer and not isinstance(value, int)):
+            raise self.error(key, f"must be {what}, got {_kind(value)} {value!r}")
+        if not math.isfinite(value):
+            raise self.error(key, f"must be finite, got {value!r}")
+        if min is not None and (value < min or (min_open and value == min)):
+            raise self.error(key, f"must be {'>' if min_open else '≥'} {min:g}, got {value!r}")
+        if max is not None and (value > max or (max_open and value == max)):
+            raise self.error(key, f"must be {'<' if max_open else '≤'} {max:g}, got {value!r}")
+        return int(value) if integer else float(value)
+
+    def boolean(self, key: str, default: Any = _MISSING) -> Any:
+        value, given = self._raw(key, default)
+        if given and not isinstance(value, bool):
+            raise self.error(key, f"must be true or false, got {_kind(value)} {value!r}")
+        return value
+
+    def string(
+        self,
+        key: str,
+        default: Any = _MISSING,
+        *,
+        choices: Sequence[str] | None = None,
+        pattern: str | None = None,
+        pattern_help: str = "",
+    ) -> Any:
+        value, given = self._raw(key, default)
+        if not given:
+            return value
+        if not isinstance(value, str):
+            raise self.error(key, f"must be a string, got {_kind(value)} {value!r}")
+        if choices is not None and value not in choices:
+            raise self.error(key, f"must be one of {', '.join(choices)}; got {value!r}")
+        if pattern is not None and not re.fullmatch(pattern, value):
+            raise self.error(key, f"{value!r} is not valid{': ' + pattern_help if pattern_help else ''}")
+        return value
+
+    def string_list(self, key: str, default: Any = _MISSING, *, check: Callable[[str], str | None] | None = None):
+        """A list of strings (a single string is accepted as a one-element list); ``check`` returns an error."""
+        value, given = self._raw(key, default)
+        if not given:
+            return tuple(value)
+        items = [Node(value, self._items[key].line)] if isinstance(value, str) else value
+        if not isinstance(items, list):
+            raise self.error(key, f"must be a list of strings, got {_kind(value)}")
+        out = []
+        for i, item in enumerate(items):
+            if not isinstance(item.value, str):
+                raise self.error_at(item.line, f"{self.key_path(key)}[{i}]", f"must be a string, got {item.value!r}")
+            problem = check(item.value) if check is not None else None
+            if problem:
+                raise self.error_at(item.line, f"{self.key_path(key)}[{i}]", problem)
+            out.append(item.value)
+        return tuple(out)
+
+    def vector(self, key: str, default: Any = _MISSING, *, length: int = 3) -> Any:
+        """A list of ``length`` finite numbers -> tuple of floats."""
+        value, given = self._raw(key, default)
+        if not given:
+            return tuple(value)
+        if not isinstance(value, list) or len(value) != length:
+            raise self.error(key, f"must be a list of {length} numbers, got {_render(value)}")
+        out = []
+        for item in value:
+            v = item.value
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                raise self.error(key, f"must be a list of {length} finite numbers, got {_render(value)}")
+            out.append(float(v))
+        return tuple(out)
+
+    def path_value(self, key: str, default: Any = _MISSING, *, must_exist: bool = True) -> Path | None:
+        """A file path (``default`` None makes it optional); relative paths resolve against the config's directory."""
+        value = self.string(key, default)
+        if value is None:
+            return None
+        if value == "":
+            raise self.error(key, "must not be empty")
+        path = Path(value).expanduser()
+        if not path.is_absolute():
+            path = self.file.resolve().parent / path
+        if must_exist and not path.exists():
+            raise self.error(key, f"file not found: {path}")
+        return path
+
+    def finish(self) -> None:
+        """Reject keys that were not read."""
+        for key, node in self._items.items():
+            if key not in self._used:
+                known = sorted(self._used)
+                close = difflib.get_close_matches(key, known, n=1)
+                hint = f"; did you mean {close[0]}?" if close else (f" (known: {', '.join(known)})" if known else "")
+                raise self.error_at(node.line, self.key_path(key), f"unknown key{hint}")
+
+
+def _kind(value: Any) -> str:
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, list):
+        return "a list"
+    if value is None:
+        return "null"
+    return type(value).__name__
+
+
+def _render(value: Any) -> str:
+    if isinstance(value, list):
+        return "[" + ", ".join(_render(item.value) for item in value) + "]"
+    if isinstance(value, dict):
+        return "a mapping"
+    return repr(value)

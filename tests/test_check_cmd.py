@@ -1,0 +1,75 @@
+"""`pivotd check`: exit 0 with a summary on every shipped config, exit 2 with one line on broken ones."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+SHIPPED = sorted((REPO / "config").glob("*.yaml"))
+
+
+def run_check(config: Path, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    return subprocess.run(
+        [sys.executable, "-m", "pivotd.cli", "check", "--config", str(config)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=cwd or REPO,
+        timeout=60,
+    )
+
+
+def test_every_shipped_config_is_found():
+    assert {p.name for p in SHIPPED} >= {"spot.yaml", "demo.yaml"}
+
+
+@pytest.mark.parametrize("config", SHIPPED, ids=lambda p: p.name)
+def test_shipped_configs_pass(config, tmp_path):
+    result = run_check(config, cwd=tmp_path)  # another working directory: relative paths follow the file
+    assert result.returncode == 0, result.stderr
+    out = result.stdout
+    assert f"config: {config.resolve()} OK" in out
+    assert "node: " in out and "gimbal: port " in out and "motion: pan " in out and "zenoh: " in out
+
+
+def test_demo_summary_reports_the_map():
+    result = run_check(REPO / "config" / "demo.yaml")
+    assert result.returncode == 0, result.stderr
+    assert "node: demo (status key pivot/demo/status)" in result.stdout
+    assert "(3150 landmarks, bounds x y z [" in result.stdout
+    assert "pivot: fov 60° (α 30°)" in result.stdout
+    assert "gimbal: port mock://" in result.stdout
+    assert "listen ['tcp/127.0.0.1:7457']" in result.stdout
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("map: {allow_empty: true}\ngimbal:\n  limits: {tilt_min_deg: 5, tilt_max_deg: 0}\n",
+         "broken.yaml:3: gimbal.limits.tilt_max_deg: must be > tilt_min_deg (5)"),
+        ("map: {allow_empty: true}\ncontrol: {rate_hz: 1000}\n", "broken.yaml:2: control.rate_hz: must be ≤ 200"),
+        ("map: {file: absent.txt}\n", "broken.yaml:1: map.file: file not found"),
+        ("map: {file: bad_map.txt}\n", "bad_map.txt:2: expected 3 columns, got 2"),
+    ],
+)
+def test_broken_configs_exit_2_with_one_line(tmp_path, text, expected):
+    (tmp_path / "bad_map.txt").write_text("0 0 0\n1 2\n")
+    config = tmp_path / "broken.yaml"
+    config.write_text(text)
+    result = run_check(config)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith("pivotd check: error: ")
+    assert expected in lines[0]
+    assert result.stdout == ""
+
+
+def test_missing_config_exits_2(tmp_path):
+    result = run_check(tmp_path / "nope.yaml")
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [f"pivotd check: error: {tmp_path / 'nope.yaml'}: no such config file"]
