@@ -91,21 +91,33 @@ class ControlLoop:
                 self._speed += 0.3 * (min(v, 10.0) - self._speed)
         self._prev_pose = pose
 
-    def _target(self, pose: PoseSample, plan: Plan) -> tuple[np.ndarray, np.ndarray, bool, np.ndarray]:
-        """Joint target (2,), feed-forward rate (2,), clamped flag and the world direction."""
+    def _target(self, pose: PoseSample, plan: Plan) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+        """Joint target (2,), feed-forward rate (2,) and acceleration (2,) from the plan, and a clamped flag.
+
+        The derivatives are finite differences of the joint angles along the plan ahead of the robot,
+        at its estimated speed, with the latest body attitude held fixed.
+        """
         cam = camera_positions(pose.position[None, :], pose.quat[None, :], self.mount)[0]
         s = plan.locate(cam)
-        direction = plan.direction_at_s(s)
         prev_pan = float(self.motion.state.position[0])
-        pan, tilt, clamped = world_direction_to_joints(direction, pose.quat, self.mount, self.limits, prev_pan)
+        pan, tilt, clamped = world_direction_to_joints(plan.direction_at_s(s), pose.quat, self.mount, self.limits,
+                                                       prev_pan)
+        target = np.array([pan, tilt])
         rate = np.zeros(2)
-        la = self.settings.lookahead
-        if plan.s.shape[0] > 1 and self._speed > 0.02 and la > 0:
-            ahead = plan.direction_at_s(s + self._speed * la)
-            pan2, tilt2, clamped2 = world_direction_to_joints(ahead, pose.quat, self.mount, self.limits, pan)
-            if not (clamped or clamped2):
-                rate = np.array([pan2 - pan, tilt2 - tilt]) / la
-        return np.array([pan, tilt]), rate, clamped, direction
+        acc = np.zeros(2)
+        h = 0.5 * self.settings.lookahead
+        if plan.s.shape[0] > 1 and self._speed > 0.02 and h > 0 and not clamped:
+            ahead = plan.direction_at_s(s + self._speed * h * np.arange(1, 3))
+            joints = [target]
+            for d in ahead:
+                p2, t2, c2 = world_direction_to_joints(d, pose.quat, self.mount, self.limits, float(joints[-1][0]))
+                if c2:
+                    break
+                joints.append(np.array([p2, t2]))
+            if len(joints) == 3:
+                rate = (joints[1] - joints[0]) / h
+                acc = (joints[2] - 2 * joints[1] + joints[0]) / h**2
+        return target, rate, acc, clamped
 
     def tick(self, now: float, pose: PoseSample | None, plan: Plan | None, faulted: bool = False) -> TickResult:
         """One control period at monotonic time ``now`` [s]."""
@@ -135,8 +147,8 @@ class ControlLoop:
             mode = "holding"
         else:
             self._estimate_speed(pose)
-            target, rate, clamped, _ = self._target(pose, plan)
-            self.motion.set_target(target, rate)
+            target, rate, acc, clamped = self._target(pose, plan)
+            self.motion.set_target(target, rate, acc)
             mode = "tracking"
 
         sample = self.motion.step()

@@ -14,7 +14,7 @@ import signal
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -102,15 +102,9 @@ class Daemon:
 
     # ------------------------------------------------------------------ configuration
     def _load_config(self) -> Config:
-        cfg = load_config(self.config_path)
         ov = self.overrides
-        if ov.port:
-            cfg = replace(cfg, gimbal=replace(cfg.gimbal, port=ov.port))
-        if ov.connect or ov.listen:
-            z = cfg.zenoh
-            cfg = replace(cfg, zenoh=replace(z, connect=tuple(ov.connect) or tuple(z.connect),
-                                              listen=tuple(ov.listen) or tuple(z.listen)))
-        return cfg
+        return load_config(self.config_path).with_overrides(
+            port=ov.port, connect=list(ov.connect) or None, listen=list(ov.listen) or None)
 
     # ------------------------------------------------------------------ bus callbacks (Zenoh threads)
     def _on_pose(self, pose: PoseSample) -> None:

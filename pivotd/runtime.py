@@ -32,7 +32,7 @@ def build_bus_topics(cfg: Config) -> BusTopics:
         targets=t.targets,
         joint_states=t.joint_states,
         view_plan=t.view_plan,
-        status_key=f"pivot/{cfg.name}/status",
+        status_key=cfg.status_key,
         frame_id=t.frame_id,
         max_cloud_points=t.max_cloud_points,
     )

@@ -16,6 +16,8 @@ BENCHES: dict[str, str] = {
     "proto": "serial protocol codec throughput",
     "horizon": "receding-horizon replanning latency",
     "control": "control-loop jitter and pose-to-setpoint latency",
+    "motion": "per-cycle cost of gimbal kinematics and Ruckig setpoint generation",
+    "bus": "Zenoh/ROS 2 bus codec costs and loopback delivery latency",
 }
 
 
