@@ -243,11 +243,11 @@ class DeviceModel:
             self.tilt.advance(dt, c.vmax_tilt, c.amax_tilt, tracking, c.tilt_min, c.tilt_max)
 
     def _check_watchdog(self) -> None:
-        if self.mode == MODE_ENABLED and self.config is not None:
-            if self.now - self.last_feed > self.config.watchdog_ms / 1000.0:
-                self.mode = MODE_HOLDING
-                self.faults |= FAULT_WATCHDOG
-                log.info("watchdog expired at t=%.3f s: holding", self.now)
+        c = self.config
+        if self.mode == MODE_ENABLED and c is not None and self.now - self.last_feed > c.watchdog_ms / 1000.0:
+            self.mode = MODE_HOLDING
+            self.faults |= FAULT_WATCHDOG
+            log.info("watchdog expired at t=%.3f s: holding", self.now)
 
     def _state(self) -> State:
         return State(

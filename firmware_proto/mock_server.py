@@ -252,10 +252,7 @@ def main(argv: list[str] | None = None) -> int:
                 device.sink = None
                 transport.close()
                 disconnect_at = None
-                if args.reconnect_after is not None:
-                    reconnect_at = now + args.reconnect_after
-                else:
-                    reconnect_at = None
+                reconnect_at = None if args.reconnect_after is None else now + args.reconnect_after
                 while not stop.is_set() and (reconnect_at is None or device.elapsed() < reconnect_at):
                     stop.wait(0.02)
                 if stop.is_set():
