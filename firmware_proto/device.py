@@ -130,6 +130,8 @@ class DeviceModel:
         self.tx_seq = 0
         self.received = 0
         self._started = False
+        self._state_t0 = 0.0
+        self._state_count = 0
 
     # ----------------------------------------------------------------- input
     def feed(self, data: bytes, now: float) -> bytes:
@@ -217,11 +219,12 @@ class DeviceModel:
         out = b""
         if not self._started:  # the clock starts at the first call, whatever its origin
             self._started = True
-            self.now = self.next_state = self.last_feed = now
+            self.now = self.next_state = self.last_feed = self._state_t0 = now
         while self.next_state <= now:
             self._advance(self.next_state)
             out += self._send(self._state())
-            self.next_state += 1.0 / self.state_hz
+            self._state_count += 1  # schedule from the start time: no drift accumulates
+            self.next_state = self._state_t0 + self._state_count / self.state_hz
         self._advance(now)
         return out
 

@@ -19,6 +19,7 @@ import queue
 import threading
 import time
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import serial
@@ -140,6 +141,7 @@ class GimbalLink:
                                  "link_losses", "ack_failures", "tx_overflow", "rtt_samples"), 0)
         self._rtt_last = self._rtt_sum = self._rtt_max = 0.0
         self._ever_up = False
+        self._listeners: list[Callable[[GimbalState], None]] = []
 
     # ------------------------------------------------------------------ public API
     def start(self) -> None:
@@ -192,7 +194,7 @@ class GimbalLink:
                 self._changed.wait(remaining)
             return True
 
-    def wait_state(self, predicate, timeout: float) -> GimbalState | None:  # type: ignore[no-untyped-def]
+    def wait_state(self, predicate: Callable[[GimbalState], bool], timeout: float) -> GimbalState | None:
         """Block until a received STATE satisfies ``predicate(state)``; return it, or None on timeout."""
         deadline = time.monotonic() + timeout
         with self._changed:
@@ -204,6 +206,10 @@ class GimbalLink:
                 if remaining <= 0:
                     return None
                 self._changed.wait(remaining)
+
+    def subscribe(self, callback: Callable[[GimbalState], None]) -> None:
+        """Call ``callback(state)`` on the reader thread for every STATE received (keep it short)."""
+        self._listeners.append(callback)
 
     def send_setpoint(self, pan: float, tilt: float, pan_rate: float = 0.0, tilt_rate: float = 0.0) -> int | None:
         """Queue a SETPOINT (pan/tilt [rad], feed-forward rates [rad/s]); return its seq, or None if the link
@@ -477,6 +483,11 @@ class GimbalLink:
                 self._state = st
                 self._last_state_rx = now
                 self._changed.notify_all()
+            for callback in self._listeners:
+                try:
+                    callback(st)
+                except Exception:  # a listener's bug must not kill the link
+                    log.exception("STATE listener failed")
         elif isinstance(msg, Ack):
             pending = self._pending.get((msg.acked_seq, msg.acked_type))
             if pending is not None:
