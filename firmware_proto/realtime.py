@@ -55,7 +55,10 @@ class FaultInjector:
 
 
 class CsvMessageLog:
-    """Writes every message the device receives ("rx") and emits ("tx") as a CSV row (LOG_COLUMNS)."""
+    """Writes every message the device receives ("rx") and emits ("tx") as a CSV row (LOG_COLUMNS).
+
+    ``t_s`` is the device clock [s]; angles/rates are SI at wire resolution. Emitted frames are logged
+    before fault injection (a dropped STATE still appears here)."""
 
     def __init__(self, path: str | Path) -> None:
         self._file = open(path, "w", newline="")  # noqa: SIM115 - closed in close()
@@ -64,6 +67,7 @@ class CsvMessageLog:
         self._lock = threading.Lock()
 
     def __call__(self, direction: str, msg: Message, seq: int, now: float) -> None:
+        msg = msg.from_raw(msg.raw())  # log the values as they are on the wire (micro-unit resolution)
         g = lambda name: getattr(msg, name, "")  # noqa: E731
         detail = ""
         if msg.NAME in ("CONFIG", "ACK", "IDENTITY", "ENABLE", "HELLO"):

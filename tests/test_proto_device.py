@@ -1,5 +1,6 @@
 """Reference device model: state machine, CONFIG validation, watchdog timing, clamping, dynamics."""
 
+import itertools
 import zlib
 
 import pytest
@@ -71,7 +72,7 @@ def test_starts_disabled_and_streams_state_at_a_fixed_rate() -> None:
     rig.run_to(1.0)
     assert len(rig.states) == 51
     times = [s.device_time_us for s in rig.states]
-    assert all(b - a == 20_000 for a, b in zip(times, times[1:], strict=False))
+    assert all(b - a == 20_000 for a, b in itertools.pairwise(times))
     assert {s.mode for s in rig.states} == {MODE_DISABLED}
 
 
@@ -122,7 +123,7 @@ def test_watchdog_expires_after_watchdog_ms_and_holds() -> None:
     rig.run_to(2.0)
     hold = [s for s in rig.states if s.device_time_us > 260_000]
     rates = [abs(s.pan_rate) for s in hold]
-    assert all(b <= a + 1e-6 for a, b in zip(rates, rates[1:], strict=False))
+    assert all(b <= a + 1e-6 for a, b in itertools.pairwise(rates))
     assert hold[-1].pan_rate == 0.0
     still = [s.pan for s in hold if s.device_time_us > 1_000_000]
     assert max(still) == min(still)
@@ -169,7 +170,7 @@ def test_tracking_respects_rate_and_acceleration_limits_with_some_lag() -> None:
         rig.run_to(i * 0.1 + 0.099)
     pans = [s.pan_rate for s in rig.states]
     assert max(abs(v) for v in pans) <= CFG.vmax_pan + 1e-6
-    dv = [abs(b - a) for a, b in zip(pans, pans[1:], strict=False)]
+    dv = [abs(b - a) for a, b in itertools.pairwise(pans)]
     assert max(dv) <= CFG.amax_pan * 0.01 + 1e-5
     assert rig.states[-1].pan == pytest.approx(1.5, abs=1e-4)
     assert rig.states[-1].tilt == pytest.approx(0.4, abs=1e-4)

@@ -123,6 +123,7 @@ class GimbalLink:
         self._cfg_msg.pack()  # fail early on limits that do not fit the wire format
         self._lock = threading.Lock()
         self._changed = threading.Condition(self._lock)
+        self._seq_lock = threading.Lock()
         self._link_state = "stopped"
         self._state: GimbalState | None = None
         self._identity: Identity | None = None
@@ -195,17 +196,22 @@ class GimbalLink:
             return True
 
     def wait_state(self, predicate: Callable[[GimbalState], bool], timeout: float) -> GimbalState | None:
-        """Block until a received STATE satisfies ``predicate(state)``; return it, or None on timeout."""
+        """Block until a received STATE satisfies ``predicate(state)``; return it, or None on timeout.
+        ``predicate`` is called once per new STATE on the caller's thread, without any lock held."""
         deadline = time.monotonic() + timeout
-        with self._changed:
-            while True:
-                st = self._state
-                if st is not None and predicate(st):
+        checked: GimbalState | None = None
+        while True:
+            st = self._state
+            if st is not None and st is not checked:
+                checked = st
+                if predicate(st):
                     return st
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    return None
-                self._changed.wait(remaining)
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return None
+            with self._changed:
+                if self._state is checked:
+                    self._changed.wait(min(remaining, 0.1))
 
     def subscribe(self, callback: Callable[[GimbalState], None]) -> None:
         """Call ``callback(state)`` on the reader thread for every STATE received (keep it short)."""
@@ -270,7 +276,7 @@ class GimbalLink:
             self._changed.notify_all()
 
     def _next_seq(self) -> int:
-        with self._lock:
+        with self._seq_lock:
             seq = self._seq
             self._seq = (seq + 1) & 0xFF
         return seq
