@@ -1,12 +1,17 @@
 """tools/mock_gimbal as a real subprocess: endpoints, signals, CSV log, fault injection (raw protocol)."""
 
+import os
+import select
 import signal
 import socket
+import subprocess
+import sys
 import time
+import tty
 
 import pytest
 import serial
-from proto_support import MockGimbal, read_log
+from proto_support import MOCK_GIMBAL, REPO, MockGimbal, read_log
 
 from firmware_proto import codec
 from firmware_proto.messages import FAULT_ENCODER, MODE_FAULT, Ack, Config, Enable, Hello, Identity, Setpoint, State
@@ -74,10 +79,6 @@ def test_tcp_announces_port_serves_one_client_and_fault_at() -> None:
 
 
 def test_bad_arguments_exit_2_with_a_message() -> None:
-    import subprocess
-    import sys
-
-    from proto_support import MOCK_GIMBAL, REPO
     r = subprocess.run([sys.executable, str(MOCK_GIMBAL), "--fault-at", "soon"], capture_output=True, text=True,
                        env={"PYTHONPATH": str(REPO)}, timeout=30)
     assert r.returncode == 2 and "--fault-at expects SECONDS:BIT" in r.stderr
@@ -94,3 +95,23 @@ def test_drop_everything_means_silence() -> None:
         finally:
             port.close()
     assert frames == []
+
+
+def test_serial_mode_on_a_pty_pair_with_latency() -> None:
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        with MockGimbal("--serial", os.ttyname(slave), "--latency-ms", "30") as mock:
+            assert mock.first_line == os.ttyname(slave)
+            os.write(master, codec.encode(Hello(1), 1))
+            dec = codec.StreamDecoder()
+            frames = []
+            deadline = time.monotonic() + 1.0
+            while time.monotonic() < deadline and not any(isinstance(f.msg, Identity) for f in frames):
+                if select.select([master], [], [], 0.05)[0]:
+                    frames += dec.feed(os.read(master, 4096))
+            assert any(isinstance(f.msg, Identity) for f in frames)
+            assert mock.terminate() == 0
+    finally:
+        os.close(master)
+        os.close(slave)
