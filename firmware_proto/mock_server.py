@@ -205,25 +205,27 @@ def build_parser() -> argparse.ArgumentParser:
 def make_transport(args: argparse.Namespace) -> PtyTransport | TcpTransport | SerialTransport:
     if args.tcp:
         host, _, port = args.tcp.rpartition(":")
-        try:
-            return TcpTransport(host or "127.0.0.1", int(port))
-        except ValueError:
-            raise SystemExit(f"mock_gimbal: error: --tcp expects HOST:PORT, got {args.tcp!r}") from None
+        if not port.isdigit():
+            raise SystemExit(f"mock_gimbal: error: --tcp expects HOST:PORT, got {args.tcp!r}")
+        return TcpTransport(host or "127.0.0.1", int(port))
     if args.serial:
         return SerialTransport(args.serial, args.baudrate)
     return PtyTransport(args.link)
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     if args.state_hz <= 0:
-        raise SystemExit("mock_gimbal: error: --state-hz must be > 0")
+        parser.error("--state-hz must be > 0")
+    if args.reconnect_after is not None and args.disconnect_after is None:
+        parser.error("--reconnect-after needs --disconnect-after")
     try:
         injector = FaultInjector(args.drop, args.corrupt, args.latency_ms / 1000.0, args.seed)
     except ValueError as exc:
-        raise SystemExit(f"mock_gimbal: error: {exc}") from None
+        parser.error(str(exc))
     msg_log = CsvMessageLog(args.log) if args.log else None
     model = DeviceModel(state_hz=args.state_hz, info=DeviceInfo(version=args.protocol_version), on_message=msg_log)
     device = RealTimeDevice(model, injector, args.fault_at)
