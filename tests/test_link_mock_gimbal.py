@@ -1,5 +1,6 @@
 """GimbalLink against tools/mock_gimbal as a real subprocess over a pty and over TCP."""
 
+import signal
 import time
 
 import pytest
@@ -177,3 +178,25 @@ def test_lossy_corrupting_link_loses_no_acked_command_and_accepts_no_corrupted_f
     assert len(received) > 50
     for st in received:
         assert (st.device_time_us, st.pan, st.tilt, st.mode, st.faults) in emitted
+
+
+def test_silent_device_is_detected_by_the_state_timeout_and_recovered() -> None:
+    with MockGimbal(tcp=True) as mock:
+        link = GimbalLink(mock.url, link_config(state_timeout_s=0.3, reconnect_backoff_s=(0.05, 0.2)))
+        try:
+            link.start()
+            assert link.wait_up(10.0)
+            mock.proc.send_signal(signal.SIGSTOP)  # hung firmware: port open, nothing sent
+            try:
+                deadline = time.monotonic() + 10.0
+                while link.link_state == "up" and time.monotonic() < deadline:
+                    time.sleep(0.02)
+                assert link.link_state in ("down", "connecting")
+                assert "no STATE for 0.3 s" in link.last_error
+            finally:
+                mock.proc.send_signal(signal.SIGCONT)
+            assert link.wait_up(10.0), link.last_error
+            assert link.counters()["reconnects"] == 1
+            assert track(link, 0.1, 0.1) is not None
+        finally:
+            link.stop()
