@@ -6,7 +6,8 @@ import time
 import pytest
 from proto_support import MockGimbal, link_config, read_log
 
-from firmware_proto.messages import FAULT_OVERCURRENT, FAULT_WATCHDOG, MODE_DISABLED, MODE_ENABLED, MODE_FAULT
+from firmware_proto import codec
+from firmware_proto.messages import FAULT_OVERCURRENT, FAULT_WATCHDOG, MODE_DISABLED, MODE_ENABLED, MODE_FAULT, Hello
 from pivotd.gimbal.link import GimbalLink
 
 
@@ -200,3 +201,18 @@ def test_silent_device_is_detected_by_the_state_timeout_and_recovered() -> None:
             assert track(link, 0.1, 0.1) is not None
         finally:
             link.stop()
+
+
+def test_link_over_a_spy_url_records_the_handshake_bytes(tmp_path) -> None:
+    spy_file = tmp_path / "spy.txt"
+    with MockGimbal() as mock:
+        link = GimbalLink(f"spy://{mock.url}?file={spy_file}", link_config())
+        try:
+            link.start()
+            assert link.wait_up(10.0), link.last_error
+        finally:
+            link.stop()
+    text = spy_file.read_text()
+    first_tx = next(line for line in text.splitlines() if " TX " in line)
+    assert codec.encode(Hello(1), 0).hex(" ").upper() in first_tx  # the link opens with HELLO, seq 0
+    assert " RX " in text
