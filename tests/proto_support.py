@@ -1,4 +1,4 @@
-"""Helpers for the protocol / link tests: run tools/mock_gimbal as a real subprocess."""
+"""Shared fixtures for the protocol / link tests: run tools/mock_gimbal as a real subprocess."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 /*
- * Differential-test helper: each stdin line is a hex-encoded byte stream; for each line, print the
+ * Differential-test driver: each stdin line is a hex-encoded byte stream; for each line, print the
  * frames the C stream decoder yields ("F type seq version payload-hex") and then its drop counters
  * ("D framing length crc version unknown_type payload").
  */

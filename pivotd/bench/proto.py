@@ -103,7 +103,7 @@ def _percentile(values: list[float], q: float) -> float:
 
 def _drive(link, seconds: float, rate_hz: float, command_every_s: float | None = None):  # type: ignore[no-untyped-def]
     """Send setpoints at ``rate_hz`` for ``seconds``; measure setpoint → echoing STATE latency.
-    Optionally issue an ACKed command every ``command_every_s``; returns (rtts, sent, commands, failed)."""
+    Optionally send an ACKed command every ``command_every_s``; returns (rtts, sent, commands, failed)."""
     sent_at: dict[int, float] = {}
     sent: dict[int, list[tuple[float, float]]] = {}
     rtts: list[float] = []

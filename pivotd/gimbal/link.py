@@ -171,7 +171,8 @@ class GimbalLink:
 
     @property
     def state(self) -> GimbalState | None:
-        """The latest STATE received, or None before the first one."""
+        """The latest STATE received, or None before the first one (kept while the link is down: check
+        ``link_state`` and ``rx_time`` before trusting it)."""
         return self._state
 
     @property
