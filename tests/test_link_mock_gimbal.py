@@ -213,6 +213,7 @@ def test_link_over_a_spy_url_records_the_handshake_bytes(tmp_path) -> None:
         finally:
             link.stop()
     text = spy_file.read_text()
-    first_tx = next(line for line in text.splitlines() if " TX " in line)
-    assert codec.encode(Hello(1), 0).hex(" ").upper() in first_tx  # the link opens with HELLO, seq 0
+    tx = [line for line in text.splitlines() if " TX " in line]
+    assert tx[0].split()[3:4] == ["00"]  # a lone delimiter flushes any partial frame at the device
+    assert codec.encode(Hello(1), 0).hex(" ").upper() in tx[1]  # then HELLO, seq 0
     assert " RX " in text

@@ -327,6 +327,7 @@ class GimbalLink:
             log.debug(self._last_error)
             return None
         conn = _Connection(port)
+        conn.tx.put_nowait(b"\x00")  # ends any partial frame the device still holds from before
         self._decoder.reset()
         self._conn = conn
         for target, name in ((self._reader, "gimbal-rx"), (self._writer, "gimbal-tx")):
