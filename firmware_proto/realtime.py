@@ -1,0 +1,194 @@
+"""Run the device model in real time on a thread, with fault injection and a CSV message log.
+
+Shared by ``tools/mock_gimbal`` (pty / TCP / serial) and the in-process ``mock://`` pyserial URL.
+Bytes from the host go in through :meth:`RealTimeDevice.write`; bytes from the device go out
+through the ``sink`` callable (None while "unplugged": output is discarded).
+"""
+
+from __future__ import annotations
+
+import csv
+import heapq
+import logging
+import random
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from firmware_proto.device import DeviceModel
+from firmware_proto.messages import Message
+
+log = logging.getLogger(__name__)
+
+LOG_COLUMNS = ("t_s", "dir", "type", "seq", "pan", "tilt", "pan_rate", "tilt_rate", "mode", "faults",
+               "device_time_us", "host_time_us", "detail")
+
+
+class FaultInjector:
+    """Per-frame link faults: drop with probability ``drop``, flip one bit with probability ``corrupt``,
+    deliver ``latency_s`` later. Deterministic for a given ``seed``."""
+
+    def __init__(self, drop: float = 0.0, corrupt: float = 0.0, latency_s: float = 0.0, seed: int | None = None):
+        for name, p in (("drop", drop), ("corrupt", corrupt)):
+            if not 0.0 <= p <= 1.0:
+                raise ValueError(f"--{name} must be a probability in [0, 1], got {p}")
+        if latency_s < 0:
+            raise ValueError(f"--latency-ms must be >= 0, got {latency_s * 1000}")
+        self.drop, self.corrupt, self.latency_s = drop, corrupt, latency_s
+        self.rng = random.Random(seed)
+        self.dropped = 0
+        self.corrupted = 0
+
+    def apply(self, frame: bytes) -> bytes | None:
+        """The frame as it arrives on the other side, or None if lost."""
+        if self.drop and self.rng.random() < self.drop:
+            self.dropped += 1
+            return None
+        if self.corrupt and self.rng.random() < self.corrupt and len(frame) > 1:
+            data = bytearray(frame)
+            i = self.rng.randrange(len(data) - 1)  # keep the delimiter: a flipped bit inside the frame
+            data[i] ^= 1 << self.rng.randrange(8)
+            self.corrupted += 1
+            return bytes(data)
+        return frame
+
+
+class CsvMessageLog:
+    """Writes every message the device receives ("rx") and emits ("tx") as a CSV row (LOG_COLUMNS).
+
+    ``t_s`` is the device clock [s]; angles/rates are SI at wire resolution. Emitted frames are logged
+    before fault injection (a dropped STATE still appears here)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self._file = open(path, "w", newline="")  # noqa: SIM115 - closed in close()
+        self._csv = csv.writer(self._file)
+        self._csv.writerow(LOG_COLUMNS)
+        self._lock = threading.Lock()
+
+    def __call__(self, direction: str, msg: Message, seq: int, now: float) -> None:
+        msg = msg.from_raw(msg.raw())  # log the values as they are on the wire (micro-unit resolution)
+        g = lambda name: getattr(msg, name, "")  # noqa: E731
+        detail = ""
+        if msg.NAME in ("CONFIG", "ACK", "IDENTITY", "ENABLE", "HELLO"):
+            detail = " ".join(f"{k}={v}" for k, v in zip([f[0] for f in msg.LAYOUT], msg.raw(), strict=True))
+        row = (f"{now:.6f}", direction, msg.NAME, seq, g("pan"), g("tilt"), g("pan_rate"), g("tilt_rate"), g("mode"),
+               g("faults"), g("device_time_us"), g("host_time_us"), detail)
+        with self._lock:
+            self._csv.writerow(row)
+            self._file.flush()
+
+    def close(self) -> None:
+        with self._lock:
+            self._file.close()
+
+
+def split_frames(buffer: bytes, data: bytes) -> tuple[list[bytes], bytes]:
+    """Split ``buffer + data`` into complete frames (each ending in 0x00) and the incomplete rest."""
+    parts = (buffer + data).split(b"\x00")
+    rest = parts.pop()
+    return [p + b"\x00" for p in parts], rest
+
+
+class RealTimeDevice:
+    """A :class:`DeviceModel` stepped in real time by a background thread.
+
+    ``faults_at`` is a list of (seconds after start, fault bit number) to inject. The device clock
+    starts at 0 when :meth:`start` is called.
+    """
+
+    def __init__(self, model: DeviceModel, injector: FaultInjector | None = None,
+                 faults_at: list[tuple[float, int]] | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.model = model
+        self.injector = injector or FaultInjector()
+        self.faults_at = sorted(faults_at or [])
+        self.sink: Callable[[bytes], None] | None = None
+        self._clock = clock
+        self._t0 = clock()
+        self._cond = threading.Condition()
+        self._incoming: list[tuple[float, int, bytes]] = []  # heap of (due, order, frame)
+        self._outgoing: list[tuple[float, int, bytes]] = []
+        self._order = 0
+        self._rx_rest = b""
+        self._running = False
+        self._thread: threading.Thread | None = None
+
+    def elapsed(self) -> float:
+        """Seconds on the device clock."""
+        return self._clock() - self._t0
+
+    def start(self) -> None:
+        self._t0 = self._clock()
+        self._running = True
+        self._thread = threading.Thread(target=self._run, name="mock-gimbal-device", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        with self._cond:
+            self._running = False
+            self._cond.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+
+    def write(self, data: bytes) -> None:
+        """Bytes from the host (any chunking); faults are applied per frame."""
+        with self._cond:
+            frames, self._rx_rest = split_frames(self._rx_rest, bytes(data))
+            due = self.elapsed() + self.injector.latency_s
+            for frame in frames:
+                frame = self.injector.apply(frame)
+                if frame is not None:
+                    self._order += 1
+                    heapq.heappush(self._incoming, (due, self._order, frame))
+            if frames:
+                self._cond.notify_all()
+
+    def _run(self) -> None:
+        model = self.model
+        while True:
+            with self._cond:
+                if not self._running:
+                    return
+                now = self.elapsed()
+                wake = [model.next_state, now + 0.05]
+                if self._incoming:
+                    wake.append(self._incoming[0][0])
+                if self._outgoing:
+                    wake.append(self._outgoing[0][0])
+                if self.faults_at:
+                    wake.append(self.faults_at[0][0])
+                timeout = min(wake) - now
+                if timeout > 0:
+                    self._cond.wait(timeout)
+                now = self.elapsed()
+                arrived = []
+                while self._incoming and self._incoming[0][0] <= now:
+                    arrived.append(heapq.heappop(self._incoming)[2])
+            out = b""
+            if arrived:
+                out += model.feed(b"".join(arrived), now)
+            while self.faults_at and self.faults_at[0][0] <= now:
+                _, bit = self.faults_at.pop(0)
+                log.info("injecting fault bit %d at t=%.3f s", bit, now)
+                model.inject_fault(1 << bit)
+            out += model.step(now)
+            if out:
+                frames, _ = split_frames(b"", out)
+                with self._cond:
+                    due = now + self.injector.latency_s
+                    for frame in frames:
+                        frame = self.injector.apply(frame)
+                        if frame is not None:
+                            self._order += 1
+                            heapq.heappush(self._outgoing, (due, self._order, frame))
+            ready = []
+            with self._cond:
+                while self._outgoing and self._outgoing[0][0] <= now:
+                    ready.append(heapq.heappop(self._outgoing)[2])
+            sink = self.sink
+            if ready and sink is not None:
+                try:
+                    sink(b"".join(ready))
+                except OSError as exc:  # the port went away under us: output is lost, like on a wire
+                    log.debug("device output lost: %s", exc)

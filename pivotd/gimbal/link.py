@@ -1,0 +1,508 @@
+"""Host side of the gimbal serial link: handshake, setpoints, STATE/ACK reader, reconnect loop.
+
+``GimbalLink(url, config).start()`` opens any pyserial URL (``/dev/ttyUSB0``, ``socket://host:port``,
+``mock://``, ``spy://…``) on a background thread and runs the handshake HELLO → IDENTITY (refusing an
+incompatible protocol version) → CONFIG (the ACK must carry the CRC-32 of the CONFIG payload) →
+ENABLE. When the port is lost (unplug, EOF, I/O error, or no STATE for ``state_timeout_s``) the link
+goes ``down``, reconnects with exponential backoff and re-runs the whole handshake by itself.
+
+Threads per open port: a reader (decodes STATE/ACK/IDENTITY, keeps the latest state) and a writer
+(drains a bounded queue, so :meth:`GimbalLink.send_setpoint` never blocks the caller).
+Importing this module registers the ``mock://`` URL scheme with pyserial.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import queue
+import threading
+import time
+import zlib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import serial
+
+from firmware_proto import codec
+from firmware_proto.messages import (
+    NACK_NAMES,
+    PROTOCOL_VERSION,
+    Ack,
+    ClearFault,
+    Config,
+    Enable,
+    Heartbeat,
+    Hello,
+    Identity,
+    Message,
+    Setpoint,
+    State,
+)
+from firmware_proto.urlhandler import register as _register_mock_url
+
+_register_mock_url()
+
+log = logging.getLogger(__name__)
+
+LINK_STATES = ("connecting", "up", "down", "incompatible", "stopped")
+_TX_QUEUE = 64  # frames waiting for the writer; setpoints beyond this are dropped (port stalled)
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    """Joint limits [rad], rate limits [rad/s], acceleration limits [rad/s²] sent as CONFIG, and link timing."""
+
+    pan_min: float
+    pan_max: float
+    tilt_min: float
+    tilt_max: float
+    vmax_pan: float
+    vmax_tilt: float
+    amax_pan: float
+    amax_tilt: float
+    watchdog_ms: int = 250
+    state_timeout_s: float = 0.5  # no STATE for this long -> link down, reconnect
+    ack_timeout_s: float = 0.2  # per attempt
+    ack_retries: int = 5  # extra attempts after the first
+    reconnect_backoff_s: tuple = (0.1, 2.0)  # (first, max) delay between connection attempts
+
+    def config_message(self) -> Config:
+        """The CONFIG message carrying these limits."""
+        return Config(self.pan_min, self.pan_max, self.tilt_min, self.tilt_max, self.vmax_pan, self.vmax_tilt,
+                      self.amax_pan, self.amax_tilt, self.watchdog_ms)
+
+
+@dataclass(frozen=True)
+class GimbalState:
+    """Latest STATE: joint angles [rad] and rates [rad/s], mode (0 disabled, 1 enabled, 2 holding, 3 fault),
+    fault bits, echoed setpoint seq, device clock [µs, wraps at 2³²], host receive time (time.monotonic())."""
+
+    pan: float
+    tilt: float
+    pan_rate: float
+    tilt_rate: float
+    mode: int
+    faults: int
+    last_setpoint_seq: int
+    device_time_us: int
+    rx_time: float
+
+
+@dataclass
+class _Connection:
+    """One open port and its threads."""
+
+    port: serial.SerialBase
+    tx: queue.Queue = field(default_factory=lambda: queue.Queue(_TX_QUEUE))
+    closing: threading.Event = field(default_factory=threading.Event)
+    error: str | None = None
+    threads: list = field(default_factory=list)
+
+    @property
+    def alive(self) -> bool:
+        return self.error is None and not self.closing.is_set()
+
+
+class _Pending:
+    """An outstanding request waiting for its ACK (or IDENTITY)."""
+
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        self.reply: Message | None = None
+
+
+class GimbalLink:
+    """Serial link to one gimbal (see the module docstring). Thread-safe."""
+
+    def __init__(self, url: str, config: LinkConfig, baudrate: int = 115200) -> None:
+        self.url = url
+        self.config = config
+        self.baudrate = baudrate
+        self._cfg_msg = config.config_message()
+        self._cfg_msg.pack()  # fail early on limits that do not fit the wire format
+        self._lock = threading.Lock()
+        self._changed = threading.Condition(self._lock)
+        self._seq_lock = threading.Lock()
+        self._link_state = "stopped"
+        self._state: GimbalState | None = None
+        self._identity: Identity | None = None
+        self._last_error: str | None = None
+        self._conn: _Connection | None = None
+        self._stopping = threading.Event()
+        self._manager: threading.Thread | None = None
+        self._want_enabled = True
+        self._seq = 0
+        self._pending: dict[tuple[int, int], _Pending] = {}
+        self._hello: _Pending | None = None
+        self._sent_at: list[float | None] = [None] * 256
+        self._decoder = codec.StreamDecoder()
+        self._last_state_rx = 0.0
+        self._n = dict.fromkeys(("frames_sent", "frames_received", "setpoints_sent", "retries", "reconnects",
+                                 "link_losses", "ack_failures", "tx_overflow", "rtt_samples"), 0)
+        self._rtt_last = self._rtt_sum = self._rtt_max = 0.0
+        self._ever_up = False
+        self._listeners: list[Callable[[GimbalState], None]] = []
+
+    # ------------------------------------------------------------------ public API
+    def start(self) -> None:
+        """Connect, handshake and keep reconnecting on a background thread; returns immediately."""
+        if self._manager is not None and self._manager.is_alive():
+            return
+        self._stopping.clear()
+        self._set_link_state("connecting")
+        self._manager = threading.Thread(target=self._run, name="gimbal-link", daemon=True)
+        self._manager.start()
+
+    def stop(self, disable: bool = True) -> None:
+        """Disable the gimbal (if ``disable`` and the link is up), close the port, stop all threads."""
+        if disable and self.link_state == "up":
+            self.set_enabled(False)
+        self._stopping.set()
+        if self._manager is not None:
+            self._manager.join(timeout=5.0)
+            self._manager = None
+        self._set_link_state("stopped")
+
+    @property
+    def link_state(self) -> str:
+        """"connecting" | "up" | "down" | "incompatible" | "stopped"."""
+        return self._link_state
+
+    @property
+    def state(self) -> GimbalState | None:
+        """The latest STATE received, or None before the first one (kept while the link is down: check
+        ``link_state`` and ``rx_time`` before trusting it)."""
+        return self._state
+
+    @property
+    def identity(self) -> Identity | None:
+        """The device's IDENTITY from the last handshake."""
+        return self._identity
+
+    @property
+    def last_error(self) -> str | None:
+        """One-line description of the last connection/handshake problem."""
+        return self._last_error
+
+    def wait_up(self, timeout: float) -> bool:
+        """Block until the link is up (True) or ``timeout`` seconds passed / it became incompatible (False)."""
+        deadline = time.monotonic() + timeout
+        with self._changed:
+            while self._link_state != "up":
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or self._link_state in ("incompatible", "stopped"):
+                    return False
+                self._changed.wait(remaining)
+            return True
+
+    def wait_state(self, predicate: Callable[[GimbalState], bool], timeout: float) -> GimbalState | None:
+        """Block until a received STATE satisfies ``predicate(state)``; return it, or None on timeout.
+        ``predicate`` is called once per new STATE on the caller's thread, without any lock held."""
+        deadline = time.monotonic() + timeout
+        checked: GimbalState | None = None
+        while True:
+            st = self._state
+            if st is not None and st is not checked:
+                checked = st
+                if predicate(st):
+                    return st
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return None
+            with self._changed:
+                if self._state is checked:
+                    self._changed.wait(min(remaining, 0.1))
+
+    def subscribe(self, callback: Callable[[GimbalState], None]) -> None:
+        """Call ``callback(state)`` on the reader thread for every STATE received (keep it short)."""
+        self._listeners.append(callback)
+
+    def send_setpoint(self, pan: float, tilt: float, pan_rate: float = 0.0, tilt_rate: float = 0.0) -> int | None:
+        """Queue a SETPOINT (pan/tilt [rad], feed-forward rates [rad/s]); return its seq, or None if the link
+        is not up. Never blocks; raises ValueError on non-finite values."""
+        conn = self._conn
+        if self._link_state != "up" or conn is None:
+            return None
+        seq = self._next_seq()
+        host_us = int(time.monotonic() * 1e6) & 0xFFFFFFFF
+        frame = codec.encode(Setpoint(pan, tilt, pan_rate, tilt_rate, host_us), seq)
+        self._sent_at[seq] = time.monotonic()
+        if not self._enqueue(conn, frame):
+            return None
+        self._n["setpoints_sent"] += 1
+        return seq
+
+    def send_heartbeat(self) -> None:
+        """Queue a HEARTBEAT (feeds the device watchdog without moving); no-op if the link is not up."""
+        conn = self._conn
+        if self._link_state == "up" and conn is not None:
+            self._enqueue(conn, codec.encode(Heartbeat(), self._next_seq()))
+
+    def set_enabled(self, on: bool, timeout: float | None = None) -> bool:
+        """ENABLE/disable the gimbal; True once ACKed with status ok. Remembered for future handshakes.
+        ``timeout`` bounds the total wait [s] (default: ack_timeout_s × (ack_retries + 1))."""
+        self._want_enabled = bool(on)
+        if self._link_state != "up":
+            return False
+        ack = self._request(Enable(1 if on else 0), timeout)
+        return ack is not None and ack.status == 0
+
+    def clear_fault(self, timeout: float | None = None) -> bool:
+        """CLEAR_FAULT; True once ACKed with status ok."""
+        if self._link_state != "up":
+            return False
+        ack = self._request(ClearFault(), timeout)
+        return ack is not None and ack.status == 0
+
+    def counters(self) -> dict[str, int | float]:
+        """Frames sent/received, decode drops by reason, retries, reconnects, RTT (setpoint → echoing STATE) [s]."""
+        out: dict[str, int | float] = dict(self._n)
+        drops = self._decoder.drops
+        out["crc_errors"] = drops["crc"]
+        out["decode_drops"] = self._decoder.dropped
+        out.update({f"drop_{k}": v for k, v in drops.items()})
+        n = self._n["rtt_samples"]
+        out["rtt_last_s"] = self._rtt_last
+        out["rtt_mean_s"] = self._rtt_sum / n if n else 0.0
+        out["rtt_max_s"] = self._rtt_max
+        return out
+
+    # ------------------------------------------------------------------ internals
+    def _set_link_state(self, value: str) -> None:
+        with self._changed:
+            if self._link_state != value:
+                log.info("gimbal link %s: %s", self.url, value)
+            self._link_state = value
+            self._changed.notify_all()
+
+    def _next_seq(self) -> int:
+        with self._seq_lock:
+            seq = self._seq
+            self._seq = (seq + 1) & 0xFF
+        return seq
+
+    def _enqueue(self, conn: _Connection, frame: bytes) -> bool:
+        try:
+            conn.tx.put_nowait(frame)
+            return True
+        except queue.Full:
+            self._n["tx_overflow"] += 1
+            return False
+
+    def _run(self) -> None:
+        first, maximum = self.config.reconnect_backoff_s
+        delay = first
+        while not self._stopping.is_set():
+            if self._link_state != "down":
+                self._set_link_state("connecting")
+            conn = self._open()
+            if conn is not None:
+                result = self._handshake(conn)
+                if result == "up":
+                    delay = first
+                    if self._ever_up:
+                        self._n["reconnects"] += 1
+                    self._ever_up = True
+                    self._set_link_state("up")
+                    self._monitor(conn)
+                    if not self._stopping.is_set():
+                        self._n["link_losses"] += 1
+                        log.warning("gimbal link %s lost: %s", self.url, conn.error or "closed")
+                self._close(conn)
+                if result == "incompatible":
+                    self._set_link_state("incompatible")
+                    return
+            if self._stopping.is_set():
+                return
+            self._set_link_state("down")
+            self._stopping.wait(delay)
+            delay = min(maximum, delay * 2)
+
+    def _open(self) -> _Connection | None:
+        try:
+            port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=0.05, write_timeout=0.5)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            self._last_error = f"cannot open gimbal port {self.url}: {exc}"
+            log.debug(self._last_error)
+            return None
+        conn = _Connection(port)
+        conn.tx.put_nowait(b"\x00")  # ends any partial frame the device still holds from before
+        self._decoder.reset()
+        self._conn = conn
+        for target, name in ((self._reader, "gimbal-rx"), (self._writer, "gimbal-tx")):
+            t = threading.Thread(target=target, args=(conn,), name=name, daemon=True)
+            conn.threads.append(t)
+            t.start()
+        return conn
+
+    def _close(self, conn: _Connection) -> None:
+        conn.closing.set()
+        with contextlib.suppress(queue.Full):
+            conn.tx.put_nowait(None)  # wake the writer; it also watches ``closing``
+        for t in conn.threads:
+            t.join(timeout=2.0)
+        with contextlib.suppress(serial.SerialException, OSError):
+            conn.port.close()
+        if self._conn is conn:
+            self._conn = None
+
+    def _monitor(self, conn: _Connection) -> None:
+        self._last_state_rx = time.monotonic()
+        while not self._stopping.is_set() and conn.alive:
+            if time.monotonic() - self._last_state_rx > self.config.state_timeout_s:
+                conn.error = f"no STATE for {self.config.state_timeout_s} s"
+                break
+            self._stopping.wait(0.02)
+        self._last_error = conn.error
+
+    def _handshake(self, conn: _Connection) -> str:
+        """HELLO → IDENTITY → CONFIG → (ENABLE); returns "up", "down" or "incompatible"."""
+        ident = self._request_identity(conn)
+        if ident is None:
+            self._last_error = f"gimbal at {self.url} did not answer HELLO"
+            return "down"
+        self._identity = ident
+        if ident.version != PROTOCOL_VERSION:
+            self._last_error = (f"gimbal at {self.url} speaks protocol version {ident.version}, this host speaks "
+                                f"version {PROTOCOL_VERSION}: refusing to drive it")
+            log.error(self._last_error)
+            return "incompatible"
+        expected_crc = zlib.crc32(self._cfg_msg.pack())
+        ack = self._request(self._cfg_msg, None, conn, expect_value=expected_crc)
+        if ack is None:
+            self._last_error = f"gimbal at {self.url} did not acknowledge CONFIG with the right CRC"
+            return "down"
+        if ack.status != 0:
+            self._last_error = (f"gimbal at {self.url} rejected CONFIG: {NACK_NAMES.get(ack.status, ack.status)} "
+                                f"(limits {self._cfg_msg})")
+            log.error(self._last_error)
+            return "incompatible"
+        if self._want_enabled:
+            ack = self._request(Enable(1), None, conn)
+            if ack is None:
+                self._last_error = f"gimbal at {self.url} did not acknowledge ENABLE"
+                return "down"
+            if ack.status != 0:
+                log.warning("gimbal at %s refused ENABLE: %s (faults 0x%04x); link up, disabled", self.url,
+                            NACK_NAMES.get(ack.status, ack.status), self._state.faults if self._state else 0)
+        log.info("gimbal at %s: protocol v%d, firmware %d.%d.%d, serial %08x", self.url, ident.version,
+                 ident.fw_major, ident.fw_minor, ident.fw_patch, ident.serial)
+        return "up"
+
+    def _attempts(self, timeout: float | None) -> tuple[int, float]:
+        per = self.config.ack_timeout_s
+        n = self.config.ack_retries + 1 if timeout is None else max(1, int(timeout / per + 0.999))
+        return n, per
+
+    def _request_identity(self, conn: _Connection) -> Identity | None:
+        pending = _Pending()
+        self._hello = pending
+        try:
+            n, per = self._attempts(None)
+            for attempt in range(n):
+                if attempt:
+                    self._n["retries"] += 1
+                self._enqueue(conn, codec.encode(Hello(PROTOCOL_VERSION), self._next_seq()))
+                if pending.event.wait(per):
+                    return pending.reply  # type: ignore[return-value]
+                if not conn.alive or self._stopping.is_set():
+                    return None
+            return None
+        finally:
+            self._hello = None
+
+    def _request(self, msg: Message, timeout: float | None, conn: _Connection | None = None,
+                 expect_value: int | None = None) -> Ack | None:
+        """Send ``msg`` and wait for its ACK, resending the same frame (same seq) on timeout."""
+        conn = conn or self._conn
+        if conn is None:
+            return None
+        seq = self._next_seq()
+        key = (seq, msg.TYPE)
+        pending = _Pending()
+        self._pending[key] = pending
+        frame = codec.encode(msg, seq)
+        try:
+            n, per = self._attempts(timeout)
+            for attempt in range(n):
+                if attempt:
+                    self._n["retries"] += 1
+                self._enqueue(conn, frame)
+                if pending.event.wait(per):
+                    ack = pending.reply
+                    assert isinstance(ack, Ack)
+                    if expect_value is None or ack.status != 0 or ack.value == expect_value:
+                        return ack
+                    log.warning("%s ACK carries CRC %08x, expected %08x: resending", msg.NAME, ack.value,
+                                expect_value)
+                    pending.event.clear()
+                if not conn.alive or self._stopping.is_set():
+                    break
+            self._n["ack_failures"] += 1
+            return None
+        finally:
+            self._pending.pop(key, None)
+
+    def _writer(self, conn: _Connection) -> None:
+        while not conn.closing.is_set():
+            try:
+                frame = conn.tx.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            if frame is None:
+                return
+            try:
+                conn.port.write(frame)
+                self._n["frames_sent"] += 1
+            except (serial.SerialException, OSError) as exc:
+                conn.error = f"write failed: {exc}"
+                return
+
+    def _reader(self, conn: _Connection) -> None:
+        port = conn.port
+        while not conn.closing.is_set():
+            try:
+                data = port.read(max(1, port.in_waiting))
+            except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+                if not conn.closing.is_set():
+                    conn.error = f"read failed: {exc}"
+                return
+            if data:
+                for frame in self._decoder.feed(data):
+                    self._n["frames_received"] += 1
+                    self._dispatch(frame)
+
+    def _dispatch(self, frame: codec.Frame) -> None:
+        msg = frame.msg
+        if isinstance(msg, State):
+            now = time.monotonic()
+            st = GimbalState(msg.pan, msg.tilt, msg.pan_rate, msg.tilt_rate, msg.mode, msg.faults,
+                             msg.last_setpoint_seq, msg.device_time_us, now)
+            sent = self._sent_at[msg.last_setpoint_seq]
+            if sent is not None:
+                self._sent_at[msg.last_setpoint_seq] = None
+                rtt = now - sent
+                self._rtt_last = rtt
+                self._rtt_sum += rtt
+                self._rtt_max = max(self._rtt_max, rtt)
+                self._n["rtt_samples"] += 1
+            with self._changed:
+                self._state = st
+                self._last_state_rx = now
+                self._changed.notify_all()
+            for callback in self._listeners:
+                try:
+                    callback(st)
+                except Exception:  # a listener's bug must not kill the link
+                    log.exception("STATE listener failed")
+        elif isinstance(msg, Ack):
+            pending = self._pending.get((msg.acked_seq, msg.acked_type))
+            if pending is not None:
+                pending.reply = msg
+                pending.event.set()
+        elif isinstance(msg, Identity):
+            pending = self._hello
+            if pending is not None:
+                pending.reply = msg
+                pending.event.set()

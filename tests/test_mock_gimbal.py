@@ -1,0 +1,117 @@
+"""tools/mock_gimbal as a real subprocess: endpoints, signals, CSV log, fault injection (raw protocol)."""
+
+import os
+import select
+import signal
+import socket
+import subprocess
+import sys
+import time
+import tty
+
+import pytest
+import serial
+from proto_support import MOCK_GIMBAL, REPO, MockGimbal, read_log
+
+from firmware_proto import codec
+from firmware_proto.messages import FAULT_ENCODER, MODE_FAULT, Ack, Config, Enable, Hello, Identity, Setpoint, State
+
+
+def exchange(port, msgs, wait: float = 0.3) -> list:
+    """Send ``msgs`` (list of (msg, seq)) and return the frames received within ``wait`` seconds."""
+    for msg, seq in msgs:
+        port.write(codec.encode(msg, seq))
+    dec = codec.StreamDecoder()
+    frames = []
+    deadline = time.monotonic() + wait
+    while time.monotonic() < deadline:
+        frames += dec.feed(port.read(256))
+    return frames
+
+
+def test_pty_announces_path_and_speaks_the_protocol(tmp_path) -> None:
+    log_file = tmp_path / "log.csv"
+    with MockGimbal("--log", str(log_file), "--state-hz", "100") as mock:
+        assert mock.first_line.startswith("/dev/pts/")
+        port = serial.serial_for_url(mock.url, timeout=0.05)
+        try:
+            frames = exchange(port, [(Hello(1), 1), (Config(-1, 1, -1, 1, 1, 1, 5, 5, 500), 2), (Enable(1), 3),
+                                     (Setpoint(0.25, -0.5, 0.0, 0.0, 42), 4)], wait=0.5)
+        finally:
+            port.close()
+        assert mock.terminate() == 0
+    assert any(isinstance(f.msg, Identity) for f in frames)
+    acks = [f.msg for f in frames if isinstance(f.msg, Ack)]
+    assert [(a.acked_seq, a.acked_type, a.status) for a in acks] == [(2, 2, 0), (3, 3, 0)]
+    states = [f.msg for f in frames if isinstance(f.msg, State)]
+    assert len(states) >= 20 and states[-1].last_setpoint_seq == 4 and states[-1].mode == 1
+    rows = read_log(log_file)
+    sp = [r for r in rows if r["type"] == "SETPOINT" and r["dir"] == "rx"]
+    assert len(sp) == 1 and float(sp[0]["pan"]) == 0.25 and float(sp[0]["tilt"]) == -0.5
+    assert sp[0]["host_time_us"] == "42" and sp[0]["seq"] == "4"
+    tx_states = [r for r in rows if r["type"] == "STATE" and r["dir"] == "tx"]
+    assert len(tx_states) >= len(states)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_clean_exit_on_signals(sig) -> None:
+    with MockGimbal(tcp=True) as mock:
+        time.sleep(0.2)
+        assert mock.terminate(sig) == 0
+
+
+def test_tcp_announces_port_serves_one_client_and_fault_at() -> None:
+    with MockGimbal("--fault-at", "0.3:2", tcp=True) as mock:
+        port_no = int(mock.first_line)
+        assert 0 < port_no < 65536
+        port = serial.serial_for_url(mock.url, timeout=0.05)
+        try:
+            other = socket.create_connection(("127.0.0.1", port_no), timeout=2)
+            other.settimeout(2)
+            assert other.recv(10) == b""  # a second client is refused while the first is connected
+            other.close()
+            frames = exchange(port, [], wait=0.6)
+        finally:
+            port.close()
+    states = [f.msg for f in frames if isinstance(f.msg, State)]
+    assert states[-1].mode == MODE_FAULT and states[-1].faults == FAULT_ENCODER
+    assert states[0].faults == 0
+
+
+def test_bad_arguments_exit_2_with_a_message() -> None:
+    r = subprocess.run([sys.executable, str(MOCK_GIMBAL), "--fault-at", "soon"], capture_output=True, text=True,
+                       env={"PYTHONPATH": str(REPO)}, timeout=30)
+    assert r.returncode == 2 and "--fault-at expects SECONDS:BIT" in r.stderr
+    r = subprocess.run([sys.executable, str(MOCK_GIMBAL), "--drop", "1.5"], capture_output=True, text=True,
+                       env={"PYTHONPATH": str(REPO)}, timeout=30)
+    assert r.returncode == 2 and "--drop must be a probability" in r.stderr
+
+
+def test_drop_everything_means_silence() -> None:
+    with MockGimbal("--drop", "1.0", "--seed", "3") as mock:
+        port = serial.serial_for_url(mock.url, timeout=0.05)
+        try:
+            frames = exchange(port, [(Hello(1), 1)], wait=0.3)
+        finally:
+            port.close()
+    assert frames == []
+
+
+def test_serial_mode_on_a_pty_pair_with_latency() -> None:
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        with MockGimbal("--serial", os.ttyname(slave), "--latency-ms", "30") as mock:
+            assert mock.first_line == os.ttyname(slave)
+            os.write(master, codec.encode(Hello(1), 1))
+            dec = codec.StreamDecoder()
+            frames = []
+            deadline = time.monotonic() + 1.0
+            while time.monotonic() < deadline and not any(isinstance(f.msg, Identity) for f in frames):
+                if select.select([master], [], [], 0.05)[0]:
+                    frames += dec.feed(os.read(master, 4096))
+            assert any(isinstance(f.msg, Identity) for f in frames)
+            assert mock.terminate() == 0
+    finally:
+        os.close(master)
+        os.close(slave)

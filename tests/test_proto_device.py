@@ -1,0 +1,211 @@
+"""Reference device model: state machine, CONFIG validation, watchdog timing, clamping, dynamics."""
+
+import itertools
+import zlib
+
+import pytest
+
+from firmware_proto import codec
+from firmware_proto.device import DeviceModel
+from firmware_proto.messages import (
+    FAULT_CLAMPED,
+    FAULT_CONFIG,
+    FAULT_OVERCURRENT,
+    FAULT_WATCHDOG,
+    MODE_DISABLED,
+    MODE_ENABLED,
+    MODE_FAULT,
+    MODE_HOLDING,
+    NACK_BAD_VALUE,
+    NACK_CONFIG_INVALID,
+    NACK_FAULT_ACTIVE,
+    NACK_NOT_CONFIGURED,
+    Ack,
+    ClearFault,
+    Config,
+    Enable,
+    Heartbeat,
+    Hello,
+    Identity,
+    Setpoint,
+    State,
+)
+
+CFG = Config(-2.0, 2.0, -1.0, 0.5, 1.0, 1.0, 4.0, 4.0, 250)
+
+
+class Rig:
+    """A device model driven by an explicit clock, with the host-side decoder."""
+
+    def __init__(self, **kw) -> None:
+        self.dev = DeviceModel(**kw)
+        self.dec = codec.StreamDecoder()
+        self.seq = 0
+        self.t = 0.0
+        self.states: list[State] = []
+
+    def send(self, msg, t: float | None = None):
+        self.t = self.t if t is None else t
+        self.seq = (self.seq + 1) & 0xFF
+        return self._collect(self.dev.feed(codec.encode(msg, self.seq), self.t))
+
+    def run_to(self, t: float):
+        self.t = t
+        return self._collect(self.dev.step(t))
+
+    def _collect(self, data: bytes):
+        frames = self.dec.feed(data)
+        self.states += [f.msg for f in frames if isinstance(f.msg, State)]
+        return [f.msg for f in frames if not isinstance(f.msg, State)]
+
+    def enabled(self, cfg: Config = CFG) -> "Rig":
+        (ack,) = self.send(cfg)
+        assert ack.status == 0
+        (ack,) = self.send(Enable(1))
+        assert ack.status == 0
+        return self
+
+
+def test_starts_disabled_and_streams_state_at_a_fixed_rate() -> None:
+    rig = Rig(state_hz=50.0)
+    rig.run_to(0.0)
+    rig.run_to(1.0)
+    assert len(rig.states) == 51
+    times = [s.device_time_us for s in rig.states]
+    assert all(b - a == 20_000 for a, b in itertools.pairwise(times))
+    assert {s.mode for s in rig.states} == {MODE_DISABLED}
+
+
+def test_hello_answers_identity() -> None:
+    (ident,) = Rig().send(Hello(1))
+    assert isinstance(ident, Identity) and ident.version == 1
+
+
+def test_valid_config_is_acked_with_its_crc32() -> None:
+    (ack,) = Rig().send(CFG)
+    assert ack == Ack(1, Config.TYPE, 0, zlib.crc32(CFG.pack()))
+
+
+@pytest.mark.parametrize("bad", [
+    Config(1.0, -1.0, -1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 250),
+    Config(-1.0, 1.0, 0.5, 0.5, 1.0, 1.0, 1.0, 1.0, 250),
+    Config(-1.0, 1.0, -1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 250),
+    Config(-1.0, 1.0, -1.0, 1.0, 1.0, 1.0, -1.0, 1.0, 250),
+    Config(-1.0, 1.0, -1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0),
+    Config(-7.0, 1.0, -1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 250),
+])
+def test_invalid_config_is_nacked_and_flagged(bad) -> None:
+    rig = Rig()
+    (ack,) = rig.send(bad)
+    assert ack.status == NACK_CONFIG_INVALID
+    rig.run_to(0.1)
+    assert rig.states[-1].faults & FAULT_CONFIG
+    (ack,) = rig.send(Enable(1))
+    assert ack.status == NACK_NOT_CONFIGURED
+
+
+def test_enable_needs_config_and_a_valid_value() -> None:
+    rig = Rig()
+    assert rig.send(Enable(1))[0].status == NACK_NOT_CONFIGURED
+    rig.send(CFG)
+    assert rig.send(Enable(2))[0].status == NACK_BAD_VALUE
+    assert rig.send(Enable(1))[0].status == 0
+
+
+def test_watchdog_expires_after_watchdog_ms_and_holds() -> None:
+    rig = Rig().enabled()
+    rig.send(Setpoint(1.0, 0.0), t=0.0)
+    rig.run_to(0.24)
+    assert rig.dev.mode == MODE_ENABLED
+    rig.run_to(0.26)
+    assert rig.dev.mode == MODE_HOLDING and rig.dev.faults & FAULT_WATCHDOG
+    # rates ramp to zero within amax, then the position is held: it never keeps moving
+    rig.run_to(2.0)
+    hold = [s for s in rig.states if s.device_time_us > 260_000]
+    rates = [abs(s.pan_rate) for s in hold]
+    assert all(b <= a + 1e-6 for a, b in itertools.pairwise(rates))
+    assert hold[-1].pan_rate == 0.0
+    still = [s.pan for s in hold if s.device_time_us > 1_000_000]
+    assert max(still) == min(still)
+
+
+def test_setpoints_and_heartbeats_feed_the_watchdog() -> None:
+    rig = Rig().enabled()
+    for i in range(20):
+        rig.send(Heartbeat() if i % 2 else Setpoint(0.1, 0.0), t=i * 0.2)
+        rig.run_to(i * 0.2 + 0.19)
+    assert rig.dev.mode == MODE_ENABLED and not rig.dev.faults
+
+
+def test_setpoint_while_holding_resumes_and_fault_stays_latched() -> None:
+    rig = Rig().enabled()
+    rig.run_to(0.5)
+    assert rig.dev.mode == MODE_HOLDING
+    rig.send(Setpoint(0.3, 0.0), t=0.5)
+    assert rig.dev.mode == MODE_ENABLED
+    rig.run_to(0.6)
+    assert rig.states[-1].faults & FAULT_WATCHDOG
+    (ack,) = rig.send(ClearFault())
+    assert ack.status == 0
+    rig.run_to(0.62)
+    assert rig.states[-1].faults == 0 and rig.states[-1].mode == MODE_ENABLED
+
+
+def test_setpoints_are_clamped_to_the_limits() -> None:
+    rig = Rig().enabled()
+    for i in range(40):
+        rig.send(Setpoint(5.0, -3.0), t=i * 0.1)
+        rig.run_to(i * 0.1 + 0.09)
+    s = rig.states[-1]
+    assert s.pan == pytest.approx(CFG.pan_max, abs=1e-5)
+    assert s.tilt == pytest.approx(CFG.tilt_min, abs=1e-5)
+    assert s.faults & FAULT_CLAMPED
+    assert all(CFG.pan_min <= x.pan <= CFG.pan_max and CFG.tilt_min <= x.tilt <= CFG.tilt_max for x in rig.states)
+
+
+def test_tracking_respects_rate_and_acceleration_limits_with_some_lag() -> None:
+    rig = Rig(state_hz=100.0).enabled()
+    for i in range(30):
+        rig.send(Setpoint(1.5, 0.4), t=i * 0.1)
+        rig.run_to(i * 0.1 + 0.099)
+    pans = [s.pan_rate for s in rig.states]
+    assert max(abs(v) for v in pans) <= CFG.vmax_pan + 1e-6
+    dv = [abs(b - a) for a, b in itertools.pairwise(pans)]
+    assert max(dv) <= CFG.amax_pan * 0.01 + 1e-5
+    assert rig.states[-1].pan == pytest.approx(1.5, abs=1e-4)
+    assert rig.states[-1].tilt == pytest.approx(0.4, abs=1e-4)
+    assert rig.states[10].pan < 1.0  # it took time to get there
+
+
+def test_setpoints_ignored_while_disabled_but_seq_echoed() -> None:
+    rig = Rig()
+    rig.send(CFG)
+    rig.send(Setpoint(1.0, 0.0), t=0.0)
+    rig.run_to(1.0)
+    assert rig.states[-1].pan == 0.0 and rig.states[-1].last_setpoint_seq == rig.seq
+
+
+def test_severe_fault_enters_fault_mode_until_cleared() -> None:
+    rig = Rig().enabled()
+    rig.dev.inject_fault(FAULT_OVERCURRENT)
+    rig.run_to(0.1)
+    assert rig.states[-1].mode == MODE_FAULT and rig.states[-1].faults & FAULT_OVERCURRENT
+    assert rig.send(Enable(1))[0].status == NACK_FAULT_ACTIVE
+    rig.send(Setpoint(1.0, 0.0))
+    assert rig.dev.mode == MODE_FAULT
+    assert rig.send(ClearFault())[0].status == 0
+    assert rig.dev.mode == MODE_DISABLED and rig.dev.faults == 0
+    assert rig.send(Enable(1))[0].status == 0
+
+
+def test_enable_starts_from_the_current_position() -> None:
+    rig = Rig().enabled()
+    for i in range(10):
+        rig.send(Setpoint(0.8, 0.0), t=i * 0.1)
+        rig.run_to(i * 0.1 + 0.09)
+    rig.send(Enable(0))
+    rig.run_to(2.0)
+    pan = rig.states[-1].pan
+    rig.send(Enable(1))
+    rig.run_to(2.2)
+    assert rig.states[-1].pan == pytest.approx(pan, abs=1e-6)
