@@ -13,7 +13,7 @@ import os
 BENCHES: dict[str, str] = {
     "montecarlo": "the paper's Monte Carlo evaluation: PIVOT vs brute force",
     "maps": "map loading, retained-set queries and occlusion tests at scale",
-    "proto": "serial protocol codec throughput",
+    "proto": "serial protocol codec throughput, link round trip, lossy-link soak",
     "horizon": "receding-horizon replanning latency",
     "control": "control-loop jitter and pose-to-setpoint latency",
     "motion": "per-cycle cost of gimbal kinematics and Ruckig setpoint generation",
