@@ -1,0 +1,121 @@
+"""Offline analysis of a run: the device's message log and per-frame landmark visibility.
+
+Used by the demo, the end-to-end tests and the control benchmark to judge what the gimbal
+actually received and where it actually looked.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pivotd.gimbal.motion import AxisLimits
+
+
+@dataclass(frozen=True)
+class DeviceLog:
+    """A device message log (``tools/mock_gimbal --log`` / ``mock://?log=``).
+
+    setpoints: host_time [s] (N,), pan/tilt [rad] (N,), rates [rad/s] (N, 2);
+    states: device time [s] (K,), pan/tilt [rad] (K,), mode (K,), faults (K,);
+    other: (type, device time) of every other message (ENABLE, CLEAR_FAULT, ...).
+    """
+
+    sp_time: np.ndarray
+    sp_pos: np.ndarray
+    sp_rate: np.ndarray
+    sp_rx_time: np.ndarray
+    st_time: np.ndarray
+    st_pos: np.ndarray
+    st_mode: np.ndarray
+    st_faults: np.ndarray
+    other: list[tuple[str, float, str]]
+
+
+def read_device_log(path: str | Path) -> DeviceLog:
+    """Parse the CSV written by the device model's message log."""
+    sp_t, sp_p, sp_r, sp_rx, st_t, st_p, st_m, st_f = [], [], [], [], [], [], [], []
+    other: list[tuple[str, float, str]] = []
+    with open(path, newline="") as fh:
+        for row in csv.DictReader(fh):
+            t = float(row["t_s"])
+            if row["dir"] == "rx" and row["type"] == "SETPOINT":
+                sp_t.append(int(row["host_time_us"]) * 1e-6)
+                sp_rx.append(t)
+                sp_p.append((float(row["pan"]), float(row["tilt"])))
+                sp_r.append((float(row["pan_rate"]), float(row["tilt_rate"])))
+            elif row["dir"] == "tx" and row["type"] == "STATE":
+                st_t.append(t)
+                st_p.append((float(row["pan"]), float(row["tilt"])))
+                st_m.append(int(row["mode"]))
+                st_f.append(int(row["faults"]))
+            else:
+                other.append((f"{row['dir']}:{row['type']}", t, row.get("detail", "")))
+
+    def arr(x: list, cols: int | None = None) -> np.ndarray:
+        a = np.asarray(x, dtype=float)
+        return a.reshape(-1, cols) if cols else a
+
+    return DeviceLog(arr(sp_t), arr(sp_p, 2), arr(sp_r, 2), arr(sp_rx), arr(st_t), arr(st_p, 2),
+                     np.asarray(st_m, int), np.asarray(st_f, int), other)
+
+
+@dataclass(frozen=True)
+class DynamicsReport:
+    """Worst |velocity|, |acceleration|, |jerk| per axis (2,) of a setpoint stream, and their ratio to the limits."""
+
+    max_velocity: np.ndarray
+    max_acceleration: np.ndarray
+    max_jerk: np.ndarray
+    velocity_ratio: np.ndarray
+    acceleration_ratio: np.ndarray
+    jerk_ratio: np.ndarray
+    position_min: np.ndarray
+    position_max: np.ndarray
+
+    @property
+    def worst_ratio(self) -> float:
+        return float(max(self.velocity_ratio.max(), self.acceleration_ratio.max(), self.jerk_ratio.max()))
+
+
+def setpoint_dynamics(positions: np.ndarray, dt: float, pan: AxisLimits, tilt: AxisLimits) -> DynamicsReport:
+    """Finite-difference dynamics of setpoints (N, 2) streamed at the constant control period ``dt`` [s].
+
+    The generator advances exactly one period per setpoint, so differences use ``dt``, not the
+    (jittery) send times.
+    """
+    p = np.asarray(positions, float)
+    v = np.diff(p, axis=0) / dt
+    a = np.diff(v, axis=0) / dt
+    j = np.diff(a, axis=0) / dt
+
+    def peak(x: np.ndarray) -> np.ndarray:
+        return np.abs(x).max(axis=0) if x.shape[0] else np.zeros(2)
+
+    lim_v = np.array([pan.max_velocity, tilt.max_velocity])
+    lim_a = np.array([pan.max_acceleration, tilt.max_acceleration])
+    lim_j = np.array([pan.max_jerk, tilt.max_jerk])
+    mv, ma, mj = peak(v), peak(a), peak(j)
+    return DynamicsReport(mv, ma, mj, mv / lim_v, ma / lim_a, mj / lim_j,
+                          p.min(axis=0) if p.size else np.zeros(2), p.max(axis=0) if p.size else np.zeros(2))
+
+
+def visible_counts(points: np.ndarray, cameras: np.ndarray, directions: np.ndarray, half_angle: float,
+                   min_range: float = 0.0, max_range: float = np.inf, chunk: int = 64) -> np.ndarray:
+    """Hard count (T,) of ``points`` (M, 3) inside the cone of half-angle [rad] around ``directions`` (T, 3)
+    from ``cameras`` (T, 3), counting only landmarks at a distance in [min_range, max_range] [m]."""
+    points = np.asarray(points, float)
+    out = np.zeros(cameras.shape[0], dtype=np.int64)
+    cos_a = np.cos(half_angle)
+    for start in range(0, cameras.shape[0], chunk):
+        cam = cameras[start:start + chunk]
+        d = directions[start:start + chunk] / np.linalg.norm(directions[start:start + chunk], axis=1, keepdims=True)
+        rel = points[None, :, :] - cam[:, None, :]
+        dist = np.linalg.norm(rel, axis=2)
+        cos_t = np.einsum("tmk,tk->tm", rel, d) / np.maximum(dist, 1e-12)
+        ok = (dist >= min_range) & (dist <= max_range) & (dist > 1e-9) & (cos_t >= cos_a)
+        out[start:start + chunk] = ok.sum(axis=1)
+    return out
