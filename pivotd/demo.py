@@ -45,7 +45,34 @@ class Observations:
     lock: threading.Lock = field(default_factory=threading.Lock)
 
 
-def _free_port() -> int:
+def derive_config(base: Path, out: Path, changes: dict[str, object]) -> Path:
+    """Write a copy of config ``base`` to ``out`` with dotted-key ``changes`` (``"gimbal.port": "mock://"``).
+
+    Relative paths of the base config (``map.file``, ``map.filters.occupancy_file``, ``zenoh.config_file``)
+    are made absolute so the copy can live anywhere.
+    """
+    import yaml
+
+    doc = yaml.safe_load(Path(base).read_text())
+    for dotted in ("map.file", "map.filters.occupancy_file", "zenoh.config_file"):
+        node = doc
+        keys = dotted.split(".")
+        for k in keys[:-1]:
+            node = node.get(k) or {}
+        value = node.get(keys[-1]) if isinstance(node, dict) else None
+        if value:
+            node[keys[-1]] = str((Path(base).parent / value).resolve())
+    for dotted, value in changes.items():
+        node = doc
+        keys = dotted.split(".")
+        for k in keys[:-1]:
+            node = node.setdefault(k, {})
+        node[keys[-1]] = value
+    out.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return out
+
+
+def free_port() -> int:
     import socket
 
     with socket.socket() as s:
@@ -53,7 +80,7 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def _spawn(args: list[str], log_path: Path) -> subprocess.Popen:
+def spawn(args: list[str], log_path: Path) -> subprocess.Popen:
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
     env.pop("NOTIFY_SOCKET", None)
@@ -203,10 +230,10 @@ def run_demo(config_path: Path, out_dir: Path, speed: float = 1.2, timeout: floa
     """Run the whole demo; returns the summary (also printed)."""
     cfg = load_config(config_path)
     out_dir.mkdir(parents=True, exist_ok=True)
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     device_log = out_dir / "gimbal_log.csv"
     py = sys.executable
-    daemon = _spawn([py, "-m", "pivotd.cli", "--config", str(config_path), "--listen", endpoint,
+    daemon = spawn([py, "-m", "pivotd.cli", "--config", str(config_path), "--listen", endpoint,
                      "--port", f"mock://?log={device_log}"], out_dir / "pivotd.log")
     sim = None
     session = None
@@ -220,7 +247,7 @@ def run_demo(config_path: Path, out_dir: Path, speed: float = 1.2, timeout: floa
             if daemon.poll() is not None:
                 raise RuntimeError(f"pivotd exited with {daemon.returncode}; see {out_dir / 'pivotd.log'}")
             time.sleep(0.1)
-        sim = _spawn([py, str(REPO / "tools" / "sim_pose"), "--route", "hallway", "--connect", endpoint,
+        sim = spawn([py, str(REPO / "tools" / "sim_pose"), "--route", "hallway", "--connect", endpoint,
                       "--speed", str(speed), "--rate", "50", "--wait-subscribers", "10", "--quiet"],
                      out_dir / "sim_pose.log")
         start = time.monotonic()

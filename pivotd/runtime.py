@@ -75,7 +75,7 @@ def build_planner(cfg: Config) -> RecedingHorizonPlanner:
         horizon=pl.horizon,
         max_landmarks_per_waypoint=pl.max_landmarks_per_waypoint,
         retained_filter=build_retained_filter(cfg),
-        options=TrajectoryOptions(transition_width=p.transition_width),
+        options=TrajectoryOptions(width_deg=math.degrees(p.transition_width)),
     )
     return RecedingHorizonPlanner(settings, cfg.gimbal.mount, cfg.gimbal.limits)
 

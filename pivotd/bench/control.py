@@ -1,0 +1,129 @@
+"""``pivotd bench control``: the real daemon under load, measured from outside.
+
+Runs ``pivotd`` (config/demo.yaml: 100 Hz control, in-process mock gimbal) with replanning at
+``--replan-hz`` while ``tools/sim_pose`` walks the hallway at 50 Hz, then reads the daemon's own
+status: control period jitter (deadline to wake-up), latency from a pose arriving to the first
+setpoint that uses it, replanning time. A second run loads a map of ``--rss-landmarks`` random
+landmarks and reports the daemon's resident memory while tracking.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[2]
+DEMO = REPO / "config" / "demo.yaml"
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--duration", type=float, default=20.0, help="seconds of tracking to measure")
+    parser.add_argument("--replan-hz", type=float, default=10.0)
+    parser.add_argument("--control-hz", type=float, default=100.0)
+    parser.add_argument("--rss-landmarks", type=int, default=1_000_000, help="map size for the memory run (0: skip)")
+    parser.add_argument("--json", type=Path, help="write the results to this file")
+
+
+def _rss_mb(pid: int) -> tuple[float, float]:
+    fields = {}
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        key, _, value = line.partition(":")
+        fields[key] = value.strip()
+    return int(fields["VmRSS"].split()[0]) / 1024.0, int(fields["VmHWM"].split()[0]) / 1024.0
+
+
+def _run(config: Path, endpoint: str, duration: float, out: Path) -> dict:
+    """Daemon + sim_pose for ``duration`` s of walking; returns the final status and memory."""
+    from pivotd.bus.session import open_session
+    from pivotd.config import load_config
+    from pivotd.demo import spawn
+
+    cfg = load_config(config)
+    py = sys.executable
+    daemon = spawn([py, "-m", "pivotd.cli", "--config", str(config), "--log-level", "WARNING"], out / "pivotd.log")
+    sim = None
+    session = open_session(connect=[endpoint])
+    try:
+        def status() -> dict | None:
+            for reply in session.get(cfg.status_key, timeout=2.0):
+                if reply.ok is not None:
+                    return json.loads(reply.ok.payload.to_bytes())
+            return None
+
+        t0 = time.monotonic()
+        while (st := status()) is None or st.get("link") != "up":
+            if daemon.poll() is not None or time.monotonic() - t0 > 60:
+                raise RuntimeError(f"pivotd did not come up; see {out / 'pivotd.log'}")
+            time.sleep(0.2)
+        sim = spawn([py, str(REPO / "tools" / "sim_pose"), "--route", "hallway", "--connect", endpoint, "--speed",
+                     "1.0", "--rate", "50", "--loop", "--quiet", "--wait-subscribers", "10"], out / "sim_pose.log")
+        t0 = time.monotonic()
+        while (st := status()) is None or st.get("state") != "tracking":
+            if time.monotonic() - t0 > 30:
+                raise RuntimeError(f"pivotd never started tracking; see {out / 'pivotd.log'}")
+            time.sleep(0.2)
+        time.sleep(duration)
+        st = status() or {}
+        rss, hwm = _rss_mb(daemon.pid)
+        st["rss_mb"], st["rss_peak_mb"] = round(rss, 1), round(hwm, 1)
+        return st
+    finally:
+        for proc in (sim, daemon):
+            if proc is not None and proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+                try:
+                    proc.wait(timeout=15)
+                except Exception:
+                    proc.kill()
+        session.close()
+
+
+def run(args: argparse.Namespace) -> int:
+    from pivotd.demo import derive_config, free_port
+
+    results: dict = {}
+    with tempfile.TemporaryDirectory(prefix="pivotd-bench-") as tmp_s:
+        tmp = Path(tmp_s)
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
+        cfg_path = derive_config(DEMO, tmp / "load.yaml", {
+            "zenoh.listen": [endpoint], "planner.replan_hz": args.replan_hz, "control.rate_hz": args.control_hz,
+            "control.status_hz": 2})
+        st = _run(cfg_path, endpoint, args.duration, tmp)
+        results["load"] = {
+            "control_hz": args.control_hz,
+            "replan_hz": args.replan_hz,
+            "jitter_ms_p99": st["control"]["jitter_ms_p99"],
+            "pose_to_setpoint_ms_p99": st["control"]["pose_latency_ms_p99"],
+            "replan_ms_p50": st["planner"]["solve_ms_p50"],
+            "replan_ms_p99": st["planner"]["solve_ms_p99"],
+            "plans": st["planner"]["plans"],
+            "setpoints": st["control"]["setpoints"],
+            "rss_mb": st["rss_mb"],
+        }
+        print(f"control {args.control_hz:g} Hz with replanning at {args.replan_hz:g} Hz, {args.duration:g} s tracking:")
+        r = results["load"]
+        print(f"  period jitter p99            {r['jitter_ms_p99']} ms   (goal <= 1 ms)")
+        print(f"  pose -> first setpoint p99   {r['pose_to_setpoint_ms_p99']} ms   (goal <= 15 ms)")
+        print(f"  replan p50 / p99             {r['replan_ms_p50']} / {r['replan_ms_p99']} ms over {r['plans']} plans")
+        print(f"  RSS (demo map)               {r['rss_mb']} MB")
+        if args.rss_landmarks > 0:
+            rng = np.random.default_rng(0)
+            n = args.rss_landmarks
+            # A building-sized map around the hallway: uniform in a 200 m x 200 m x 10 m box.
+            pts = np.column_stack([rng.uniform(-100, 100, n), rng.uniform(-100, 100, n), rng.uniform(0, 10, n)])
+            np.save(tmp / "big.npy", pts)
+            endpoint = f"tcp/127.0.0.1:{free_port()}"
+            big = derive_config(DEMO, tmp / "big.yaml", {"zenoh.listen": [endpoint], "map.file": str(tmp / "big.npy")})
+            st = _run(big, endpoint, min(args.duration, 5.0), tmp)
+            results["memory"] = {"landmarks": n, "rss_mb": st["rss_mb"], "rss_peak_mb": st["rss_peak_mb"]}
+            print(f"  RSS with a {n:,}-landmark map: {st['rss_mb']} MB (peak {st['rss_peak_mb']} MB; goal <= 200 MB)")
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2))
+    return 0

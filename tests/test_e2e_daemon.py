@@ -1,0 +1,270 @@
+"""End to end: real `pivotd`, `tools/mock_gimbal` (TCP) and `tools/sim_pose` subprocesses, Zenoh on loopback.
+
+One tracking run exercises the main behaviours in sequence (following the plan, visibility, limits,
+bad input, stale pose, SIGHUP with a broken config, SIGTERM parking); separate runs cover gimbal
+disconnects and faults.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import struct
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from support import REPO, ManagedProcess, PYTHON, free_tcp_port, wait_until
+
+from pivotd.analysis import read_device_log, setpoint_dynamics, visible_counts
+from pivotd.bus import ros
+from pivotd.bus.messages import JOINT_STATE, ODOMETRY, PATH, deserialize, encode_odometry
+from pivotd.bus.session import open_session
+from pivotd.config import load_config
+from pivotd.demo import derive_config
+from pivotd.gimbal.kinematics import camera_position, joints_to_world_direction
+from pivotd.maps.formats import load_landmarks
+
+pytestmark = pytest.mark.timeout(180)
+
+DEMO = REPO / "config" / "demo.yaml"
+
+
+def write_config(tmp: Path, endpoint: str, port_url: str, **changes) -> Path:
+    """config/demo.yaml with the given Zenoh endpoint, gimbal port and dotted-key changes."""
+    return derive_config(DEMO, tmp / "pivotd.yaml", {"zenoh.listen": [endpoint], "gimbal.port": port_url, **changes})
+
+
+class BusProbe:
+    """A test Zenoh session that records what pivotd publishes."""
+
+    def __init__(self, endpoint: str, cfg) -> None:
+        self.session = open_session(connect=[endpoint])
+        self.cfg = cfg
+        self.joints: list[tuple[float, float, float, str, bytes | None]] = []
+        self.poses: list[tuple[float, np.ndarray, np.ndarray]] = []
+        self.plans: list[object] = []
+        self.statuses: list[dict] = []
+        self.lock = threading.Lock()
+        t = cfg.topics
+        self.subs = [
+            self.session.declare_subscriber(ros.topic_key(t.domain_id, t.joint_states, JOINT_STATE, "*"),
+                                            self._on_joint),
+            self.session.declare_subscriber(ros.topic_key(t.domain_id, t.pose, ODOMETRY, "*"), self._on_pose),
+            self.session.declare_subscriber(ros.topic_key(t.domain_id, t.view_plan, PATH, "*"), self._on_plan),
+            self.session.declare_subscriber(cfg.status_key, self._on_status),
+        ]
+
+    def _on_joint(self, sample) -> None:
+        msg = deserialize(sample.payload.to_bytes(), JOINT_STATE, "joint_states")
+        att = sample.attachment.to_bytes() if sample.attachment is not None else None
+        with self.lock:
+            self.joints.append((time.monotonic(), float(msg.position[0]), float(msg.position[1]),
+                                str(sample.key_expr), att))
+
+    def _on_pose(self, sample) -> None:
+        msg = deserialize(sample.payload.to_bytes(), ODOMETRY, "odom")
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        with self.lock:
+            self.poses.append((time.monotonic(), np.array([p.x, p.y, p.z]), np.array([q.x, q.y, q.z, q.w])))
+
+    def _on_plan(self, sample) -> None:
+        with self.lock:
+            self.plans.append(deserialize(sample.payload.to_bytes(), PATH, "view_plan"))
+
+    def _on_status(self, sample) -> None:
+        with self.lock:
+            self.statuses.append(json.loads(sample.payload.to_bytes()))
+
+    @property
+    def status(self) -> dict:
+        with self.lock:
+            return self.statuses[-1] if self.statuses else {}
+
+    def query_status(self) -> dict | None:
+        for reply in self.session.get(self.cfg.status_key, timeout=3.0):
+            if reply.ok is not None:
+                return json.loads(reply.ok.payload.to_bytes())
+        return None
+
+    def close(self) -> None:
+        for s in self.subs:
+            s.undeclare()
+        self.session.close()
+
+
+def start_mock_gimbal(tmp: Path, *extra: str) -> tuple[ManagedProcess, str, Path]:
+    log = tmp / "gimbal.csv"
+    mock = ManagedProcess([PYTHON, str(REPO / "tools" / "mock_gimbal"), "--tcp", "127.0.0.1:0", "--log", str(log),
+                           *extra], "mock_gimbal")
+    line = mock.wait_stdout(lambda s: s.strip().isdigit(), 15)
+    assert line, mock.output()
+    return mock, f"socket://127.0.0.1:{int(line)}", log
+
+
+def start_daemon(config: Path) -> ManagedProcess:
+    return ManagedProcess([PYTHON, "-m", "pivotd.cli", "--config", str(config)], "pivotd")
+
+
+def start_sim(endpoint: str, *extra: str) -> ManagedProcess:
+    return ManagedProcess([PYTHON, str(REPO / "tools" / "sim_pose"), "--route", "hallway", "--connect", endpoint,
+                           "--rate", "50", "--quiet", "--wait-subscribers", "15", *extra], "sim_pose")
+
+
+def test_tracking_run_end_to_end(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    mock, url, dev_log = start_mock_gimbal(tmp_path)
+    config = write_config(tmp_path, endpoint, url)
+    cfg = load_config(config)
+    with mock, start_daemon(config) as daemon:
+        probe = None
+        try:
+            assert wait_until(lambda: daemon.returncode is not None or daemon.wait_stderr("ready", 0), 30), \
+                daemon.output()
+            assert daemon.returncode is None, daemon.output()
+            probe = BusProbe(endpoint, cfg)
+            assert wait_until(lambda: probe.status.get("state") == "waiting", 15), daemon.output()
+            # 1.2 m/s for 14 s (16.8 m of the hallway), poses stop for 2 s at t = 8 s.
+            with start_sim(endpoint, "--speed", "1.2", "--duration", "14", "--gap", "8:2") as sim:
+                assert wait_until(lambda: probe.status.get("state") == "tracking", 20), daemon.output()
+                # Bad input while tracking: garbage on the pose topic, a NaN pose; both dropped and counted.
+                bad = ros.RosNode(probe.session, "vandal", cfg.topics.domain_id)
+                pub = bad.publisher(cfg.topics.pose, ODOMETRY)
+                time.sleep(0.5)
+                pub.put(b"\x00\x01\x00\x00garbage")
+                pub.put(encode_odometry(time.time(), "map", "base_link", np.array([np.nan, 0, 0]),
+                                        np.array([0, 0, 0, 1.0])))
+                assert wait_until(lambda: probe.status.get("state") == "holding", 12), daemon.output()
+                holding_seen = time.monotonic()
+                assert wait_until(lambda: probe.status.get("state") == "tracking", 6), daemon.output()
+                # SIGHUP with a broken config keeps the running one.
+                good = config.read_text()
+                config.write_text(good.replace("fov_deg: 60", "fov_deg: 400"))
+                daemon.signal(signal.SIGHUP)
+                assert wait_until(lambda: probe.status.get("reload_errors") == 1, 10), daemon.output()
+                assert daemon.returncode is None
+                config.write_text(good)
+                assert wait_until(lambda: sim.returncode is not None, 30), sim.output()
+            status = probe.query_status()
+            assert status is not None and status["name"] == "demo"
+            odom = status["bus"]["/odom"]
+            assert odom.get("dropped_malformed", 0) >= 1 and odom.get("dropped_nonfinite", 0) >= 1, odom
+            assert status["reloads"] == 0 and status["reload_errors"] == 1
+            time.sleep(1.0)
+            code = daemon.stop(signal.SIGTERM, timeout=20)
+            assert code == 0, daemon.output()
+        finally:
+            if probe is not None:
+                probe.close()
+    assert holding_seen > 0
+
+    # --- what the gimbal saw
+    dev = read_device_log(dev_log)
+    assert dev.sp_pos.shape[0] > 500
+    dyn = setpoint_dynamics(dev.sp_pos, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt)
+    assert dyn.worst_ratio <= 1.0 + 1e-6, dyn
+    lim = cfg.gimbal.limits
+    assert lim.pan_min - 1e-6 <= dyn.position_min[0] and dyn.position_max[0] <= lim.pan_max + 1e-6
+    assert lim.tilt_min - 1e-6 <= dyn.position_min[1] and dyn.position_max[1] <= lim.tilt_max + 1e-6
+    assert np.ptp(dev.sp_pos[:, 0]) > math.radians(20), "the gimbal never really moved"
+    # Parked at the configured pose, then disabled.
+    assert abs(dev.st_pos[-1, 0] - cfg.gimbal.park_pan) < math.radians(1.0)
+    assert abs(dev.st_pos[-1, 1] - cfg.gimbal.park_tilt) < math.radians(1.0)
+    assert dev.st_mode[-1] == 0
+    assert any(kind == "rx:ENABLE" and "on=0" in detail for kind, _, detail in dev.other)
+    # Stale pose: from pose_timeout + one period after the last pose, the setpoints decelerate
+    # (jerk-limited) to zero rate and hold until poses resume.
+    pose_rx = np.array([p[0] for p in probe.poses])
+    gap = int(np.argmax(np.diff(pose_rx)))
+    t_last, t_resume = pose_rx[gap], pose_rx[gap + 1]
+    assert t_resume - t_last > 1.5
+    mask = (1 << 32) - 1
+    rel = (((dev.sp_time * 1e6).round().astype(np.int64) - (int(t_last * 1e6) & mask) + (1 << 31)) & mask) - (1 << 31)
+    rel = rel * 1e-6  # setpoint send time relative to the last pose before the gap [s]
+    speed = np.abs(dev.sp_rate).max(axis=1)
+    t_hold = cfg.control.pose_timeout_s + cfg.control.dt + 0.05
+    # (allow a_max / j_max for an axis that was still accelerating to stop accelerating)
+    settle = max(cfg.motion.pan.max_acceleration / cfg.motion.pan.max_jerk,
+                 cfg.motion.tilt.max_acceleration / cfg.motion.tilt.max_jerk)
+    braking = (rel > t_hold + settle) & (rel < t_resume - t_last - 0.1)
+    assert braking.sum() > 50
+    assert np.all(np.diff(speed[braking]) <= 1e-6), "setpoint rate grew after the pose went stale"
+    assert speed[braking][-1] < 1e-6, "the gimbal was still moving at the end of the pose gap"
+
+    # --- what the robot saw: measured JointState over Zenoh, rmw_zenoh format
+    joints = probe.joints
+    assert len(joints) > 200
+    key = joints[-1][3]
+    assert key.startswith(f"{cfg.topics.domain_id}/pivot/joint_states/sensor_msgs::msg::dds_::JointState_/RIHS01_")
+    att = joints[-1][4]
+    assert att is not None and len(att) == ros.ATTACHMENT_SIZE
+    seq, ts, gid_len = struct.unpack_from("<qqB", att)
+    assert seq > 0 and abs(ts * 1e-9 - time.time()) < 120 and gid_len == 16
+    # Visibility from the measured gimbal direction beats a forward-facing camera on the same poses.
+    cloud = load_landmarks(cfg.map.file)
+    pose_t = np.array([p[0] for p in probe.poses])
+    cams, piv, fwd = [], [], []
+    for t, pan, tilt, _, _ in joints:
+        i = int(np.searchsorted(pose_t, t)) - 1
+        if i < 0 or t - pose_t[i] > 0.1:
+            continue
+        _, pos, quat = probe.poses[i]
+        cams.append(camera_position(pos, quat, cfg.gimbal.mount))
+        piv.append(joints_to_world_direction(pan, tilt, quat, cfg.gimbal.mount))
+        fwd.append(joints_to_world_direction(0.0, 0.0, quat, cfg.gimbal.mount))
+    assert len(cams) > 100
+    f = cfg.map.filters
+    n_piv = visible_counts(cloud.points, np.array(cams), np.array(piv), cfg.pivot.half_angle, f.min_range, f.max_range)
+    n_fwd = visible_counts(cloud.points, np.array(cams), np.array(fwd), cfg.pivot.half_angle, f.min_range, f.max_range)
+    assert n_piv.mean() >= 1.3 * n_fwd.mean(), (n_piv.mean(), n_fwd.mean())
+    assert probe.plans, "no view plan was published"
+
+
+def test_gimbal_unplug_and_replug_recovers(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    mock, url, _ = start_mock_gimbal(tmp_path, "--disconnect-after", "4", "--reconnect-after", "2")
+    config = write_config(tmp_path, endpoint, url)
+    cfg = load_config(config)
+    with mock, start_daemon(config) as daemon:
+        probe = BusProbe(endpoint, cfg)
+        try:
+            assert wait_until(lambda: probe.status.get("link") == "up", 20), daemon.output()
+            assert wait_until(lambda: probe.status.get("link") not in ("up", None), 15), daemon.output()
+            n_down = len(probe.joints)
+            assert probe.status.get("state") == "link-down" or probe.status.get("link") != "up"
+            assert wait_until(lambda: probe.status.get("link") == "up", 20), daemon.output()
+            assert wait_until(lambda: len(probe.joints) > n_down + 20, 10)
+            assert probe.status["link_counters"].get("reconnects", 0) >= 1
+            assert daemon.stop(signal.SIGTERM, timeout=20) == 0, daemon.output()
+        finally:
+            probe.close()
+
+
+def test_gimbal_fault_is_reported_cleared_and_never_moved_through(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    mock, url, dev_log = start_mock_gimbal(tmp_path, "--fault-at", "3:0")
+    config = write_config(tmp_path, endpoint, url)
+    cfg = load_config(config)
+    with mock, start_daemon(config) as daemon:
+        probe = BusProbe(endpoint, cfg)
+        try:
+            with start_sim(endpoint, "--speed", "1.0", "--duration", "10"):
+                assert wait_until(lambda: any(s.get("gimbal") and s["gimbal"]["faults"] & 1 for s in probe.statuses),
+                                  20), daemon.output()
+                assert wait_until(lambda: probe.status.get("clear_fault_attempts", 0) >= 1
+                                  or any(s.get("clear_fault_attempts", 0) >= 1 for s in probe.statuses), 10)
+                assert wait_until(lambda: probe.status.get("gimbal", {}).get("mode") == "enabled"
+                                  and probe.status["gimbal"]["faults"] & 1 == 0, 15), daemon.output()
+            assert daemon.stop(signal.SIGTERM, timeout=20) == 0, daemon.output()
+        finally:
+            probe.close()
+    dev = read_device_log(dev_log)
+    assert any(kind == "rx:CLEAR_FAULT" for kind, _, _ in dev.other)
+    faulted = dev.st_mode == 3
+    assert faulted.any()
+    # No motion while faulted: consecutive STATEs in fault mode keep their position.
+    run = np.flatnonzero(faulted)
+    assert np.abs(np.diff(dev.st_pos[run], axis=0)).max(initial=0.0) < 1e-6
