@@ -63,9 +63,13 @@ def read_device_log(path: str | Path) -> DeviceLog:
                      np.asarray(st_m, int), np.asarray(st_f, int), other)
 
 
+WIRE_RESOLUTION = 1e-6  # [rad]: SETPOINT angles are int32 micro-radians on the wire
+
+
 @dataclass(frozen=True)
 class DynamicsReport:
-    """Worst |velocity|, |acceleration|, |jerk| per axis (2,) of a setpoint stream, and their ratio to the limits."""
+    """Worst |velocity|, |acceleration|, |jerk| per axis (2,) of a setpoint stream, their ratio to the limits,
+    and the finite-difference error that the wire's angle resolution alone can cause (``allowance_*``)."""
 
     max_velocity: np.ndarray
     max_acceleration: np.ndarray
@@ -75,17 +79,34 @@ class DynamicsReport:
     jerk_ratio: np.ndarray
     position_min: np.ndarray
     position_max: np.ndarray
+    allowance_velocity: float = 0.0
+    allowance_acceleration: float = 0.0
+    allowance_jerk: float = 0.0
+    limits: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     @property
     def worst_ratio(self) -> float:
+        """Largest of the raw ratios (quantization included)."""
         return float(max(self.velocity_ratio.max(), self.acceleration_ratio.max(), self.jerk_ratio.max()))
 
+    @property
+    def within_limits(self) -> bool:
+        """Every derivative within its limit plus the wire-resolution allowance."""
+        if self.limits is None:
+            return self.worst_ratio <= 1.0
+        lv, la, lj = self.limits
+        return bool(np.all(self.max_velocity <= lv + self.allowance_velocity)
+                    and np.all(self.max_acceleration <= la + self.allowance_acceleration)
+                    and np.all(self.max_jerk <= lj + self.allowance_jerk))
 
-def setpoint_dynamics(positions: np.ndarray, dt: float, pan: AxisLimits, tilt: AxisLimits) -> DynamicsReport:
+
+def setpoint_dynamics(positions: np.ndarray, dt: float, pan: AxisLimits, tilt: AxisLimits,
+                      resolution: float = WIRE_RESOLUTION) -> DynamicsReport:
     """Finite-difference dynamics of setpoints (N, 2) streamed at the constant control period ``dt`` [s].
 
     The generator advances exactly one period per setpoint, so differences use ``dt``, not the
-    (jittery) send times.
+    (jittery) send times. Positions rounded to ``resolution`` [rad] make the k-th difference wrong by
+    up to 2^(k-1)·resolution, i.e. ±resolution/dt, ±2·resolution/dt², ±4·resolution/dt³.
     """
     p = np.asarray(positions, float)
     v = np.diff(p, axis=0) / dt
@@ -100,7 +121,8 @@ def setpoint_dynamics(positions: np.ndarray, dt: float, pan: AxisLimits, tilt: A
     lim_j = np.array([pan.max_jerk, tilt.max_jerk])
     mv, ma, mj = peak(v), peak(a), peak(j)
     return DynamicsReport(mv, ma, mj, mv / lim_v, ma / lim_a, mj / lim_j,
-                          p.min(axis=0) if p.size else np.zeros(2), p.max(axis=0) if p.size else np.zeros(2))
+                          p.min(axis=0) if p.size else np.zeros(2), p.max(axis=0) if p.size else np.zeros(2),
+                          resolution / dt, 2 * resolution / dt**2, 4 * resolution / dt**3, (lim_v, lim_a, lim_j))
 
 
 def visible_counts(points: np.ndarray, cameras: np.ndarray, directions: np.ndarray, half_angle: float,
