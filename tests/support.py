@@ -105,13 +105,13 @@ class ManagedProcess:
     def wait_stderr(self, needle: str, timeout: float) -> bool:
         return wait_until(lambda: any(needle in line for line in list(self.stderr)), timeout)
 
-    def signal(self, sig: int) -> None:
+    def send_signal(self, sig: int) -> None:
         if self.proc.poll() is None:
             os.kill(self.proc.pid, sig)
 
     def stop(self, sig: int = signal.SIGTERM, timeout: float = 15.0) -> int | None:
         """Send ``sig`` and wait up to ``timeout`` s for the exit code (None if it did not exit)."""
-        self.signal(sig)
+        self.send_signal(sig)
         try:
             return self.proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:

@@ -143,7 +143,7 @@ def test_tracking_run_end_to_end(tmp_path):
                 # SIGHUP with a broken config keeps the running one.
                 good = config.read_text()
                 config.write_text(good.replace("fov_deg: 60", "fov_deg: 400"))
-                daemon.signal(signal.SIGHUP)
+                daemon.send_signal(signal.SIGHUP)
                 assert wait_until(lambda: probe.status.get("reload_errors") == 1, 10), daemon.output()
                 assert daemon.returncode is None
                 config.write_text(good)
