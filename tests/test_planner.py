@@ -1,0 +1,160 @@
+"""Receding-horizon planner: path progress, resampling, warm start, anchoring, reachability."""
+
+import math
+
+import numpy as np
+import pytest
+
+from pivotd.geometry import angle_between, normalize
+from pivotd.gimbal.kinematics import JointLimits, Mount, world_directions_to_joints
+from pivotd.maps.filters import RetainedFilter
+from pivotd.maps.formats import LandmarkCloud
+from pivotd.maps.store import MapStore
+from pivotd.pivot.scenes import hallway
+from pivotd.planner import PathTracker, Plan, PlannerSettings, RecedingHorizonPlanner, slerp_directions
+
+IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def s_path():
+    """Out along +x, back along -x one metre to the side: the two legs pass close to each other."""
+    out = np.column_stack([np.linspace(0, 10, 21), np.zeros(21), np.zeros(21)])
+    turn = np.array([[10.5, 0.5, 0.0]])
+    back = np.column_stack([np.linspace(10, 0, 21), np.ones(21), np.zeros(21)])
+    return np.vstack([out, turn, back])
+
+
+def test_progress_is_monotone_and_cannot_jump_to_a_nearby_leg():
+    tr = PathTracker(s_path())
+    s, d = tr.locate(np.array([2.0, 0.1, 0]))
+    assert s == pytest.approx(2.0, abs=1e-9) and d == pytest.approx(0.1)
+    # Standing between the legs, nearer the return leg: with progress known, we stay on the first leg.
+    s2, _ = tr.locate(np.array([2.2, 0.7, 0]), previous=s)
+    assert s2 == pytest.approx(2.2, abs=1e-9)
+    # Without history the nearest point wins (the return leg).
+    s_free, _ = tr.locate(np.array([2.2, 0.7, 0]))
+    assert s_free > 15
+    # Walking backwards never reduces progress.
+    s3, _ = tr.locate(np.array([1.0, 0.0, 0]), previous=s2)
+    assert s3 == pytest.approx(s2)
+
+
+def test_progress_is_robust_to_the_robot_being_off_the_path():
+    tr = PathTracker(s_path())
+    s, d = tr.locate(np.array([4.0, -3.0, 0.0]), previous=3.5)
+    assert s == pytest.approx(4.0, abs=1e-9) and d == pytest.approx(3.0)
+
+
+def test_sampling_positions_and_heading_attitude():
+    tr = PathTracker(s_path())
+    pos, q = tr.sample(np.array([0.0, 5.0, 25.0, 1e9]))
+    np.testing.assert_allclose(pos[:2], [[0, 0, 0], [5, 0, 0]], atol=1e-12)
+    np.testing.assert_allclose(pos[3], s_path()[-1])
+    # Heading along +x on the first leg, along -x on the way back (yaw = pi).
+    np.testing.assert_allclose(q[1], IDENTITY, atol=1e-12)
+    assert abs(abs(q[2, 2]) - 1.0) < 1e-9
+
+
+def test_path_quaternions_are_used_when_informative():
+    pos = np.column_stack([np.arange(5.0), np.zeros(5), np.zeros(5)])
+    yaw = np.linspace(0, np.pi / 2, 5)
+    quats = np.column_stack([np.zeros(5), np.zeros(5), np.sin(yaw / 2), np.cos(yaw / 2)])
+    _, q = PathTracker(pos, quats).sample(np.array([2.0]))
+    np.testing.assert_allclose(q[0], quats[2], atol=1e-12)
+    # All-identical orientations (a planner that leaves them unset) fall back to the heading.
+    _, q2 = PathTracker(pos, np.tile(quats[4], (5, 1))).sample(np.array([2.0]))
+    np.testing.assert_allclose(q2[0], IDENTITY, atol=1e-12)
+
+
+def test_slerp_and_plan_interpolation():
+    a, b = np.array([1.0, 0, 0]), np.array([0.0, 1.0, 0])
+    mid = slerp_directions(a, b, 0.5)
+    np.testing.assert_allclose(mid, normalize(np.array([1.0, 1.0, 0])), atol=1e-12)
+    plan = Plan(created=0.0, positions=np.array([[0.0, 0, 0], [1.0, 0, 0]]), directions=np.stack([a, b]),
+                body_quats=np.tile(IDENTITY, (2, 1)), visible=np.zeros(2, int), s=np.array([3.0, 4.0]),
+                map_version=0, path_version=0, solve_s=0.0)
+    np.testing.assert_allclose(plan.direction_at_s(3.5), mid, atol=1e-12)
+    np.testing.assert_allclose(plan.direction_at_s(-10), a)
+    assert plan.locate(np.array([0.25, 0.3, 0])) == pytest.approx(3.25)
+
+
+def _planner(limits=None, horizon=20, lam=0.6):
+    limits = limits or JointLimits(math.radians(-170), math.radians(170), math.radians(-45), math.radians(60), False)
+    settings = PlannerSettings(fov=math.radians(60), lam=lam, spacing=0.5, horizon=horizon,
+                               retained_filter=RetainedFilter(min_range=0.3, max_range=10.0))
+    return RecedingHorizonPlanner(settings, Mount(), limits)
+
+
+@pytest.fixture(scope="module")
+def scene_store():
+    sc = hallway()
+    store = MapStore()
+    store.set_layer("base", LandmarkCloud(points=sc.points, weights=sc.weights))
+    return sc, store
+
+
+def test_plan_beats_forward_looking_and_respects_joint_limits(scene_store):
+    sc, store = scene_store
+    pl = _planner()
+    pl.set_path(sc.path, None, 1)
+    plan = pl.replan(store.snapshot(), sc.path[0], IDENTITY, None)
+    assert plan.directions.shape == (20, 3)
+    np.testing.assert_allclose(plan.s, 0.5 * np.arange(20), atol=1e-9)
+    # Reachable: every direction maps to joint angles inside the limits for its predicted attitude.
+    pan, tilt, clamped = world_directions_to_joints(plan.directions, plan.body_quats, Mount(), pl.limits)
+    assert not clamped.any()
+    # The rich wall is on the left: the plan looks left, and sees more than looking ahead.
+    assert np.mean(pan) > math.radians(20)
+    snap = store.snapshot()
+    fwd = []
+    for i in range(plan.positions.shape[0]):
+        tangent = normalize(np.diff(sc.path, axis=0)[min(i, sc.path.shape[0] - 2)])
+        rel = normalize(snap.points - plan.positions[i])
+        dist = np.linalg.norm(snap.points - plan.positions[i], axis=1)
+        ok = (dist >= 0.3) & (dist <= 10)
+        fwd.append(int(((rel @ tangent) >= math.cos(math.radians(30)))[ok].sum()))
+    assert plan.visible.mean() > 1.3 * np.mean(fwd)
+
+
+def test_tight_limits_are_built_into_the_optimisation(scene_store):
+    sc, store = scene_store
+    tight = JointLimits(math.radians(-20), math.radians(20), math.radians(-10), math.radians(10), False)
+    pl = _planner(limits=tight)
+    pl.set_path(sc.path, None, 1)
+    plan = pl.replan(store.snapshot(), sc.path[0], IDENTITY, None)
+    pan, tilt, clamped = world_directions_to_joints(plan.directions, plan.body_quats, Mount(), tight)
+    assert not clamped.any()
+    assert np.all(pan <= math.radians(20) + 1e-6) and np.all(pan >= math.radians(-20) - 1e-6)
+    # The best reachable view is pressed against the left pan limit, not somewhere arbitrary.
+    assert np.median(pan) > math.radians(15)
+
+
+def test_replans_are_warm_started_and_anchored(scene_store):
+    sc, store = scene_store
+    pl = _planner()
+    pl.set_path(sc.path, None, 1)
+    snap = store.snapshot()
+    first = pl.replan(snap, sc.path[0], IDENTITY, None)
+    commanded = first.directions[0]
+    worst = 0.0
+    for k in range(1, 30):
+        pos = sc.path[0] + (sc.path[1] - sc.path[0]) * (k / 10)  # 5 cm per replan
+        plan = pl.replan(snap, pos, IDENTITY, commanded)
+        worst = max(worst, float(np.degrees(angle_between(plan.direction_at_s(plan.s[0]), commanded))))
+        commanded = plan.directions[0]
+    assert worst < 3.0, f"a replan moved the current direction by {worst:.1f} degrees"
+    assert pl.progress == pytest.approx(0.5 * 29 / 10 * 1.0, abs=0.05)
+
+
+def test_without_a_path_the_current_pose_is_optimised(scene_store):
+    sc, store = scene_store
+    pl = _planner()
+    plan = pl.replan(store.snapshot(), sc.path[3], IDENTITY, None)
+    assert plan.directions.shape == (1, 3) and plan.visible[0] > 50
+
+
+def test_empty_map_gives_a_plan_without_error():
+    pl = _planner()
+    plan = pl.replan(MapStore().snapshot(), np.zeros(3), IDENTITY, np.array([1.0, 0, 0]))
+    assert plan.directions.shape == (1, 3) and plan.visible[0] == 0
+    assert np.isfinite(plan.directions).all()
