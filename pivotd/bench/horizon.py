@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from pivotd.pivot.scenes import hallway
     from pivotd.planner import PathTracker, PlannerSettings, RecedingHorizonPlanner
 
-    n_rich = int(round(args.landmarks * 0.95))
+    n_rich = round(args.landmarks * 0.95)
     sc = hallway(rich_side_points=n_rich, poor_side_points=args.landmarks - n_rich, spacing=0.5)
     store = MapStore()
     store.set_layer("base", LandmarkCloud(points=sc.points, weights=sc.weights))
@@ -95,7 +95,8 @@ def run(args: argparse.Namespace) -> int:
             full.set_path(sc.path, None, planner._path_version)
             full.progress, full.last_plan = planner.progress, prev
             ref = full.replan(snap, pos[0], quat[0], prev_anchor)
-            quality.append(_visible_full(snap, plan, ret, settings.alpha) / max(_visible_full(snap, ref, ret, settings.alpha), 1))
+            ours = _visible_full(snap, plan, ret, settings.alpha)
+            quality.append(ours / max(_visible_full(snap, ref, ret, settings.alpha), 1))
         prev, prev_anchor = plan, anchor
 
     ms = lambda x, p: round(float(np.percentile(np.asarray(x), p)) * 1e3, 3)  # noqa: E731
@@ -117,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"receding horizon: {args.landmarks} landmarks, {args.horizon} waypoints, {replans} warm-started replans")
     print(f"  retained per waypoint (mean)     {result['retained_per_waypoint_mean']:.0f}  "
           f"(distinct over the horizon {result['retained_union_mean']:.0f})")
-    print(f"  replan p50 / p99                 {result['replan_ms_p50']} / {result['replan_ms_p99']} ms  (goal p99 <= 10 ms)")
+    print(f"  replan p50 / p99                 {result['replan_ms_p50']} / {result['replan_ms_p99']} ms  "
+          "(goal p99 <= 10 ms)")
     print(f"  of which map query p50 / p99     {result['map_query_ms_p50']} / {result['map_query_ms_p99']} ms")
     print(f"  cold start (no warm start)       {result['cold_start_ms']} ms")
     if quality:
