@@ -1,0 +1,294 @@
+"""COLMAP sparse models: ``points3D.bin|txt`` and, when beside them, ``images.bin|txt``.
+
+Layouts (COLMAP's documented output format):
+
+* ``points3D.bin``: ``u64 count``, then per point ``u64 id, f64 x, y, z, u8 r, g, b, f64 error,
+  u64 track_length`` (51 bytes) and ``track_length`` × ``(i32 image_id, i32 point2D_idx)``.
+* ``points3D.txt``: ``POINT3D_ID X Y Z R G B ERROR (IMAGE_ID POINT2D_IDX)*`` per line.
+* ``images.bin``: ``u64 count``, then per image ``i32 id, f64 qw, qx, qy, qz, tx, ty, tz, i32 camera_id``,
+  a NUL-terminated name, ``u64 n`` and ``n`` × ``(f64 x, f64 y, i64 point3D_id)``.
+* ``images.txt``: two lines per image, ``IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME`` and the
+  (possibly empty) ``(X Y POINT3D_ID)*`` line.
+
+The pose (q, t) maps world to camera, so a camera centre is ``-R(q)ᵀ t``. A landmark's observation
+direction is the normalised mean of the unit vectors from the landmark to the centres of the
+images in its track; observations of images missing from the images file are ignored, and a
+landmark left without any gets the zero vector (treated as "unknown" by the view filter).
+
+The binary reader walks the variable-length records once to find their offsets (one cheap
+step per point) and extracts coordinates and tracks with vectorised gathers.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from pivotd.errors import InputError
+from pivotd.geometry import quat_to_matrix
+from pivotd.maps.formats import LandmarkCloud, make_cloud
+
+log = logging.getLogger(__name__)
+
+_POINT_HEAD = 51  # id, xyz, rgb, error, track_length
+_TRACK_ELEM = 8
+_IMAGE_HEAD = struct.Struct("<idddddddi")  # 64 bytes
+
+
+def resolve_model(path: Path) -> tuple[Path, Path | None]:
+    """(points3D file, images file or None) for a model directory or a points3D file."""
+    if path.is_dir():
+        for ext in (".bin", ".txt"):
+            if (path / f"points3D{ext}").exists():
+                points = path / f"points3D{ext}"
+                break
+        else:
+            raise InputError(f"{path}: directory holds no COLMAP points3D.bin or points3D.txt")
+    else:
+        points = path
+    if points.suffix not in (".bin", ".txt"):
+        raise InputError(f"{points}: COLMAP points3D file must end in .bin or .txt")
+    images = None
+    for ext in (points.suffix, ".bin" if points.suffix == ".txt" else ".txt"):
+        if (points.parent / f"images{ext}").exists():
+            images = points.parent / f"images{ext}"
+            break
+    return points, images
+
+
+def load_colmap(path: Path) -> LandmarkCloud:
+    """Landmarks (and mean observation directions when images are present) of a COLMAP model."""
+    points_file, images_file = resolve_model(path)
+    if points_file.suffix == ".bin":
+        xyz, track_pt, track_img = read_points3d_bin(points_file)
+    else:
+        xyz, track_pt, track_img = read_points3d_txt(points_file)
+    directions = None
+    if images_file is not None:
+        ids, centers = read_images_bin(images_file) if images_file.suffix == ".bin" else read_images_txt(images_file)
+        directions = observation_directions(xyz, track_pt, track_img, ids, centers)
+    return make_cloud(points_file, xyz, None, directions, row_name="point")
+
+
+# --- points3D ---------------------------------------------------------------------------------
+
+
+def _record_offsets(buf: bytes, path: Path, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Byte offsets (count,) of the point records and their track lengths (count,)."""
+    read_u64 = struct.Struct("<Q").unpack_from
+    size = len(buf)
+    offsets = np.empty(count, dtype=np.int64)
+    lengths = np.empty(count, dtype=np.int64)
+    off = 8
+    for k in range(count):
+        if off + _POINT_HEAD > size:
+            raise InputError(f"{path}: truncated at byte {off} (point record {k} of {count})")
+        n = read_u64(buf, off + 43)[0]
+        offsets[k] = off
+        lengths[k] = n
+        off += _POINT_HEAD + _TRACK_ELEM * n
+    if off > size:
+        raise InputError(f"{path}: truncated at byte {size} (track of point record {count - 1} ends at {off})")
+    if off != size:
+        raise InputError(f"{path}: {size - off} unexpected trailing bytes at byte {off}")
+    return offsets, lengths
+
+
+def _gather(buf: bytes, offsets: np.ndarray, dtype: str, width: int) -> np.ndarray:
+    """Values of ``dtype`` (itemsize ``width``) at arbitrary byte ``offsets`` (K,), via aligned views."""
+    out = np.empty(offsets.shape[0], dtype=np.dtype(dtype).newbyteorder("="))
+    shift = offsets % width
+    for s in np.unique(shift):
+        view = np.frombuffer(buf, dtype=dtype, offset=int(s), count=(len(buf) - int(s)) // width)
+        sel = shift == s
+        out[sel] = view[(offsets[sel] - s) // width]
+    return out
+
+
+def read_points3d_bin(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """xyz (N, 3) float64, track owner index (T,) int64 and track image ids (T,) int32 of ``points3D.bin``."""
+    try:
+        buf = path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc})") from None
+    if len(buf) < 8:
+        raise InputError(f"{path}: truncated at byte {len(buf)} (no point count)")
+    count = struct.unpack_from("<Q", buf, 0)[0]
+    if count > (len(buf) - 8) // _POINT_HEAD:
+        raise InputError(
+            f"{path}: header claims {count} points but the file holds at most {(len(buf) - 8) // _POINT_HEAD} "
+            "(not a points3D.bin, or truncated)"
+        )
+    offsets, lengths = _record_offsets(buf, path, count)
+    xyz = np.empty((count, 3), dtype=np.float64)
+    for k in range(3):
+        xyz[:, k] = _gather(buf, offsets + 8 + 8 * k, "<f8", 8)
+    total = int(lengths.sum())
+    track_pt = np.repeat(np.arange(count, dtype=np.int64), lengths)
+    starts = np.cumsum(lengths) - lengths
+    elem = np.arange(total, dtype=np.int64) - np.repeat(starts, lengths)
+    track_off = np.repeat(offsets + _POINT_HEAD, lengths) + _TRACK_ELEM * elem
+    del elem
+    track_img = _gather(buf, track_off, "<i4", 4)
+    return xyz, track_pt, track_img
+
+
+def read_points3d_txt(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Same as :func:`read_points3d_bin` for ``points3D.txt``; errors name the line."""
+    xyz: list[list[float]] = []
+    track_pt: list[np.ndarray] = []
+    track_img: list[np.ndarray] = []
+    for lineno, line in _text_lines(path):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        fields = line.split()
+        if len(fields) < 8 or (len(fields) - 8) % 2:
+            raise InputError(
+                f"{path}:{lineno}: expected POINT3D_ID X Y Z R G B ERROR and (IMAGE_ID POINT2D_IDX) pairs, "
+                f"got {len(fields)} fields"
+            )
+        try:
+            p = [float(f) for f in fields[1:4]]
+            int(fields[0])
+            track = np.array([int(f) for f in fields[8::2]], dtype=np.int32)
+        except ValueError:
+            raise InputError(f"{path}:{lineno}: not a number in {line.strip()[:80]!r}") from None
+        if not np.isfinite(p).all():
+            raise InputError(f"{path}:{lineno}: coordinate is not finite (NaN or inf)")
+        track_pt.append(np.full(track.shape[0], len(xyz), dtype=np.int64))
+        track_img.append(track)
+        xyz.append(p)
+    arr = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    if not track_pt:
+        return arr, np.zeros(0, np.int64), np.zeros(0, np.int32)
+    return arr, np.concatenate(track_pt), np.concatenate(track_img)
+
+
+# --- images -----------------------------------------------------------------------------------
+
+
+def camera_centers(qwxyz: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Camera centres (K, 3) = -R(q)ᵀ t from world-to-camera quaternions (K, 4) (w, x, y, z) and t (K, 3)."""
+    R = quat_to_matrix(np.asarray(qwxyz, dtype=float)[:, [1, 2, 3, 0]])
+    return -np.einsum("kji,kj->ki", R, np.asarray(t, dtype=float))
+
+
+def read_images_bin(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Image ids (K,) and camera centres (K, 3) from ``images.bin``; errors name the byte offset."""
+    try:
+        buf = path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc})") from None
+    if len(buf) < 8:
+        raise InputError(f"{path}: truncated at byte {len(buf)} (no image count)")
+    count = struct.unpack_from("<Q", buf, 0)[0]
+    if count > (len(buf) - 8) // (_IMAGE_HEAD.size + 9):
+        raise InputError(f"{path}: header claims {count} images, more than the file can hold (not an images.bin?)")
+    ids = np.empty(count, dtype=np.int64)
+    poses = np.empty((count, 7))
+    off = 8
+    for k in range(count):
+        if off + _IMAGE_HEAD.size > len(buf):
+            raise InputError(f"{path}: truncated at byte {off} (image record {k} of {count})")
+        rec = _IMAGE_HEAD.unpack_from(buf, off)
+        ids[k] = rec[0]
+        poses[k] = rec[1:8]
+        off += _IMAGE_HEAD.size
+        end = buf.find(b"\0", off)
+        if end < 0:
+            raise InputError(f"{path}: truncated at byte {off} (image {rec[0]} name has no terminator)")
+        off = end + 1
+        if off + 8 > len(buf):
+            raise InputError(f"{path}: truncated at byte {off} (image {rec[0]} keypoint count)")
+        n = struct.unpack_from("<Q", buf, off)[0]
+        off += 8 + 24 * n
+        if off > len(buf):
+            raise InputError(f"{path}: truncated at byte {len(buf)} (keypoints of image {rec[0]})")
+    if off != len(buf):
+        raise InputError(f"{path}: {len(buf) - off} unexpected trailing bytes at byte {off}")
+    _check_poses(path, ids, poses, "image")
+    return ids, camera_centers(poses[:, :4], poses[:, 4:])
+
+
+def read_images_txt(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Image ids (K,) and camera centres (K, 3) from ``images.txt``; errors name the line."""
+    lines = [(n, s) for n, s in _text_lines(path) if not s.lstrip().startswith("#")]
+    ids: list[int] = []
+    poses: list[list[float]] = []
+    # Each image takes two lines; the keypoint line may be empty. Skip blank lines between images.
+    i = 0
+    while i < len(lines):
+        lineno, line = lines[i]
+        if not line.strip():
+            i += 1
+            continue
+        fields = line.split()
+        if len(fields) < 10:
+            raise InputError(
+                f"{path}:{lineno}: expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, got {len(fields)} fields"
+            )
+        try:
+            ids.append(int(fields[0]))
+            poses.append([float(f) for f in fields[1:8]])
+            int(fields[8])
+        except ValueError:
+            raise InputError(f"{path}:{lineno}: not a number in {line.strip()[:80]!r}") from None
+        i += 2
+    arr = np.asarray(poses, dtype=float).reshape(-1, 7)
+    id_arr = np.asarray(ids, dtype=np.int64)
+    _check_poses(path, id_arr, arr, "image")
+    return id_arr, camera_centers(arr[:, :4], arr[:, 4:])
+
+
+def _check_poses(path: Path, ids: np.ndarray, poses: np.ndarray, what: str) -> None:
+    bad = ~np.isfinite(poses).all(axis=1) | (np.linalg.norm(poses[:, :4], axis=1) < 1e-9)
+    if bad.any():
+        raise InputError(f"{path}: {what} {int(ids[np.argmax(bad)])} has a non-finite pose or zero quaternion")
+    if ids.size and ids.min() < 0:
+        raise InputError(f"{path}: {what} id {int(ids.min())} is negative")
+
+
+def _text_lines(path: Path) -> list[tuple[int, str]]:
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read ({exc})") from None
+    return list(enumerate(text.splitlines(), start=1))
+
+
+# --- directions -------------------------------------------------------------------------------
+
+
+def observation_directions(
+    xyz: np.ndarray, track_pt: np.ndarray, track_img: np.ndarray, image_ids: np.ndarray, centers: np.ndarray
+) -> np.ndarray:
+    """Unit mean landmark→camera directions (N, 3) float32; zero rows for landmarks without known images.
+
+    xyz: (N, 3) landmarks; track_pt / track_img: (T,) owner landmark index and image id of each
+    observation; image_ids: (K,); centers: (K, 3) camera centres.
+    """
+    n = xyz.shape[0]
+    out = np.zeros((n, 3), dtype=np.float32)
+    if track_pt.size == 0 or image_ids.size == 0:
+        return out
+    lookup = np.full(int(max(image_ids.max(), track_img.max(initial=0))) + 1, -1, dtype=np.int64)
+    lookup[image_ids] = np.arange(image_ids.size)
+    known = track_img >= 0
+    cam = np.full(track_img.shape[0], -1, dtype=np.int64)
+    cam[known] = lookup[track_img[known]]
+    ok = cam >= 0
+    missing = int((~ok).sum())
+    if missing:
+        log.info("%d observations refer to images missing from the model; ignored", missing)
+    owner = track_pt[ok]
+    v = centers[cam[ok]] - xyz[owner]
+    v /= np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
+    mean = np.stack([np.bincount(owner, weights=v[:, k], minlength=n) for k in range(3)], axis=1)
+    norm = np.linalg.norm(mean, axis=1, keepdims=True)
+    np.divide(mean, norm, out=mean, where=norm > 1e-12)
+    mean[norm[:, 0] <= 1e-12] = 0.0
+    out[:] = mean
+    return out
