@@ -1,0 +1,61 @@
+"""Retained-set filters (paper §III: the landmark set V_i used at waypoint i).
+
+Applied in order, each optional:
+
+1. range: ``min_range ≤ ‖p − w‖ ≤ max_range`` (spatial index, cost set by local density);
+2. view direction: when observation directions are known, drop landmarks whose direction from the
+   landmark to the waypoint is more than ``max_view_angle_deg`` from their mean observation
+   direction (FIF uses 60°); landmarks with an unknown (zero) direction are kept;
+3. occlusion: drop landmarks whose line of sight from the waypoint crosses an occupied voxel
+   (:mod:`pivotd.maps.occlusion`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from pivotd.maps.store import MapSnapshot
+
+
+@dataclass(frozen=True)
+class RetainedFilter:
+    """min_range, max_range [m]; max_view_angle_deg [deg] or None (off); occlusion: use the snapshot's grid.
+
+    occlusion_clearance [m] (None: one voxel) and occlusion_step [voxels] tune the ray test.
+    """
+
+    min_range: float = 0.0
+    max_range: float = math.inf
+    max_view_angle_deg: float | None = None
+    occlusion: bool = False
+    occlusion_clearance: float | None = None
+    occlusion_step: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not (self.min_range >= 0 and self.max_range >= self.min_range):
+            raise ValueError(f"need 0 ≤ min_range ≤ max_range, got {self.min_range}, {self.max_range}")
+        if self.max_view_angle_deg is not None and not 0 <= self.max_view_angle_deg <= 180:
+            raise ValueError(f"max_view_angle_deg must be in [0, 180], got {self.max_view_angle_deg}")
+
+
+def view_direction_mask(
+    points: np.ndarray, directions: np.ndarray, waypoint: np.ndarray, max_angle_deg: float
+) -> np.ndarray:
+    """(n,) bool: landmarks ``points`` (n, 3) whose unit ``directions`` (n, 3) lie within ``max_angle_deg``
+    of the landmark→``waypoint`` (3,) direction; zero directions (unknown) pass."""
+    v = np.asarray(waypoint, dtype=np.float64) - points
+    dot = np.einsum("ij,ij->i", v, directions)
+    norm = np.sqrt(np.einsum("ij,ij->i", v, v))
+    cos_max = math.cos(math.radians(max_angle_deg))
+    unknown = ~np.any(directions, axis=1)
+    return unknown | (dot >= cos_max * norm)
+
+
+def retained_for_path(snapshot: MapSnapshot, waypoints: np.ndarray, flt: RetainedFilter) -> list[np.ndarray]:
+    """Per-waypoint ascending int64 index arrays into ``snapshot.points`` for waypoints (N, 3) [m]."""
+    return snapshot.retained(np.asarray(waypoints, dtype=np.float64).reshape(-1, 3), flt)

@@ -1,0 +1,165 @@
+"""Uniform-grid spatial index for range queries whose cost depends on local density, not map size.
+
+The points of a layer are reordered by cell key (x-major, then y, then z), so a cell — and a run
+of consecutive cells along z within one (x, y) column — is one contiguous slice of the point array.
+The index itself is only the sorted occupied cell keys (int64) and their start offsets (int64):
+at most 16 bytes per landmark, usually far less.
+
+A query for a sphere shell ``min_range ≤ d ≤ max_range`` visits the (x, y) columns the sphere
+touches and splits each column's z-range into up to five runs: cells certainly inside the shell
+(taken whole, no distance test) and boundary cells (their points are tested). All waypoints of a
+horizon are processed in one vectorised pass.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pivotd.maps.ragged import expand_ranges
+
+
+@dataclass(frozen=True)
+class GridIndex:
+    """Occupied cells of a uniform grid over points sorted by cell key.
+
+    origin: (3,) float64 grid corner [m]; cell: edge length [m]; dims: (3,) int64 cell counts;
+    keys: (K,) int64 sorted occupied cell keys; starts: (K + 1,) int64 point offsets (last = M).
+    """
+
+    origin: np.ndarray
+    cell: float
+    dims: np.ndarray
+    keys: np.ndarray
+    starts: np.ndarray
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.keys.nbytes + self.starts.nbytes)
+
+    @staticmethod
+    def build(points: np.ndarray, cell: float) -> tuple[GridIndex, np.ndarray]:
+        """Index for ``points`` (M, 3); returns (index, order) where ``points[order]`` is the sorted layout."""
+        if not cell > 0:
+            raise ValueError(f"grid cell size must be > 0, got {cell}")
+        m = points.shape[0]
+        if m == 0:
+            empty = np.zeros(0, np.int64)
+            index = GridIndex(np.zeros(3), float(cell), np.ones(3, np.int64), empty, np.zeros(1, np.int64))
+            return index, np.zeros(0, np.int64)
+        lo = points.min(axis=0).astype(np.float64)
+        hi = points.max(axis=0).astype(np.float64)
+        origin = lo - 0.5 * cell
+        dims = np.floor((hi - origin) / cell).astype(np.int64) + 2
+        keys = cell_keys(points, origin, cell, dims)
+        order = np.argsort(keys, kind="stable")
+        sorted_keys = keys[order]
+        del keys
+        first = np.flatnonzero(np.diff(sorted_keys)) + 1
+        cell_keys_ = sorted_keys[np.concatenate([[0], first])]
+        starts = np.concatenate([[0], first, [m]]).astype(np.int64)
+        return GridIndex(origin, float(cell), dims, cell_keys_, starts), order
+
+    def column_runs(
+        self, waypoints: np.ndarray, min_range: float, max_range: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Point-index runs covering the shell around each waypoint.
+
+        waypoints: (N, 3) [m]. Returns (starts, ends, waypoint, certain), each (R,): run ``[start, end)``
+        of sorted point indices, its waypoint index, and whether all its points are certainly within
+        the shell. Runs are ascending in point index per waypoint; every point of the shell is covered.
+        """
+        c = self.cell
+        w = (np.asarray(waypoints, dtype=np.float64) - self.origin) / c  # cell units
+        rmax = max_range / c
+        rmin = min_range / c
+        a = int(np.ceil(rmax)) + 1
+        span = np.arange(-a, a + 1)
+        # Stencil of column offsets, x-major so that columns (hence keys) ascend per waypoint.
+        dx = np.repeat(span, span.size)
+        dy = np.tile(span, span.size)
+        fx, fy = np.floor(w[:, 0:1]), np.floor(w[:, 1:2])
+        ix = (fx + dx).astype(np.int64)  # (N, S)
+        iy = (fy + dy).astype(np.int64)
+        gx = np.maximum(np.maximum(ix - w[:, 0:1], w[:, 0:1] - (ix + 1)), 0.0)
+        gy = np.maximum(np.maximum(iy - w[:, 1:2], w[:, 1:2] - (iy + 1)), 0.0)
+        dmin2 = gx * gx + gy * gy
+        nx, ny, nz = (int(v) for v in self.dims)
+        keep = (dmin2 <= rmax * rmax) & (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+        wp = np.broadcast_to(np.arange(w.shape[0])[:, None], ix.shape)[keep]
+        ix, iy, dmin2 = ix[keep], iy[keep], dmin2[keep]
+        wx, wy, wz = w[wp, 0], w[wp, 1], w[wp, 2]
+        fxx = np.maximum(np.abs(wx - ix), np.abs(wx - ix - 1))
+        fyy = np.maximum(np.abs(wy - iy), np.abs(wy - iy - 1))
+        dmax2 = fxx * fxx + fyy * fyy
+        h = np.sqrt(np.maximum(rmax * rmax - dmin2, 0.0))
+        zlo = np.maximum(np.floor(wz - h), 0).astype(np.int64)
+        zhi = np.minimum(np.floor(wz + h), nz - 1).astype(np.int64)
+        # Cells entirely within max_range.
+        hin = np.sqrt(np.maximum(rmax * rmax - dmax2, 0.0))
+        has_in = dmax2 <= rmax * rmax
+        ilo = np.where(has_in, np.ceil(wz - hin), zhi + 1).astype(np.int64)
+        ihi = np.where(has_in, np.floor(wz + hin) - 1, zhi).astype(np.int64)
+        ilo = np.clip(ilo, zlo, zhi + 1)
+        ihi = np.clip(ihi, ilo - 1, zhi)
+        # Cells that may hold points closer than min_range.
+        if rmin > 0:
+            near = dmin2 < rmin * rmin
+            hm = np.sqrt(np.maximum(rmin * rmin - dmin2, 0.0))
+            nlo = np.where(near, np.floor(wz - hm), ihi + 1).astype(np.int64)
+            nhi = np.where(near, np.floor(wz + hm), ihi).astype(np.int64)
+        else:
+            nlo, nhi = ihi + 1, ihi
+        c1a, c1b = ilo, np.minimum(ihi, nlo - 1)
+        c2a, c2b = np.maximum(ilo, nhi + 1), ihi
+        e1 = c1b < c1a
+        c1a, c1b = np.where(e1, zlo, c1a), np.where(e1, zlo - 1, c1b)
+        e2 = c2b < c2a
+        c2a, c2b = np.where(e2, zhi + 1, c2a), np.where(e2, zhi, c2b)
+        c2a = np.maximum(c2a, c1b + 1)
+        c2b = np.maximum(c2b, c2a - 1)
+        # Six z boundaries per column: P0=[b0,b1) C1=[b1,b2) P1=[b2,b3) C2=[b3,b4) P2=[b4,b5).
+        bounds = np.stack([zlo, c1a, c1b + 1, c2a, c2b + 1, zhi + 1], axis=1)
+        bounds = np.maximum.accumulate(bounds, axis=1)
+        base = (ix * ny + iy) * nz
+        offs = self.starts[np.searchsorted(self.keys, base[:, None] + bounds, side="left")]
+        starts = offs[:, :-1].ravel()
+        ends = offs[:, 1:].ravel()
+        certain = np.tile(np.array([False, True, False, True, False]), offs.shape[0])
+        wp_runs = np.repeat(wp, 5)
+        nonempty = ends > starts
+        return starts[nonempty], ends[nonempty], wp_runs[nonempty], certain[nonempty]
+
+    def query(
+        self, points: np.ndarray, waypoints: np.ndarray, min_range: float, max_range: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Sorted point indices within ``[min_range, max_range]`` of each waypoint.
+
+        points: (M, 3) the sorted layout this index was built on; waypoints: (N, 3).
+        Returns (indices (T,) int64, counts (N,) int64): waypoint i owns the i-th block of ``counts[i]``
+        indices, ascending. ``max_range`` must be finite.
+        """
+        n = waypoints.shape[0]
+        if self.keys.size == 0 or n == 0:
+            return np.zeros(0, np.int64), np.zeros(n, np.int64)
+        starts, ends, wp, certain = self.column_runs(waypoints, min_range, max_range)
+        idx, owner = expand_ranges(starts, ends)
+        cand_wp = wp[owner]
+        ok = certain[owner]
+        test = np.flatnonzero(~ok)
+        if test.size:
+            ti = idx[test]
+            tw = cand_wp[test]
+            d = points[ti].astype(np.float64) - np.asarray(waypoints, dtype=np.float64)[tw]
+            d2 = np.einsum("ij,ij->i", d, d)
+            ok[test] = (d2 >= min_range * min_range) & (d2 <= max_range * max_range)
+        idx = idx[ok]
+        counts = np.bincount(cand_wp[ok], minlength=n).astype(np.int64)
+        return idx, counts
+
+
+def cell_keys(points: np.ndarray, origin: np.ndarray, cell: float, dims: np.ndarray) -> np.ndarray:
+    """Linear cell keys (M,) int64 of ``points`` (M, 3) in the grid (origin, cell, dims), x-major."""
+    ijk = np.floor((points - origin) / cell).astype(np.int64)
+    return (ijk[:, 0] * int(dims[1]) + ijk[:, 1]) * int(dims[2]) + ijk[:, 2]
