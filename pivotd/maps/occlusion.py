@@ -51,7 +51,7 @@ class OccupancyGrid:
             return cls(np.zeros(3), float(voxel), np.full(3, 3, np.int64), np.zeros(27, bool), None)
         lo = points.min(axis=0).astype(np.float64)
         hi = points.max(axis=0).astype(np.float64)
-        origin = lo - voxel
+        origin = lo - 1.5 * voxel  # ≥ one empty voxel of padding on every side, robust to rounding
         dims = np.floor((hi - origin) / voxel).astype(np.int64) + 2
         ijk = np.floor((points - origin) / voxel).astype(np.int64)
         keys = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
@@ -102,10 +102,13 @@ class OccupancyGrid:
         t = (np.asarray(targets, dtype=np.float64) - self.origin) / v
         d = t - o
         length = np.sqrt(np.einsum("ij,ij->i", d, d))  # voxels
+        # Sample only up to the clearance point; it is the last sample (j = m), the sensor is j = 0.
+        reach = 1.0 - clear / v / np.maximum(length, 1e-12)
+        d = d * np.maximum(reach, 0.0)[:, None]
         m = np.maximum(np.ceil(np.abs(d).max(axis=1) / step), 1.0)  # intervals per ray
-        # Parameter range inside the padded box [0.5, dims - 0.5] (Liang–Barsky), and short of the clearance.
+        # Parameter range inside the padded box [0.5, dims - 0.5] (Liang–Barsky).
         s0 = np.zeros(n)
-        s1 = 1.0 - clear / v / np.maximum(length, 1e-12)
+        s1 = np.where(reach > 0, 1.0, -1.0)
         lo = 0.5
         hi = self.dims.astype(np.float64) - 0.5
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -118,7 +121,7 @@ class OccupancyGrid:
                 s0 = np.maximum(s0, np.where(moving, np.minimum(ta, tb), np.where(inside, -np.inf, np.inf)))
                 s1 = np.minimum(s1, np.where(moving, np.maximum(ta, tb), np.where(inside, np.inf, -np.inf)))
         j0 = np.maximum(np.ceil(s0 * m), 1.0).astype(np.int64)
-        j1 = np.minimum(np.floor(s1 * m), m - 1).astype(np.int64)  # inclusive
+        j1 = np.minimum(np.floor(s1 * m), m).astype(np.int64)  # inclusive
         active = np.flatnonzero(j1 >= j0)
         out = np.zeros(n, dtype=bool)
         if active.size == 0:
