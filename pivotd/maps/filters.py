@@ -34,7 +34,7 @@ class RetainedFilter:
     max_view_angle_deg: float | None = None
     occlusion: bool = False
     occlusion_clearance: float | None = None
-    occlusion_step: float = 0.5
+    occlusion_step: float = 1.0
 
     def __post_init__(self) -> None:
         if not (self.min_range >= 0 and self.max_range >= self.min_range):

@@ -17,8 +17,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pivotd.maps.ragged import expand_ranges
-
 
 @dataclass(frozen=True)
 class GridIndex:
@@ -144,19 +142,33 @@ class GridIndex:
         if self.keys.size == 0 or n == 0:
             return np.zeros(0, np.int64), np.zeros(n, np.int64)
         starts, ends, wp, certain = self.column_runs(waypoints, min_range, max_range)
-        idx, owner = expand_ranges(starts, ends)
-        cand_wp = wp[owner]
-        ok = certain[owner]
+        lengths = ends - starts
+        total = int(lengths.sum())
+        # All candidates in run order (ascending per waypoint); certain ones are kept without a test.
+        first = np.cumsum(lengths) - lengths
+        idx = np.arange(total, dtype=np.int64)
+        idx += np.repeat(starts - first, lengths)
+        ok = np.repeat(certain, lengths)
         test = np.flatnonzero(~ok)
-        if test.size:
-            ti = idx[test]
-            tw = cand_wp[test]
-            d = points[ti].astype(np.float64) - np.asarray(waypoints, dtype=np.float64)[tw]
+        ti = idx[test]
+        probe = points[ti]
+        # Partial candidates are grouped by waypoint: test each group against its waypoint (no gathers).
+        partial_per_wp = np.bincount(wp[~certain], weights=lengths[~certain], minlength=n).astype(np.int64)
+        bounds = np.concatenate([[0], np.cumsum(partial_per_wp)])
+        lo2, hi2 = np.float32(min_range * min_range), np.float32(max_range * max_range)
+        passed = np.empty(ti.size, dtype=bool)
+        kept_partial = np.zeros(n, dtype=np.int64)
+        w32 = np.asarray(waypoints, dtype=np.float32)
+        for i in np.flatnonzero(partial_per_wp):
+            a, b = bounds[i], bounds[i + 1]
+            d = probe[a:b] - w32[i]
             d2 = np.einsum("ij,ij->i", d, d)
-            ok[test] = (d2 >= min_range * min_range) & (d2 <= max_range * max_range)
-        idx = idx[ok]
-        counts = np.bincount(cand_wp[ok], minlength=n).astype(np.int64)
-        return idx, counts
+            res = (d2 <= hi2) & (d2 >= lo2)
+            passed[a:b] = res
+            kept_partial[i] = np.count_nonzero(res)
+        ok[test] = passed
+        counts = np.bincount(wp[certain], weights=lengths[certain], minlength=n).astype(np.int64) + kept_partial
+        return idx[ok], counts
 
 
 def cell_keys(points: np.ndarray, origin: np.ndarray, cell: float, dims: np.ndarray) -> np.ndarray:

@@ -1,22 +1,26 @@
 """Voxel occupancy grid and a vectorised line-of-sight test.
 
-A voxel is occupied when at least one occupancy point falls in it. The grid is padded by one empty
-voxel on every side; rays are clipped to the padded box, so anything outside counts as free.
+A voxel is occupied when at least one occupancy point falls in it; obstacles are therefore
+voxel-sized (a wall reaches up to one voxel beyond its last point). The grid is padded by one empty
+voxel on every side and rays are clipped to it, so anything outside counts as free. Small grids are
+a dense bool array; grids above DENSE_LIMIT voxels keep sorted occupied keys instead.
 
 Ray test (:meth:`OccupancyGrid.occluded_rays`): each sensor→landmark segment is sampled at points
-at most ``step`` voxels apart along every axis (default 0.5), excluding both endpoints. The ray is
-occluded when a sample lies in an occupied voxel, except samples
+``step`` voxels apart along its dominant axis (default 1, so at most one voxel apart along every
+axis). The ray is blocked when a sample lies in an occupied voxel, except samples
 
 * in the sensor's own voxel (a sensor inside a mapped voxel does not blind itself),
 * in the landmark's own voxel, or closer to the landmark than ``clearance`` (default one voxel
-  edge): a landmark does not occlude itself, and neither does the surface layer it sits on.
+  edge): a landmark does not occlude itself, nor does the surface layer right around it.
 
-Grazing behaviour: a ray that only clips the corner or edge of an occupied voxel (its chord through
-the voxel shorter than the sample spacing) may pass; a ray crossing a wall at least one voxel thick
-is always caught, since with ≤ 1 voxel per axis between samples one of them lands in the slab.
-Because of the clearance, a landmark seen at grazing incidence along its own surface stays
-visible as long as the surface layer it crosses lies within ``clearance`` of the landmark; an
-obstacle closer than ``clearance`` to a landmark does not hide it.
+Guarantee and grazing behaviour: any stretch of the sight line at least one sample spacing long
+that lies in occupied voxels is caught — in particular every crossing of a hole-free wall at least
+one voxel thick. A ray that only clips the corner or edge of occupied voxels (a stretch shorter than
+the spacing) may pass. Obstacles closer than ``clearance`` to the landmark, or wholly inside the
+sensor's or landmark's voxel, never hide it. ``step=0.5`` halves the spacing at twice the cost.
+
+Samples use fixed-point integer coordinates (12 fraction bits) processed in batches of rays sorted
+by sample count, so there is no per-ray or per-sample Python loop.
 """
 
 from __future__ import annotations
@@ -26,7 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 
 _FRAC_BITS = 12  # fixed-point fraction bits of sample coordinates (voxel units)
-_CHUNK_RAYS = 2048  # rays per vectorised batch (sorted by sample count to limit padding)
+_CHUNK_RAYS = 2048
+_OWN_MARGIN = 0.01  # voxels  # rays per vectorised batch (sorted by sample count to limit padding)
 DENSE_LIMIT = 1 << 28  # voxels; above this the grid stores sorted occupied keys instead of a dense array
 
 
@@ -77,19 +82,19 @@ class OccupancyGrid:
 
     def _lookup(self, keys: np.ndarray) -> np.ndarray:
         if self.dense is not None:
-            return self.dense[keys]
+            return np.take(self.dense, keys)
         pos = np.minimum(np.searchsorted(self.keys, keys), self.keys.size - 1)
         return self.keys[pos] == keys
 
     def occluded(self, origin: np.ndarray, targets: np.ndarray, *, clearance: float | None = None,
-                 step: float = 0.5) -> np.ndarray:
+                 step: float = 1.0) -> np.ndarray:
         """(n,) bool: whether the segment from ``origin`` (3,) to each of ``targets`` (n, 3) is blocked."""
         targets = np.asarray(targets, dtype=np.float64).reshape(-1, 3)
         origins = np.broadcast_to(np.asarray(origin, dtype=np.float64).reshape(1, 3), targets.shape)
         return self.occluded_rays(origins, targets, clearance=clearance, step=step)
 
     def occluded_rays(self, origins: np.ndarray, targets: np.ndarray, *, clearance: float | None = None,
-                      step: float = 0.5) -> np.ndarray:
+                      step: float = 1.0) -> np.ndarray:
         """(n,) bool for segments ``origins[i] → targets[i]`` (n, 3) [m]; see the module doc for the rules."""
         n = targets.shape[0]
         if n == 0:
@@ -104,11 +109,13 @@ class OccupancyGrid:
         length = np.sqrt(np.einsum("ij,ij->i", d, d))  # voxels
         # Sample only up to the clearance point; it is the last sample (j = m), the sensor is j = 0.
         reach = 1.0 - clear / v / np.maximum(length, 1e-12)
+        s_out, s_in = _own_voxel_params(o, t, d)  # leave the sensor's voxel / enter the landmark's (s ∈ [0, 1])
+        scale_r = np.where(reach > 0, reach, 1.0)
         d = d * np.maximum(reach, 0.0)[:, None]
         m = np.maximum(np.ceil(np.abs(d).max(axis=1) / step), 1.0)  # intervals per ray
-        # Parameter range inside the padded box [0.5, dims - 0.5] (Liang–Barsky).
-        s0 = np.zeros(n)
-        s1 = np.where(reach > 0, 1.0, -1.0)
+        # Parameter range outside both own voxels and inside the padded box [0.5, dims - 0.5] (Liang–Barsky).
+        s0 = s_out / scale_r
+        s1 = np.where(reach > 0, np.minimum(1.0, s_in / scale_r), -1.0)
         lo = 0.5
         hi = self.dims.astype(np.float64) - 0.5
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -136,13 +143,13 @@ class OccupancyGrid:
         order = np.argsort(counts, kind="stable")
         ny, nz = int(self.dims[1]), int(self.dims[2])
         strides = (ny * nz, nz, 1)
+        ktype = np.int64 if itype is np.int64 or int(np.prod(self.dims)) >= 1 << 31 else np.int32
         for chunk in np.array_split(order, max(1, order.size // _CHUNK_RAYS)):
             if chunk.size == 0:
                 continue
             width = int(counts[chunk].max())
             jj = np.minimum(j0a[chunk, None] + np.arange(width, dtype=itype)[None, :], j1a[chunk, None])
-            key = np.zeros(jj.shape, dtype=np.int64 if itype is np.int64 or int(np.prod(self.dims)) >= 1 << 31
-                           else np.int32)
+            key = np.zeros(jj.shape, dtype=ktype)
             for k in range(3):
                 c = jj * step_fp[chunk, k, None]
                 c += o_fp[chunk, k, None]
@@ -150,16 +157,18 @@ class OccupancyGrid:
                 if strides[k] != 1:
                     c *= strides[k]
                 key += c
-            hit_r, hit_c = np.nonzero(self._lookup(key))
-            if hit_r.size == 0:
-                continue
-            rays = active[chunk[hit_r]]
-            hk = key[hit_r, hit_c].astype(np.int64)
-            own = (hk == _keys_of(o[rays], self.dims)) | (hk == _keys_of(t[rays], self.dims))
-            out[rays[~own]] = True
+            out[active[chunk]] = self._lookup(key).any(axis=1)
         return out
 
 
-def _keys_of(cells: np.ndarray, dims: np.ndarray) -> np.ndarray:
-    ijk = np.floor(cells).astype(np.int64)
-    return (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
+def _own_voxel_params(o: np.ndarray, t: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ray parameters (n,) where segments o → t (voxel units, d = t − o) leave o's voxel and enter t's.
+
+    A small margin (_OWN_MARGIN voxels) widens both so rounding never counts an own voxel as a hit.
+    """
+    fo = np.floor(o)
+    ft = np.floor(t)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        exit_k = np.where(d > 0, (fo + 1 + _OWN_MARGIN - o) / d, np.where(d < 0, (o - fo + _OWN_MARGIN) / -d, np.inf))
+        enter_k = np.where(d > 0, (ft - _OWN_MARGIN - o) / d, np.where(d < 0, (ft + 1 + _OWN_MARGIN - o) / d, -np.inf))
+    return exit_k.min(axis=1), enter_k.max(axis=1)
