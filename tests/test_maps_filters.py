@@ -205,3 +205,30 @@ def test_filter_validation():
         RetainedFilter(min_range=2, max_range=1)
     with pytest.raises(ValueError):
         RetainedFilter(max_view_angle_deg=200)
+
+
+@pytest.mark.parametrize("max_deg", [30.0, 60.0, 120.0])
+def test_view_filter_matches_angle_reference_with_empty_waypoints(max_deg):
+    from pivotd.geometry import angle_between
+
+    rng = np.random.default_rng(11)
+    pts = rng.uniform(-3, 3, (2000, 3))
+    dirs = rng.normal(size=(2000, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    dirs[::7] = 0.0  # unknown
+    store = MapStore(index_cell=0.5)
+    store.set_layer("base", _cloud(pts, directions=dirs))
+    snap = store.snapshot()
+    wps = np.array([[0.5, 0.0, 0.2], [100.0, 0, 0], [-1.0, 1.0, 0.0], [100.0, 5, 0]])
+    out = snap.retained(wps, RetainedFilter(max_range=2.5, max_view_angle_deg=max_deg))
+    assert out[1].size == 0 and out[3].size == 0
+    for w, got in zip(wps, out, strict=True):
+        p = snap.points.astype(float)
+        ang = np.degrees(angle_between(w - p, snap.directions.astype(float)))
+        unknown = ~snap.directions.any(axis=1)
+        d = np.linalg.norm(p - w, axis=1)
+        ref = np.flatnonzero((d <= 2.5) & (unknown | (ang <= max_deg)))
+        # Float32 evaluation may flip landmarks within 1e-3° of the limit only.
+        diff = np.setxor1d(got, ref)
+        assert np.all(np.abs(ang[diff] - max_deg) < 1e-3)
+        assert ref.size > 50

@@ -47,13 +47,19 @@ def view_direction_mask(
     points: np.ndarray, directions: np.ndarray, waypoint: np.ndarray, max_angle_deg: float
 ) -> np.ndarray:
     """(n,) bool: landmarks ``points`` (n, 3) whose unit ``directions`` (n, 3) lie within ``max_angle_deg``
-    of the landmark→``waypoint`` (3,) direction; zero directions (unknown) pass."""
-    v = np.asarray(waypoint, dtype=np.float64) - points
+    of the landmark→``waypoint`` direction (``waypoint`` (3,) or (n, 3)); zero directions (unknown) pass.
+
+    Computed in float32 (the map's precision) without square roots.
+    """
+    v = np.asarray(waypoint, dtype=np.float32) - points
     dot = np.einsum("ij,ij->i", v, directions)
-    norm = np.sqrt(np.einsum("ij,ij->i", v, v))
-    cos_max = math.cos(math.radians(max_angle_deg))
-    unknown = ~np.any(directions, axis=1)
-    return unknown | (dot >= cos_max * norm)
+    vv = np.einsum("ij,ij->i", v, v)
+    c = math.cos(math.radians(max_angle_deg))
+    # dot ≥ c·|v|  ⇔  (c ≥ 0: dot ≥ 0 and dot² ≥ c²|v|²) or (c < 0: dot ≥ 0 or dot² ≤ c²|v|²)
+    c2 = np.float32(c * c)
+    ok = (dot >= 0) & (dot * dot >= c2 * vv) if c >= 0 else (dot >= 0) | (dot * dot <= c2 * vv)
+    unknown = np.einsum("ij,ij->i", directions, directions) < np.float32(0.25)
+    return ok | unknown
 
 
 def retained_for_path(snapshot: MapSnapshot, waypoints: np.ndarray, flt: RetainedFilter) -> list[np.ndarray]:

@@ -86,11 +86,17 @@ class MapSnapshot:
         if len(self) == 0:
             return [np.zeros(0, np.int64) for _ in range(n)]
         idx, counts = self._in_range(w, flt.min_range, flt.max_range)
-        owner = np.repeat(np.arange(n), counts)
+        bounds = np.concatenate([[0], np.cumsum(counts)])
         keep = None
         if flt.max_view_angle_deg is not None and self.directions is not None:
-            keep = view_direction_mask(self.points[idx], self.directions[idx], w[owner], flt.max_view_angle_deg)
+            keep = np.ones(idx.size, dtype=bool)
+            for i in np.flatnonzero(counts):
+                sub = idx[bounds[i]:bounds[i + 1]]
+                keep[bounds[i]:bounds[i + 1]] = view_direction_mask(
+                    self.points[sub], self.directions[sub], w[i], flt.max_view_angle_deg
+                )
         if flt.occlusion:
+            owner = np.repeat(np.arange(n), counts)
             sel = np.flatnonzero(keep) if keep is not None else np.arange(idx.size)
             blocked = self.occupancy.occluded_rays(
                 w[owner[sel]], self.points[idx[sel]].astype(np.float64),
@@ -101,8 +107,9 @@ class MapSnapshot:
             keep[sel[blocked]] = False
         if keep is not None:
             idx = idx[keep]
-            counts = np.bincount(owner[keep], minlength=n)
-        return np.split(idx, np.cumsum(counts)[:-1])
+            kept_before = np.concatenate([[0], np.cumsum(keep)])
+            bounds = kept_before[bounds]
+        return [idx[bounds[i]:bounds[i + 1]] for i in range(n)]
 
     def _in_range(self, w: np.ndarray, rmin: float, rmax: float) -> tuple[np.ndarray, np.ndarray]:
         n = w.shape[0]
