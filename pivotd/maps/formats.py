@@ -114,9 +114,8 @@ def first_nonfinite_row(arr: np.ndarray) -> int | None:
     """Index of the first row of ``arr`` (N, C) holding NaN or inf, or None (one fast pass when clean)."""
     if arr.shape[0] == 0:
         return None
-    with np.errstate(over="ignore", invalid="ignore"):
-        quick = np.isfinite(arr.sum(axis=1, dtype=np.float64))
-    if quick.all():
+    # Column sums in float64 propagate NaN/inf and cannot overflow for float32 data: one fast pass.
+    if all(np.isfinite(arr[:, k].sum(dtype=np.float64)) for k in range(arr.shape[1])):
         return None
     bad = ~np.isfinite(arr).all(axis=1)
     return int(np.argmax(bad)) if bad.any() else None

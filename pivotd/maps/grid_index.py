@@ -46,16 +46,15 @@ class GridIndex:
             empty = np.zeros(0, np.int64)
             index = GridIndex(np.zeros(3), float(cell), np.ones(3, np.int64), empty, np.zeros(1, np.int64))
             return index, np.zeros(0, np.int64)
-        lo = points.min(axis=0).astype(np.float64)
-        hi = points.max(axis=0).astype(np.float64)
+        lo, hi = column_bounds(points)
         origin = lo - 0.5 * cell
         dims = np.floor((hi - origin) / cell).astype(np.int64) + 2
         keys = cell_keys(points, origin, cell, dims)
-        order = np.argsort(keys, kind="stable")
+        order = np.argsort(keys)
         sorted_keys = keys[order]
         del keys
         first = np.flatnonzero(np.diff(sorted_keys)) + 1
-        cell_keys_ = sorted_keys[np.concatenate([[0], first])]
+        cell_keys_ = sorted_keys[np.concatenate([[0], first])].astype(np.int64)
         starts = np.concatenate([[0], first, [m]]).astype(np.int64)
         return GridIndex(origin, float(cell), dims, cell_keys_, starts), order
 
@@ -171,7 +170,25 @@ class GridIndex:
         return idx[ok], counts
 
 
+def column_bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-axis (min (3,), max (3,)) float64 of ``points`` (M, 3), M ≥ 1 (column-wise: fast on row-major data)."""
+    lo = np.array([float(points[:, k].min()) for k in range(3)])
+    hi = np.array([float(points[:, k].max()) for k in range(3)])
+    return lo, hi
+
+
 def cell_keys(points: np.ndarray, origin: np.ndarray, cell: float, dims: np.ndarray) -> np.ndarray:
-    """Linear cell keys (M,) int64 of ``points`` (M, 3) in the grid (origin, cell, dims), x-major."""
-    ijk = np.floor((points - origin) / cell).astype(np.int64)
-    return (ijk[:, 0] * int(dims[1]) + ijk[:, 1]) * int(dims[2]) + ijk[:, 2]
+    """Linear cell keys (M,) of ``points`` (M, 3) in the grid (origin, cell, dims), x-major.
+
+    int32 when the grid has fewer than 2³¹ cells, else int64. Points must lie inside the grid.
+    """
+    ktype = np.int32 if int(np.prod(dims)) < (1 << 31) else np.int64
+    key = np.zeros(points.shape[0], dtype=ktype)
+    inv = 1.0 / cell
+    for k, mult in ((0, int(dims[1]) * int(dims[2])), (1, int(dims[2])), (2, 1)):
+        # float64 arithmetic (strong scalar); values are ≥ 0, so truncation is floor.
+        ik = ((points[:, k] - np.float64(origin[k])) * np.float64(inv)).astype(ktype)
+        if mult != 1:
+            ik *= ktype(mult)
+        key += ik
+    return key

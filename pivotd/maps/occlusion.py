@@ -29,6 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pivotd.maps.grid_index import cell_keys, column_bounds
+
 _FRAC_BITS = 12  # fixed-point fraction bits of sample coordinates (voxel units)
 _CHUNK_RAYS = 2048
 _OWN_MARGIN = 0.01  # voxels  # rays per vectorised batch (sorted by sample count to limit padding)
@@ -54,18 +56,16 @@ class OccupancyGrid:
         points = np.asarray(points)
         if points.shape[0] == 0:
             return cls(np.zeros(3), float(voxel), np.full(3, 3, np.int64), np.zeros(27, bool), None)
-        lo = points.min(axis=0).astype(np.float64)
-        hi = points.max(axis=0).astype(np.float64)
+        lo, hi = column_bounds(points)
         origin = lo - 1.5 * voxel  # ≥ one empty voxel of padding on every side, robust to rounding
         dims = np.floor((hi - origin) / voxel).astype(np.int64) + 2
-        ijk = np.floor((points - origin) / voxel).astype(np.int64)
-        keys = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
+        keys = cell_keys(points, origin, voxel, dims)
         total = int(np.prod(dims))
         if total <= DENSE_LIMIT:
             dense = np.zeros(total, dtype=bool)
             dense[keys] = True
             return cls(origin, float(voxel), dims, dense, None)
-        return cls(origin, float(voxel), dims, None, np.unique(keys))
+        return cls(origin, float(voxel), dims, None, np.unique(keys).astype(np.int64))
 
     @property
     def occupied_count(self) -> int:

@@ -219,9 +219,9 @@ class MapStore:
     def _build_layer(self, cloud: LandmarkCloud, weight_multiplier: float) -> _Layer:
         index, order = GridIndex.build(cloud.points, self._index_cell)
         sorted_cloud = LandmarkCloud(
-            points=np.ascontiguousarray(cloud.points[order]),
-            weights=np.ascontiguousarray(cloud.weights[order]),
-            directions=None if cloud.directions is None else np.ascontiguousarray(cloud.directions[order]),
+            points=np.take(cloud.points, order, axis=0),
+            weights=np.take(cloud.weights, order),
+            directions=None if cloud.directions is None else np.take(cloud.directions, order, axis=0),
         )
         return _Layer(sorted_cloud, index, float(weight_multiplier))
 
