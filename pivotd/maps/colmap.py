@@ -76,40 +76,50 @@ def load_colmap(path: Path) -> LandmarkCloud:
 # --- points3D ---------------------------------------------------------------------------------
 
 
-def _record_offsets(buf: bytes, path: Path, count: int) -> tuple[np.ndarray, np.ndarray]:
-    """Byte offsets (count,) of the point records and their track lengths (count,)."""
+def _record_offsets(buf: bytes, path: Path, count: int) -> np.ndarray:
+    """Byte offsets (count,) int64 of the variable-length point records (one cheap step per record)."""
     read_u64 = struct.Struct("<Q").unpack_from
-    size = len(buf)
-    offsets = np.empty(count, dtype=np.int64)
-    lengths = np.empty(count, dtype=np.int64)
+    offsets: list[int] = []
+    append = offsets.append
     off = 8
-    for k in range(count):
-        if off + _POINT_HEAD > size:
-            raise InputError(f"{path}: truncated at byte {off} (point record {k} of {count})")
-        n = read_u64(buf, off + 43)[0]
-        offsets[k] = off
-        lengths[k] = n
-        off += _POINT_HEAD + _TRACK_ELEM * n
-    if off > size:
-        raise InputError(f"{path}: truncated at byte {size} (track of point record {count - 1} ends at {off})")
-    if off != size:
-        raise InputError(f"{path}: {size - off} unexpected trailing bytes at byte {off}")
-    return offsets, lengths
+    try:
+        for _ in range(count):
+            append(off)
+            off += _POINT_HEAD + _TRACK_ELEM * read_u64(buf, off + 43)[0]
+    except struct.error:
+        k = len(offsets) - 1
+        raise InputError(f"{path}: truncated at byte {offsets[-1]} (point record {k} of {count})") from None
+    if off > len(buf):
+        raise InputError(f"{path}: truncated at byte {len(buf)} (track of point record {count - 1} ends at {off})")
+    if off != len(buf):
+        raise InputError(f"{path}: {len(buf) - off} unexpected trailing bytes at byte {off}")
+    return np.array(offsets, dtype=np.int64)
 
 
-def _gather(buf: bytes, offsets: np.ndarray, dtype: str, width: int) -> np.ndarray:
-    """Values of ``dtype`` (itemsize ``width``) at arbitrary byte ``offsets`` (K,), via aligned views."""
-    out = np.empty(offsets.shape[0], dtype=np.dtype(dtype).newbyteorder("="))
-    shift = offsets % width
-    for s in np.unique(shift):
-        view = np.frombuffer(buf, dtype=dtype, offset=int(s), count=(len(buf) - int(s)) // width)
-        sel = shift == s
-        out[sel] = view[(offsets[sel] - s) // width]
+def _record_field(buf: bytes, offsets: np.ndarray, rel: int, dtype: str, items: int = 1) -> np.ndarray:
+    """``items`` consecutive ``dtype`` values at ``offsets + rel`` of each record -> (count, items).
+
+    Records are 51 + 8·n bytes long, so record k starts at 3k (mod 8): records k ≡ r (mod 8) share one
+    alignment and are read through one aligned view with strided slices (no per-record work).
+    """
+    dt = np.dtype(dtype)
+    width = dt.itemsize
+    out = np.empty((offsets.shape[0], items), dtype=dt.newbyteorder("="))
+    for r in range(8):
+        offs = offsets[r::8] + rel
+        if offs.size == 0:
+            continue
+        shift = int(offs[0] % width)
+        view = np.frombuffer(buf, dtype=dt, offset=shift, count=(len(buf) - shift) // width)
+        idx = (offs - shift) // width
+        for i in range(items):
+            out[r::8, i] = view[idx + i]
     return out
 
 
 def read_points3d_bin(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """xyz (N, 3) float64, track owner index (T,) int64 and track image ids (T,) int32 of ``points3D.bin``."""
+    """xyz (N, 3) float64, track owner index (T,) int64 (non-decreasing) and image ids (T,) int32 of
+    ``points3D.bin``."""
     try:
         buf = path.read_bytes()
     except OSError as exc:
@@ -122,17 +132,26 @@ def read_points3d_bin(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             f"{path}: header claims {count} points but the file holds at most {(len(buf) - 8) // _POINT_HEAD} "
             "(not a points3D.bin, or truncated)"
         )
-    offsets, lengths = _record_offsets(buf, path, count)
-    xyz = np.empty((count, 3), dtype=np.float64)
-    for k in range(3):
-        xyz[:, k] = _gather(buf, offsets + 8 + 8 * k, "<f8", 8)
+    offsets = _record_offsets(buf, path, count)
+    xyz = _record_field(buf, offsets, 8, "<f8", 3)
+    lengths = _record_field(buf, offsets, 43, "<u8")[:, 0].astype(np.int64)
     total = int(lengths.sum())
+    first = np.cumsum(lengths) - lengths  # position of each point's first observation
+    track_img = np.empty(total, dtype=np.int32)
+    # Observation j of record k sits at offset_k + 51 + 8j ≡ 3k + 3 (mod 4): one aligned int32 view per k mod 4.
+    for r in range(4):
+        lk = lengths[r::4]
+        nk = int(lk.sum())
+        if nk == 0:
+            continue
+        j = np.arange(nk, dtype=np.int64)
+        j -= np.repeat(np.cumsum(lk) - lk, lk)
+        pos = np.repeat(first[r::4], lk) + j
+        off = np.repeat(offsets[r::4] + _POINT_HEAD, lk) + _TRACK_ELEM * j
+        shift = int(off[0] % 4)
+        view = np.frombuffer(buf, dtype="<i4", offset=shift, count=(len(buf) - shift) // 4)
+        track_img[pos] = view[(off - shift) // 4]
     track_pt = np.repeat(np.arange(count, dtype=np.int64), lengths)
-    starts = np.cumsum(lengths) - lengths
-    elem = np.arange(total, dtype=np.int64) - np.repeat(starts, lengths)
-    track_off = np.repeat(offsets + _POINT_HEAD, lengths) + _TRACK_ELEM * elem
-    del elem
-    track_img = _gather(buf, track_off, "<i4", 4)
     return xyz, track_pt, track_img
 
 
@@ -267,8 +286,8 @@ def observation_directions(
 ) -> np.ndarray:
     """Unit mean landmark→camera directions (N, 3) float32; zero rows for landmarks without known images.
 
-    xyz: (N, 3) landmarks; track_pt / track_img: (T,) owner landmark index and image id of each
-    observation; image_ids: (K,); centers: (K, 3) camera centres.
+    xyz: (N, 3) landmarks; track_pt / track_img: (T,) owner landmark index (non-decreasing) and image id
+    of each observation; image_ids: (K,); centers: (K, 3) camera centres. Computed in float32.
     """
     n = xyz.shape[0]
     out = np.zeros((n, 3), dtype=np.float32)
@@ -276,19 +295,27 @@ def observation_directions(
         return out
     lookup = np.full(int(max(image_ids.max(), track_img.max(initial=0))) + 1, -1, dtype=np.int64)
     lookup[image_ids] = np.arange(image_ids.size)
-    known = track_img >= 0
-    cam = np.full(track_img.shape[0], -1, dtype=np.int64)
-    cam[known] = lookup[track_img[known]]
+    cam = lookup[np.maximum(track_img, 0)]
+    cam[track_img < 0] = -1
     ok = cam >= 0
-    missing = int((~ok).sum())
-    if missing:
-        log.info("%d observations refer to images missing from the model; ignored", missing)
-    owner = track_pt[ok]
-    v = centers[cam[ok]] - xyz[owner]
-    v /= np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
-    mean = np.stack([np.bincount(owner, weights=v[:, k], minlength=n) for k in range(3)], axis=1)
-    norm = np.linalg.norm(mean, axis=1, keepdims=True)
-    np.divide(mean, norm, out=mean, where=norm > 1e-12)
-    mean[norm[:, 0] <= 1e-12] = 0.0
-    out[:] = mean
+    owner = track_pt
+    if not ok.all():
+        log.info("%d observations refer to images missing from the model; ignored", int((~ok).sum()))
+        owner, cam = track_pt[ok], cam[ok]
+    if owner.size == 0:
+        return out
+    if np.any(np.diff(owner) < 0):
+        order = np.argsort(owner, kind="stable")
+        owner, cam = owner[order], cam[order]
+    counts = np.bincount(owner, minlength=n)
+    v = np.take(centers.astype(np.float32), cam, axis=0)
+    v -= np.repeat(xyz.astype(np.float32), counts, axis=0)
+    norm = np.sqrt(np.einsum("ij,ij->i", v, v))
+    v /= np.maximum(norm, np.float32(1e-12))[:, None]
+    seen = np.flatnonzero(counts)
+    starts = np.cumsum(counts)[seen] - counts[seen]
+    mean = np.add.reduceat(v, starts, axis=0)
+    norm = np.sqrt(np.einsum("ij,ij->i", mean, mean))
+    good = norm > 1e-6
+    out[seen[good]] = mean[good] / norm[good, None]
     return out
