@@ -35,6 +35,7 @@ log = logging.getLogger(__name__)
 
 _POINT_HEAD = 51  # id, xyz, rgb, error, track_length
 _TRACK_ELEM = 8
+_BLOCK = 1 << 18  # points per vectorised block (a multiple of 8)
 _IMAGE_HEAD = struct.Struct("<idddddddi")  # 64 bytes
 
 
@@ -63,13 +64,13 @@ def load_colmap(path: Path) -> LandmarkCloud:
     """Landmarks (and mean observation directions when images are present) of a COLMAP model."""
     points_file, images_file = resolve_model(path)
     if points_file.suffix == ".bin":
-        xyz, track_pt, track_img = read_points3d_bin(points_file)
+        xyz, lengths, track_img = read_points3d_bin(points_file, with_tracks=images_file is not None)
     else:
-        xyz, track_pt, track_img = read_points3d_txt(points_file)
+        xyz, lengths, track_img = read_points3d_txt(points_file)
     directions = None
     if images_file is not None:
         ids, centers = read_images_bin(images_file) if images_file.suffix == ".bin" else read_images_txt(images_file)
-        directions = observation_directions(xyz, track_pt, track_img, ids, centers)
+        directions = observation_directions(xyz, lengths, track_img, ids, centers)
     return make_cloud(points_file, xyz, None, directions, row_name="point")
 
 
@@ -117,9 +118,9 @@ def _record_field(buf: bytes, offsets: np.ndarray, rel: int, dtype: str, items: 
     return out
 
 
-def read_points3d_bin(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """xyz (N, 3) float64, track owner index (T,) int64 (non-decreasing) and image ids (T,) int32 of
-    ``points3D.bin``."""
+def read_points3d_bin(path: Path, with_tracks: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """xyz (N, 3) float64, track lengths (N,) int64 and the image id of every observation (T,) int32
+    (grouped by point, in point order; None unless ``with_tracks``) of a ``points3D.bin``."""
     try:
         buf = path.read_bytes()
     except OSError as exc:
@@ -135,30 +136,34 @@ def read_points3d_bin(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     offsets = _record_offsets(buf, path, count)
     xyz = _record_field(buf, offsets, 8, "<f8", 3)
     lengths = _record_field(buf, offsets, 43, "<u8")[:, 0].astype(np.int64)
+    if not with_tracks:
+        return xyz, lengths, None
     total = int(lengths.sum())
     first = np.cumsum(lengths) - lengths  # position of each point's first observation
     track_img = np.empty(total, dtype=np.int32)
     # Observation j of record k sits at offset_k + 51 + 8j ≡ 3k + 3 (mod 4): one aligned int32 view per k mod 4.
-    for r in range(4):
-        lk = lengths[r::4]
-        nk = int(lk.sum())
-        if nk == 0:
-            continue
-        j = np.arange(nk, dtype=np.int64)
-        j -= np.repeat(np.cumsum(lk) - lk, lk)
-        pos = np.repeat(first[r::4], lk) + j
-        off = np.repeat(offsets[r::4] + _POINT_HEAD, lk) + _TRACK_ELEM * j
-        shift = int(off[0] % 4)
-        view = np.frombuffer(buf, dtype="<i4", offset=shift, count=(len(buf) - shift) // 4)
-        track_img[pos] = view[(off - shift) // 4]
-    track_pt = np.repeat(np.arange(count, dtype=np.int64), lengths)
-    return xyz, track_pt, track_img
+    # Blocks of points (a multiple of 4) keep the temporaries small.
+    for a in range(0, count, _BLOCK):
+        b = min(count, a + _BLOCK)
+        for r in range(4):
+            lk = lengths[a + r:b:4]
+            nk = int(lk.sum())
+            if nk == 0:
+                continue
+            j = np.arange(nk, dtype=np.int64)
+            j -= np.repeat(np.cumsum(lk) - lk, lk)
+            pos = np.repeat(first[a + r:b:4], lk) + j
+            off = np.repeat(offsets[a + r:b:4] + _POINT_HEAD, lk) + _TRACK_ELEM * j
+            shift = int(off[0] % 4)
+            view = np.frombuffer(buf, dtype="<i4", offset=shift, count=(len(buf) - shift) // 4)
+            track_img[pos] = view[(off - shift) // 4]
+    return xyz, lengths, track_img
 
 
 def read_points3d_txt(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Same as :func:`read_points3d_bin` for ``points3D.txt``; errors name the line."""
     xyz: list[list[float]] = []
-    track_pt: list[np.ndarray] = []
+    lengths: list[int] = []
     track_img: list[np.ndarray] = []
     for lineno, line in _text_lines(path):
         if not line.strip() or line.lstrip().startswith("#"):
@@ -177,13 +182,12 @@ def read_points3d_txt(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             raise InputError(f"{path}:{lineno}: not a number in {line.strip()[:80]!r}") from None
         if not np.isfinite(p).all():
             raise InputError(f"{path}:{lineno}: coordinate is not finite (NaN or inf)")
-        track_pt.append(np.full(track.shape[0], len(xyz), dtype=np.int64))
+        lengths.append(track.shape[0])
         track_img.append(track)
         xyz.append(p)
     arr = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
-    if not track_pt:
-        return arr, np.zeros(0, np.int64), np.zeros(0, np.int32)
-    return arr, np.concatenate(track_pt), np.concatenate(track_img)
+    img = np.concatenate(track_img) if track_img else np.zeros(0, np.int32)
+    return arr, np.asarray(lengths, dtype=np.int64), img
 
 
 # --- images -----------------------------------------------------------------------------------
@@ -282,40 +286,44 @@ def _text_lines(path: Path) -> list[tuple[int, str]]:
 
 
 def observation_directions(
-    xyz: np.ndarray, track_pt: np.ndarray, track_img: np.ndarray, image_ids: np.ndarray, centers: np.ndarray
+    xyz: np.ndarray, lengths: np.ndarray, track_img: np.ndarray, image_ids: np.ndarray, centers: np.ndarray
 ) -> np.ndarray:
     """Unit mean landmark→camera directions (N, 3) float32; zero rows for landmarks without known images.
 
-    xyz: (N, 3) landmarks; track_pt / track_img: (T,) owner landmark index (non-decreasing) and image id
-    of each observation; image_ids: (K,); centers: (K, 3) camera centres. Computed in float32.
+    xyz: (N, 3) landmarks; lengths: (N,) observations per landmark; track_img: (T,) image id of each
+    observation, grouped by landmark in order; image_ids: (K,); centers: (K, 3) camera centres.
+    Computed in float32, in blocks of landmarks to keep temporaries small.
     """
     n = xyz.shape[0]
     out = np.zeros((n, 3), dtype=np.float32)
-    if track_pt.size == 0 or image_ids.size == 0:
+    if track_img.size == 0 or image_ids.size == 0:
         return out
-    lookup = np.full(int(max(image_ids.max(), track_img.max(initial=0))) + 1, -1, dtype=np.int64)
+    top = int(max(image_ids.max(), track_img.max()))
+    lookup = np.full(top + 2, -1, dtype=np.int64)
     lookup[image_ids] = np.arange(image_ids.size)
-    cam = lookup[np.maximum(track_img, 0)]
-    cam[track_img < 0] = -1
-    ok = cam >= 0
-    owner = track_pt
-    if not ok.all():
-        log.info("%d observations refer to images missing from the model; ignored", int((~ok).sum()))
-        owner, cam = track_pt[ok], cam[ok]
-    if owner.size == 0:
-        return out
-    if np.any(np.diff(owner) < 0):
-        order = np.argsort(owner, kind="stable")
-        owner, cam = owner[order], cam[order]
-    counts = np.bincount(owner, minlength=n)
-    v = np.take(centers.astype(np.float32), cam, axis=0)
-    v -= np.repeat(xyz.astype(np.float32), counts, axis=0)
-    norm = np.sqrt(np.einsum("ij,ij->i", v, v))
-    v /= np.maximum(norm, np.float32(1e-12))[:, None]
-    seen = np.flatnonzero(counts)
-    starts = np.cumsum(counts)[seen] - counts[seen]
-    mean = np.add.reduceat(v, starts, axis=0)
-    norm = np.sqrt(np.einsum("ij,ij->i", mean, mean))
-    good = norm > 1e-6
-    out[seen[good]] = mean[good] / norm[good, None]
+    centers32 = np.concatenate([centers, np.zeros((1, 3))]).astype(np.float32)  # row K: unknown image
+    first = np.concatenate([[0], np.cumsum(lengths)])
+    missing = 0
+    for a in range(0, n, _BLOCK):
+        b = min(n, a + _BLOCK)
+        lk = lengths[a:b]
+        if first[b] == first[a]:
+            continue
+        img = track_img[first[a]:first[b]]
+        cam = lookup[np.clip(img, -1, top + 1)]
+        unknown = cam < 0
+        cam[unknown] = image_ids.size
+        missing += int(unknown.sum())
+        v = np.take(centers32, cam, axis=0)
+        v -= np.repeat(xyz[a:b].astype(np.float32), lk, axis=0)
+        norm = np.sqrt(np.einsum("ij,ij->i", v, v))
+        norm[unknown] = np.inf  # contributes a zero vector
+        v /= np.maximum(norm, np.float32(1e-12))[:, None]
+        seen = np.flatnonzero(lk)
+        mean = np.add.reduceat(v, (first[a:b] - first[a])[seen], axis=0)
+        mnorm = np.sqrt(np.einsum("ij,ij->i", mean, mean))
+        good = mnorm > 1e-6
+        out[a + seen[good]] = mean[good] / mnorm[good, None]
+    if missing:
+        log.info("%d observations refer to images missing from the model; ignored", missing)
     return out
