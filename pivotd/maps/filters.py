@@ -49,17 +49,25 @@ def view_direction_mask(
     """(n,) bool: landmarks ``points`` (n, 3) whose unit ``directions`` (n, 3) lie within ``max_angle_deg``
     of the landmark→``waypoint`` direction (``waypoint`` (3,) or (n, 3)); zero directions (unknown) pass.
 
-    Computed in float32 (the map's precision) without square roots.
+    Computed in float32 (the map's precision) on columns, without square roots.
     """
-    v = np.asarray(waypoint, dtype=np.float32) - points
-    dot = np.einsum("ij,ij->i", v, directions)
-    vv = np.einsum("ij,ij->i", v, v)
+    w = np.asarray(waypoint, dtype=np.float32)
+    vx, vy, vz = w[..., 0] - points[:, 0], w[..., 1] - points[:, 1], w[..., 2] - points[:, 2]
+    dx, dy, dz = directions[:, 0], directions[:, 1], directions[:, 2]
+    dot = vx * dx
+    dot += vy * dy
+    dot += vz * dz
+    vv = vx * vx
+    vv += vy * vy
+    vv += vz * vz
+    dd = dx * dx
+    dd += dy * dy
+    dd += dz * dz
     c = math.cos(math.radians(max_angle_deg))
     # dot ≥ c·|v|  ⇔  (c ≥ 0: dot ≥ 0 and dot² ≥ c²|v|²) or (c < 0: dot ≥ 0 or dot² ≤ c²|v|²)
     c2 = np.float32(c * c)
     ok = (dot >= 0) & (dot * dot >= c2 * vv) if c >= 0 else (dot >= 0) | (dot * dot <= c2 * vv)
-    unknown = np.einsum("ij,ij->i", directions, directions) < np.float32(0.25)
-    return ok | unknown
+    return ok | (dd < np.float32(0.25))  # zero direction: unknown, kept
 
 
 def retained_for_path(snapshot: MapSnapshot, waypoints: np.ndarray, flt: RetainedFilter) -> list[np.ndarray]:

@@ -160,8 +160,10 @@ class GridIndex:
         w32 = np.asarray(waypoints, dtype=np.float32)
         for i in np.flatnonzero(partial_per_wp):
             a, b = bounds[i], bounds[i + 1]
-            d = probe[a:b] - w32[i]
-            d2 = np.einsum("ij,ij->i", d, d)
+            blk = probe[a:b]
+            d2 = np.square(blk[:, 0] - w32[i, 0])
+            d2 += np.square(blk[:, 1] - w32[i, 1])
+            d2 += np.square(blk[:, 2] - w32[i, 2])
             res = (d2 <= hi2) & (d2 >= lo2)
             passed[a:b] = res
             kept_partial[i] = np.count_nonzero(res)

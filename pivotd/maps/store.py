@@ -87,29 +87,25 @@ class MapSnapshot:
             return [np.zeros(0, np.int64) for _ in range(n)]
         idx, counts = self._in_range(w, flt.min_range, flt.max_range)
         bounds = np.concatenate([[0], np.cumsum(counts)])
-        keep = None
+        blocks = [idx[bounds[i]:bounds[i + 1]] for i in range(n)]
         if flt.max_view_angle_deg is not None and self.directions is not None:
-            keep = np.ones(idx.size, dtype=bool)
-            for i in np.flatnonzero(counts):
-                sub = idx[bounds[i]:bounds[i + 1]]
-                keep[bounds[i]:bounds[i + 1]] = view_direction_mask(
-                    self.points[sub], self.directions[sub], w[i], flt.max_view_angle_deg
-                )
+            blocks = [
+                b[view_direction_mask(np.take(self.points, b, axis=0), np.take(self.directions, b, axis=0), w[i],
+                                      flt.max_view_angle_deg)] if b.size else b
+                for i, b in enumerate(blocks)
+            ]
         if flt.occlusion:
-            owner = np.repeat(np.arange(n), counts)
-            sel = np.flatnonzero(keep) if keep is not None else np.arange(idx.size)
+            sizes = np.array([b.size for b in blocks])
+            flat = np.concatenate(blocks)
+            owner = np.repeat(np.arange(n), sizes)
             blocked = self.occupancy.occluded_rays(
-                w[owner[sel]], self.points[idx[sel]].astype(np.float64),
+                w[owner], np.take(self.points, flat, axis=0).astype(np.float64),
                 clearance=flt.occlusion_clearance, step=flt.occlusion_step,
             )
-            if keep is None:
-                keep = np.ones(idx.size, dtype=bool)
-            keep[sel[blocked]] = False
-        if keep is not None:
-            idx = idx[keep]
-            kept_before = np.concatenate([[0], np.cumsum(keep)])
-            bounds = kept_before[bounds]
-        return [idx[bounds[i]:bounds[i + 1]] for i in range(n)]
+            flat = flat[~blocked]
+            kept = np.bincount(owner[~blocked], minlength=n)
+            blocks = np.split(flat, np.cumsum(kept)[:-1])
+        return blocks
 
     def _in_range(self, w: np.ndarray, rmin: float, rmax: float) -> tuple[np.ndarray, np.ndarray]:
         n = w.shape[0]
