@@ -232,3 +232,18 @@ def test_view_filter_matches_angle_reference_with_empty_waypoints(max_deg):
         diff = np.setxor1d(got, ref)
         assert np.all(np.abs(ang[diff] - max_deg) < 1e-3)
         assert ref.size > 50 or w[0] == 100.0
+
+
+@pytest.mark.parametrize(("cell", "dense"), [(2.0, True), (0.1, False)])
+def test_dense_and_sparse_index_layouts_agree_with_brute_force(cell, dense):
+    rng = np.random.default_rng(4)
+    pts = (rng.random((4000, 3)) * [10, 10, 3]).astype(np.float32)
+    index, order = GridIndex.build(pts, cell)
+    assert (index.keys is None) == dense
+    sorted_pts = pts[order]
+    # Waypoints inside, beside, far above and below the map.
+    wps = np.array([[5, 5, 1.5], [-2, 5, 1], [5, 5, 40], [5, 5, -40], [9.9, 0.1, 2.9]])
+    idx, counts = index.query(sorted_pts, wps, 0.3, 4.0)
+    for w, got in zip(wps, np.split(idx, np.cumsum(counts)[:-1]), strict=True):
+        np.testing.assert_array_equal(got, _brute(sorted_pts, w, 0.3, 4.0))
+    assert counts[0] > 100 and counts[2] == 0 and counts[3] == 0

@@ -2,8 +2,9 @@
 
 The points of a layer are reordered by cell key (x-major, then y, then z), so a cell — and a run
 of consecutive cells along z within one (x, y) column — is one contiguous slice of the point array.
-The index itself is only the sorted occupied cell keys (int64) and their start offsets (int64):
-at most 16 bytes per landmark, usually far less.
+The index itself is either a dense table of cell start offsets (when the grid has at most
+DENSE_CELLS_PER_POINT cells per landmark: O(1) lookups) or the sorted occupied cell keys and their
+start offsets (binary search): at most 16 bytes per landmark, usually far less.
 
 A query for a sphere shell ``min_range ≤ d ≤ max_range`` visits the (x, y) columns the sphere
 touches and splits each column's z-range into up to five runs: cells certainly inside the shell
@@ -17,24 +18,38 @@ from dataclasses import dataclass
 
 import numpy as np
 
+DENSE_CELLS_PER_POINT = 2  # dense offset table (8 B per cell) while cells ≤ this × landmarks
+
 
 @dataclass(frozen=True)
 class GridIndex:
     """Occupied cells of a uniform grid over points sorted by cell key.
 
     origin: (3,) float64 grid corner [m]; cell: edge length [m]; dims: (3,) int64 cell counts;
-    keys: (K,) int64 sorted occupied cell keys; starts: (K + 1,) int64 point offsets (last = M).
+    keys: (K,) int64 sorted occupied cell keys and starts: (K + 1,) int64 point offsets (last = M), or
+    keys None and starts: (nx·ny·nz + 1,) point offset of every cell (dense table).
     """
 
     origin: np.ndarray
     cell: float
     dims: np.ndarray
-    keys: np.ndarray
+    keys: np.ndarray | None
     starts: np.ndarray
 
     @property
     def nbytes(self) -> int:
-        return int(self.keys.nbytes + self.starts.nbytes)
+        return int(self.starts.nbytes + (self.keys.nbytes if self.keys is not None else 0))
+
+    @property
+    def count(self) -> int:
+        """Number of indexed points."""
+        return int(self.starts[-1])
+
+    def offsets_of(self, keys: np.ndarray) -> np.ndarray:
+        """Point offset of the first point in cell ``keys`` (any shape, int64; key nx·ny·nz allowed)."""
+        if self.keys is None:
+            return self.starts[keys]
+        return self.starts[np.searchsorted(self.keys, keys, side="left")]
 
     @staticmethod
     def build(points: np.ndarray, cell: float) -> tuple[GridIndex, np.ndarray]:
@@ -51,6 +66,12 @@ class GridIndex:
         dims = np.floor((hi - origin) / cell).astype(np.int64) + 2
         keys = cell_keys(points, origin, cell, dims)
         order = np.argsort(keys)
+        ncells = int(np.prod(dims))
+        if ncells <= DENSE_CELLS_PER_POINT * m:
+            counts = np.bincount(keys, minlength=ncells)
+            starts = np.zeros(ncells + 1, dtype=np.int64)
+            np.cumsum(counts, out=starts[1:])
+            return GridIndex(origin, float(cell), dims, None, starts), order
         sorted_keys = keys[order]
         del keys
         first = np.flatnonzero(np.diff(sorted_keys)) + 1
@@ -118,9 +139,9 @@ class GridIndex:
         c2b = np.maximum(c2b, c2a - 1)
         # Six z boundaries per column: P0=[b0,b1) C1=[b1,b2) P1=[b2,b3) C2=[b3,b4) P2=[b4,b5).
         bounds = np.stack([zlo, c1a, c1b + 1, c2a, c2b + 1, zhi + 1], axis=1)
-        bounds = np.maximum.accumulate(bounds, axis=1)
+        bounds = np.minimum(np.maximum.accumulate(bounds, axis=1), nz)  # stay within the column
         base = (ix * ny + iy) * nz
-        offs = self.starts[np.searchsorted(self.keys, base[:, None] + bounds, side="left")]
+        offs = self.offsets_of(base[:, None] + bounds)
         starts = offs[:, :-1].ravel()
         ends = offs[:, 1:].ravel()
         certain = np.tile(np.array([False, True, False, True, False]), offs.shape[0])
@@ -138,7 +159,7 @@ class GridIndex:
         indices, ascending. ``max_range`` must be finite.
         """
         n = waypoints.shape[0]
-        if self.keys.size == 0 or n == 0:
+        if self.count == 0 or n == 0:
             return np.zeros(0, np.int64), np.zeros(n, np.int64)
         starts, ends, wp, certain = self.column_runs(waypoints, min_range, max_range)
         lengths = ends - starts

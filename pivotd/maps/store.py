@@ -114,7 +114,7 @@ class MapSnapshot:
         parts = []
         for offset, index in self._indexes:
             lo = offset
-            hi = offset + int(index.starts[-1])
+            hi = offset + index.count
             idx, counts = index.query(self.points[lo:hi], w, rmin, rmax)
             parts.append((idx + offset, counts))
         if len(parts) == 1:
