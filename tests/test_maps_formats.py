@@ -168,3 +168,22 @@ def test_weight_property_rejected_for_non_ply(fif_dir):
 def test_missing_file(tmp_path):
     with pytest.raises(InputError, match=r"nope\.ply: no such file"):
         load_landmarks(tmp_path / "nope.ply")
+
+
+def test_make_cloud_validates_arrays_from_any_source():
+    from pivotd.maps.formats import make_cloud
+
+    cloud = make_cloud("/pivot/targets", PTS, W)
+    assert cloud.points.dtype == np.float32 and len(cloud) == 3
+    with pytest.raises(InputError, match=r"/pivot/targets: expected landmark points of shape \(N, 3\)"):
+        make_cloud("/pivot/targets", np.zeros((3, 2)))
+    with pytest.raises(InputError, match=r"/pivot/targets: expected weights of shape \(3,\)"):
+        make_cloud("/pivot/targets", PTS, np.ones(2))
+    with pytest.raises(InputError, match=r"/pivot/targets: row 1 is not finite"):
+        make_cloud("/pivot/targets", np.array([[0, 0, 0], [np.inf, 0, 0.0]]))
+
+
+def test_points3d_name_with_other_extension_is_not_colmap(tmp_path):
+    f = tmp_path / "points3D.ply"
+    plyfile.PlyData([_ply_elements(with_extra=False)], text=True).write(str(f))
+    assert len(load_landmarks(f)) == 3

@@ -66,7 +66,7 @@ def load_landmarks(
     if not path.exists():
         raise InputError(f"{path}: no such file")
     suffix = path.suffix.lower()
-    if path.is_dir() or path.stem == "points3D":
+    if path.is_dir() or (path.stem == "points3D" and suffix in (".bin", ".txt")):
         from pivotd.maps.colmap import load_colmap
 
         _no_weight_property(path, weight_property, "COLMAP models")
@@ -122,7 +122,7 @@ def first_nonfinite_row(arr: np.ndarray) -> int | None:
 
 
 def make_cloud(
-    path: Path,
+    path: str | Path,
     points: np.ndarray,
     weights: np.ndarray | None = None,
     directions: np.ndarray | None = None,
@@ -131,9 +131,18 @@ def make_cloud(
 ) -> LandmarkCloud:
     """Validate and convert arrays to a float32 :class:`LandmarkCloud`.
 
-    Raises InputError naming ``path`` and the first bad ``row_name`` (index + ``row_base``) for
-    non-finite coordinates or weights, or negative weights.
+    points: (N, 3); weights: (N,) or None (ones); directions: (N, 3) or None. ``path`` names the source
+    in errors (a file, or e.g. a topic for clouds received over the bus). Raises InputError naming it
+    and the first bad ``row_name`` (index + ``row_base``) for a wrong shape, non-finite coordinates or
+    weights, or negative weights.
     """
+    points = np.asarray(points)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise InputError(f"{path}: expected landmark points of shape (N, 3), got {points.shape}")
+    n = points.shape[0]
+    for name, arr, shape in (("weights", weights, (n,)), ("directions", directions, (n, 3))):
+        if arr is not None and np.shape(arr) != shape:
+            raise InputError(f"{path}: expected {name} of shape {shape}, got {np.shape(arr)}")
     points = np.ascontiguousarray(points, dtype=POINT_DTYPE)
     bad = first_nonfinite_row(points)
     if bad is not None:
