@@ -247,3 +247,21 @@ def test_dense_and_sparse_index_layouts_agree_with_brute_force(cell, dense):
     for w, got in zip(wps, np.split(idx, np.cumsum(counts)[:-1]), strict=True):
         np.testing.assert_array_equal(got, _brute(sorted_pts, w, 0.3, 4.0))
     assert counts[0] > 100 and counts[2] == 0 and counts[3] == 0
+
+
+def test_sparse_occupancy_grid_matches_dense(monkeypatch):
+    import pivotd.maps.occlusion as occlusion
+
+    rng = np.random.default_rng(8)
+    occ_pts = rng.normal(size=(3000, 3)) * 2
+    dense = OccupancyGrid.from_points(occ_pts, 0.3)
+    monkeypatch.setattr(occlusion, "DENSE_LIMIT", 0)
+    sparse = OccupancyGrid.from_points(occ_pts, 0.3)
+    assert dense.dense is not None and sparse.dense is None and sparse.keys is not None
+    assert dense.occupied_count == sparse.occupied_count
+    targets = rng.uniform(-6, 6, (2000, 3))
+    origin = np.array([0.3, -0.1, 0.2])
+    got = sparse.occluded(origin, targets)
+    np.testing.assert_array_equal(got, dense.occluded(origin, targets))
+    assert 0.2 < got.mean() < 0.95
+    np.testing.assert_array_equal(sparse.is_occupied(targets), dense.is_occupied(targets))

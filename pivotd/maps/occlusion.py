@@ -80,11 +80,15 @@ class OccupancyGrid:
         out[inside] = self._lookup(k)
         return out
 
-    def _lookup(self, keys: np.ndarray) -> np.ndarray:
+    def _lookup(self, keys: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         if self.dense is not None:
-            return np.take(self.dense, keys)
+            return np.take(self.dense, keys, out=out)
         pos = np.minimum(np.searchsorted(self.keys, keys), self.keys.size - 1)
-        return self.keys[pos] == keys
+        found = self.keys[pos] == keys
+        if out is None:
+            return found
+        out[...] = found
+        return out
 
     def occluded(self, origin: np.ndarray, targets: np.ndarray, *, clearance: float | None = None,
                  step: float = 1.0) -> np.ndarray:
@@ -134,7 +138,8 @@ class OccupancyGrid:
         if active.size == 0:
             return out
         # Fixed-point voxel coordinates: sample j of ray i is at o_i + j·δ_i, δ = d / m.
-        itype = np.int32 if int(self.dims.max()) < (1 << (31 - _FRAC_BITS)) - 1 else np.int64
+        small = int(self.dims.max()) < (1 << (31 - _FRAC_BITS)) - 1 and int(np.prod(self.dims)) < (1 << 31)
+        itype = np.int32 if small else np.int64  # fixed-point coordinates and keys share one width
         scale = float(1 << _FRAC_BITS)
         o_fp = np.floor(o[active] * scale).astype(itype)
         step_fp = np.round(d[active] / m[active, None] * scale).astype(itype)
@@ -143,21 +148,37 @@ class OccupancyGrid:
         order = np.argsort(counts, kind="stable")
         ny, nz = int(self.dims[1]), int(self.dims[2])
         strides = (ny * nz, nz, 1)
-        ktype = np.int64 if itype is np.int64 or int(np.prod(self.dims)) >= 1 << 31 else np.int32
-        for chunk in np.array_split(order, max(1, order.size // _CHUNK_RAYS)):
-            if chunk.size == 0:
-                continue
-            width = int(counts[chunk].max())
-            jj = np.minimum(j0a[chunk, None] + np.arange(width, dtype=itype)[None, :], j1a[chunk, None])
-            key = np.zeros(jj.shape, dtype=ktype)
+        ktype = itype
+        # Work buffers reused across batches (fresh large arrays would cost page faults every time).
+        cap = min(order.size, _CHUNK_RAYS) * int(counts.max())
+        jj_buf = np.empty(cap, dtype=itype)
+        c_buf = np.empty(cap, dtype=itype)
+        key_buf = np.empty(cap, dtype=ktype)
+        occ_buf = np.empty(cap, dtype=bool)
+        lane = np.arange(int(counts.max()), dtype=itype)
+        for lo_ in range(0, order.size, _CHUNK_RAYS):
+            chunk = order[lo_:lo_ + _CHUNK_RAYS]
+            width = int(counts[chunk[-1]])  # sorted by count: the last ray is the longest
+            shape = (chunk.size, width)
+            size = chunk.size * width
+            jj = jj_buf[:size].reshape(shape)
+            c = c_buf[:size].reshape(shape)
+            key = key_buf[:size].reshape(shape)
+            np.add(j0a[chunk, None], lane[None, :width], out=jj)
+            np.minimum(jj, j1a[chunk, None], out=jj)
             for k in range(3):
-                c = jj * step_fp[chunk, k, None]
+                np.multiply(jj, step_fp[chunk, k, None], out=c)
                 c += o_fp[chunk, k, None]
                 c >>= _FRAC_BITS
-                if strides[k] != 1:
-                    c *= strides[k]
-                key += c
-            out[active[chunk]] = self._lookup(key).any(axis=1)
+                if k == 0:
+                    np.multiply(c, strides[0], out=key)
+                else:
+                    if strides[k] != 1:
+                        c *= strides[k]
+                    key += c
+            occ = occ_buf[:size].reshape(shape)
+            self._lookup(key, out=occ)
+            out[active[chunk]] = occ.any(axis=1)
         return out
 
 
