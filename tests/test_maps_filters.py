@@ -253,7 +253,7 @@ def test_sparse_occupancy_grid_matches_dense(monkeypatch):
     import pivotd.maps.occlusion as occlusion
 
     rng = np.random.default_rng(8)
-    occ_pts = rng.normal(size=(3000, 3)) * 2
+    occ_pts = rng.normal(size=(600, 3)) * 2
     dense = OccupancyGrid.from_points(occ_pts, 0.3)
     monkeypatch.setattr(occlusion, "DENSE_LIMIT", 0)
     sparse = OccupancyGrid.from_points(occ_pts, 0.3)
