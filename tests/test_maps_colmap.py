@@ -136,6 +136,11 @@ def test_truncated_and_corrupt_binary_points(tmp_path):
     assert "truncated at byte 4" in _bad(tmp_path, "points3D.bin", good[:4])
     assert "header claims 1000000 points" in _bad(tmp_path, "points3D.bin", struct.pack("<Q", 10**6) + good[8:])
     assert "unexpected trailing bytes" in _bad(tmp_path, "points3D.bin", good + b"\0\0")
+    huge = bytearray(good)
+    struct.pack_into("<Q", huge, 8 + 43, 2**62)  # track length of the first point
+    assert "corrupt track length in point record 0 at byte 8" in _bad(tmp_path, "points3D.bin", bytes(huge))
+    struct.pack_into("<Q", huge, 8 + 43, 10**9)
+    assert "truncated at byte" in _bad(tmp_path, "points3D.bin", bytes(huge))
     nan = bytearray(good)
     struct.pack_into("<d", nan, 8 + 8 + 8, float("nan"))  # y of the first point
     assert "point 0 is not finite" in _bad(tmp_path, "points3D.bin", bytes(nan))

@@ -21,6 +21,7 @@ step per point) and extracts coordinates and tracks with vectorised gathers.
 
 from __future__ import annotations
 
+import array
 import logging
 import struct
 from pathlib import Path
@@ -80,7 +81,7 @@ def load_colmap(path: Path) -> LandmarkCloud:
 def _record_offsets(buf: bytes, path: Path, count: int) -> np.ndarray:
     """Byte offsets (count,) int64 of the variable-length point records (one cheap step per record)."""
     read_u64 = struct.Struct("<Q").unpack_from
-    offsets: list[int] = []
+    offsets = array.array("q")  # raw int64: lighter and faster to append than a list of ints
     append = offsets.append
     off = 8
     try:
@@ -90,11 +91,14 @@ def _record_offsets(buf: bytes, path: Path, count: int) -> np.ndarray:
     except struct.error:
         k = len(offsets) - 1
         raise InputError(f"{path}: truncated at byte {offsets[-1]} (point record {k} of {count})") from None
+    except OverflowError:
+        k = len(offsets) - 1
+        raise InputError(f"{path}: corrupt track length in point record {k} at byte {offsets[-1]}") from None
     if off > len(buf):
         raise InputError(f"{path}: truncated at byte {len(buf)} (track of point record {count - 1} ends at {off})")
     if off != len(buf):
         raise InputError(f"{path}: {len(buf) - off} unexpected trailing bytes at byte {off}")
-    return np.array(offsets, dtype=np.int64)
+    return np.frombuffer(offsets, dtype=np.int64) if count else np.zeros(0, np.int64)
 
 
 def _record_field(buf: bytes, offsets: np.ndarray, rel: int, dtype: str, items: int = 1) -> np.ndarray:
