@@ -36,7 +36,9 @@ log = logging.getLogger(__name__)
 
 _POINT_HEAD = 51  # id, xyz, rgb, error, track_length
 _TRACK_ELEM = 8
-_BLOCK = 1 << 18  # points per vectorised block (a multiple of 8)
+_BLOCK = 1 << 18  # landmarks per vectorised block of direction averaging
+_HEAD_BLOCK = 1 << 14  # records per block when reading heads (a multiple of 8; ~1 MB of file stays cached)
+_TRACK_BLOCK = 1 << 12  # records per block when reading tracks (a multiple of 4)
 _IMAGE_HEAD = struct.Struct("<idddddddi")  # 64 bytes
 
 
@@ -114,8 +116,8 @@ def _record_heads(buf: bytes, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarr
     f8 = [np.frombuffer(buf, dtype="<f8", offset=s, count=(len(buf) - s) // 8) for s in range(8)]
     u8 = [np.frombuffer(buf, dtype="<u8", offset=s, count=(len(buf) - s) // 8) for s in range(8)]
     lane = np.arange(3)
-    for a in range(0, n, _BLOCK):
-        b = min(n, a + _BLOCK)
+    for a in range(0, n, _HEAD_BLOCK):
+        b = min(n, a + _HEAD_BLOCK)
         for r in range(8):
             offs = offsets[a + r:b:8]
             if offs.size == 0:
@@ -151,8 +153,8 @@ def read_points3d_bin(path: Path, with_tracks: bool = True) -> tuple[np.ndarray,
     track_img = np.empty(total, dtype=np.int32)
     # Observation j of record k sits at offset_k + 51 + 8j ≡ 3k + 3 (mod 4): one aligned int32 view per k mod 4.
     # Blocks of points (a multiple of 4) keep the temporaries small.
-    for a in range(0, count, _BLOCK):
-        b = min(count, a + _BLOCK)
+    for a in range(0, count, _TRACK_BLOCK):
+        b = min(count, a + _TRACK_BLOCK)
         for r in range(4):
             lk = lengths[a + r:b:4]
             nk = int(lk.sum())
