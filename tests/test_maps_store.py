@@ -141,3 +141,13 @@ def test_load_map_store_from_file(fif_dir, tmp_path):
     assert len(load_map_store(empty, allow_empty=True).snapshot()) == 0
     with pytest.raises(InputError, match="needs an occlusion voxel"):
         load_map_store(fif_dir / "four_walls_points_w.txt", occupancy_file=fif_dir / "two_walls_points_w.txt")
+
+
+def test_layers_are_stored_as_float32_and_shapes_checked():
+    store = MapStore()
+    store.set_layer("base", LandmarkCloud(np.array([[1.0, 2.0, 3.0]]), np.array([2.0])))
+    snap = store.snapshot()
+    assert snap.points.dtype == np.float32 and snap.weights.dtype == np.float32
+    with pytest.raises(InputError, match="inconsistent cloud shapes"):
+        store.set_layer("bad", LandmarkCloud(np.zeros((3, 3)), np.ones(2)))
+    assert store.version == 1

@@ -213,11 +213,19 @@ class MapStore:
             return self._publish(layers)
 
     def _build_layer(self, cloud: LandmarkCloud, weight_multiplier: float) -> _Layer:
-        index, order = GridIndex.build(cloud.points, self._index_cell)
+        points = np.ascontiguousarray(cloud.points, dtype=POINT_DTYPE)
+        weights = np.ascontiguousarray(cloud.weights, dtype=POINT_DTYPE)
+        directions = None if cloud.directions is None else np.ascontiguousarray(cloud.directions, dtype=POINT_DTYPE)
+        if points.ndim != 2 or points.shape[1] != 3 or weights.shape != (points.shape[0],) or (
+            directions is not None and directions.shape != points.shape
+        ):
+            raise InputError(f"map layer: inconsistent cloud shapes {points.shape}, {weights.shape}, "
+                             f"{None if directions is None else directions.shape}")
+        index, order = GridIndex.build(points, self._index_cell)
         sorted_cloud = LandmarkCloud(
-            points=np.take(cloud.points, order, axis=0),
-            weights=np.take(cloud.weights, order),
-            directions=None if cloud.directions is None else np.take(cloud.directions, order, axis=0),
+            points=np.take(points, order, axis=0),
+            weights=np.take(weights, order),
+            directions=None if directions is None else np.take(directions, order, axis=0),
         )
         return _Layer(sorted_cloud, index, float(weight_multiplier))
 
