@@ -151,3 +151,17 @@ def test_layers_are_stored_as_float32_and_shapes_checked():
     with pytest.raises(InputError, match="inconsistent cloud shapes"):
         store.set_layer("bad", LandmarkCloud(np.zeros((3, 3)), np.ones(2)))
     assert store.version == 1
+
+
+def test_summary_describes_the_snapshot(fif_dir):
+    import json
+
+    store = load_map_store(fif_dir / "two_walls_points_w.txt", occlusion_voxel=0.5)
+    store.set_layer("targets", _cloud([[0, 0, 0]], weight=3.0), weight_multiplier=2.0)
+    info = store.snapshot().summary()
+    json.dumps(info)
+    assert info["landmarks"] == 1001 and info["version"] == 2 and info["directions"] is False
+    assert info["layers"] == {"base": {"count": 1000, "weight_multiplier": 1.0},
+                              "targets": {"count": 1, "weight_multiplier": 2.0}}
+    np.testing.assert_allclose(info["bounds_max"], [2.5, 2.5, 1.0], atol=1e-4)
+    assert info["occupancy_voxel"] == 0.5 and info["occupied_voxels"] > 20

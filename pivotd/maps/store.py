@@ -24,7 +24,7 @@ import numpy as np
 from pivotd.errors import InputError
 from pivotd.maps.filters import RetainedFilter, view_direction_mask
 from pivotd.maps.formats import POINT_DTYPE, LandmarkCloud, load_landmarks
-from pivotd.maps.grid_index import GridIndex
+from pivotd.maps.grid_index import GridIndex, column_bounds
 from pivotd.maps.occlusion import OccupancyGrid
 
 log = logging.getLogger(__name__)
@@ -74,6 +74,23 @@ class MapSnapshot:
     def index_nbytes(self) -> int:
         """Bytes held by the spatial index (all layers)."""
         return sum(ix.nbytes for _, ix in self._indexes)
+
+    def summary(self) -> dict:
+        """JSON-friendly description: landmark count, bounds [m], layers, directions, occupancy, version."""
+        out: dict = {
+            "landmarks": len(self),
+            "version": self.version,
+            "layers": {k: {"count": v.count, "weight_multiplier": v.weight_multiplier} for k, v in self.layers.items()},
+            "directions": self.directions is not None,
+            "bounds_min": None,
+            "bounds_max": None,
+            "occupancy_voxel": None if self.occupancy is None else self.occupancy.voxel,
+            "occupied_voxels": None if self.occupancy is None else self.occupancy.occupied_count,
+        }
+        if len(self):
+            lo, hi = column_bounds(self.points)
+            out["bounds_min"], out["bounds_max"] = lo.tolist(), hi.tolist()
+        return out
 
     def retained(self, waypoints: np.ndarray, flt: RetainedFilter) -> list[np.ndarray]:
         """Retained landmark indices for each waypoint (N, 3) [m]: a list of N ascending int64 arrays."""
