@@ -187,3 +187,19 @@ def test_points3d_name_with_other_extension_is_not_colmap(tmp_path):
     f = tmp_path / "points3D.ply"
     plyfile.PlyData([_ply_elements(with_extra=False)], text=True).write(str(f))
     assert len(load_landmarks(f)) == 3
+
+
+def test_text_fast_and_line_parsers_agree(tmp_path, fif_dir):
+    from pivotd.maps.formats import _parse_clean_text, read_numeric_text
+
+    mixed = tmp_path / "mixed.txt"
+    mixed.write_text("# header\n1 2 3\n\n4,5,6\n7\t8 9\n")
+    assert _parse_clean_text(mixed.read_text(), (3, 4)) is None  # mixed separators: line parser
+    np.testing.assert_array_equal(read_numeric_text(mixed, (3, 4), "landmark"), [[1, 2, 3], [4, 5, 6], [7, 8, 9]])
+    text = (fif_dir / "ycorridor_6x20_points_w.txt").read_text()
+    fast = _parse_clean_text(text, (3, 4))
+    assert fast is not None and fast.shape[0] > 900
+    slow = tmp_path / "slow.txt"
+    slow.write_text(text + "1 2 3 x\n")  # one bad trailing line forces the line parser
+    with pytest.raises(InputError, match=r"slow\.txt:\d+: not a number"):
+        read_numeric_text(slow, (3, 4), "landmark")
