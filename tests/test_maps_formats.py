@@ -200,6 +200,6 @@ def test_text_fast_and_line_parsers_agree(tmp_path, fif_dir):
     fast = _parse_clean_text(text, (3, 4))
     assert fast is not None and fast.shape[0] > 900
     slow = tmp_path / "slow.txt"
-    slow.write_text(text + "1 2 3 x\n")  # one bad trailing line forces the line parser
+    slow.write_text(text.rstrip("\n") + "\n1 2 x\n")  # one bad trailing line forces the line parser
     with pytest.raises(InputError, match=r"slow\.txt:\d+: not a number"):
         read_numeric_text(slow, (3, 4), "landmark")
