@@ -200,11 +200,19 @@ def test_separate_occupancy_cloud(tmp_path):
     np.testing.assert_allclose(snap.points[kept], [[1, 0, 0]])
 
 
-def test_filter_validation():
-    with pytest.raises(ValueError):
+def test_filter_and_store_validation_are_user_errors():
+    from pivotd.errors import InputError
+
+    with pytest.raises(InputError, match="min_range"):
         RetainedFilter(min_range=2, max_range=1)
-    with pytest.raises(ValueError):
+    with pytest.raises(InputError, match="max_view_angle_deg"):
         RetainedFilter(max_view_angle_deg=200)
+    with pytest.raises(InputError, match="occlusion_step"):
+        RetainedFilter(occlusion_step=1.5)
+    with pytest.raises(InputError, match="occupancy voxel"):
+        MapStore(occupancy_voxel=0.0)
+    with pytest.raises(InputError, match="index cell"):
+        MapStore(index_cell=-1.0)
 
 
 @pytest.mark.parametrize("max_deg", [30.0, 60.0, 120.0])

@@ -18,6 +18,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pivotd.errors import InputError
+
 if TYPE_CHECKING:
     from pivotd.maps.store import MapSnapshot
 
@@ -37,10 +39,15 @@ class RetainedFilter:
     occlusion_step: float = 1.0
 
     def __post_init__(self) -> None:
+        """Raises InputError (a user error: CLI exit 2) for inconsistent values."""
         if not (self.min_range >= 0 and self.max_range >= self.min_range):
-            raise ValueError(f"need 0 ≤ min_range ≤ max_range, got {self.min_range}, {self.max_range}")
+            raise InputError(f"need 0 ≤ min_range ≤ max_range, got {self.min_range}, {self.max_range}")
         if self.max_view_angle_deg is not None and not 0 <= self.max_view_angle_deg <= 180:
-            raise ValueError(f"max_view_angle_deg must be in [0, 180], got {self.max_view_angle_deg}")
+            raise InputError(f"max_view_angle_deg must be in [0, 180], got {self.max_view_angle_deg}")
+        if not 0 < self.occlusion_step <= 1:
+            raise InputError(f"occlusion_step must be in (0, 1] voxels, got {self.occlusion_step}")
+        if self.occlusion_clearance is not None and not self.occlusion_clearance >= 0:
+            raise InputError(f"occlusion_clearance must be ≥ 0 m, got {self.occlusion_clearance}")
 
 
 def view_direction_mask(

@@ -169,11 +169,11 @@ class MapStore:
         index_cell: float = DEFAULT_INDEX_CELL,
     ) -> None:
         if occupancy_voxel is not None and not occupancy_voxel > 0:
-            raise ValueError(f"occupancy voxel must be > 0, got {occupancy_voxel}")
+            raise InputError(f"occupancy voxel must be > 0 m, got {occupancy_voxel}")
         if occupancy_points is not None and occupancy_voxel is None:
-            raise ValueError("occupancy_points need an occupancy_voxel")
+            raise InputError("occupancy points need an occupancy voxel size")
         if not index_cell > 0:
-            raise ValueError(f"index cell must be > 0, got {index_cell}")
+            raise InputError(f"map index cell must be > 0 m, got {index_cell}")
         self._voxel = occupancy_voxel
         self._index_cell = float(index_cell)
         self._static_occupancy = (
