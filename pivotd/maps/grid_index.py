@@ -163,34 +163,38 @@ class GridIndex:
             return np.zeros(0, np.int64), np.zeros(n, np.int64)
         starts, ends, wp, certain = self.column_runs(waypoints, min_range, max_range)
         lengths = ends - starts
-        total = int(lengths.sum())
-        # All candidates in run order (ascending per waypoint); certain ones are kept without a test.
-        first = np.cumsum(lengths) - lengths
-        idx = np.arange(total, dtype=np.int64)
-        idx += np.repeat(starts - first, lengths)
-        ok = np.repeat(certain, lengths)
-        test = np.flatnonzero(~ok)
-        ti = idx[test]
-        probe = points[ti]
-        # Partial candidates are grouped by waypoint: test each group against its waypoint (no gathers).
-        partial_per_wp = np.bincount(wp[~certain], weights=lengths[~certain], minlength=n).astype(np.int64)
-        bounds = np.concatenate([[0], np.cumsum(partial_per_wp)])
+        part = ~certain
+        # Candidates of the boundary runs only; they are grouped by waypoint (runs are in waypoint order).
+        p_len = lengths[part]
+        p_first = np.cumsum(p_len) - p_len
+        ti = np.arange(int(p_len.sum()), dtype=np.int64)
+        ti += np.repeat(starts[part] - p_first, p_len)
+        probe = np.take(points, ti, axis=0)
+        per_wp = np.bincount(wp[part], weights=p_len, minlength=n).astype(np.int64)
+        bounds = np.concatenate([[0], np.cumsum(per_wp)])
         lo2, hi2 = np.float32(min_range * min_range), np.float32(max_range * max_range)
         passed = np.empty(ti.size, dtype=bool)
-        kept_partial = np.zeros(n, dtype=np.int64)
         w32 = np.asarray(waypoints, dtype=np.float32)
-        for i in np.flatnonzero(partial_per_wp):
+        for i in np.flatnonzero(per_wp):
             a, b = bounds[i], bounds[i + 1]
             blk = probe[a:b]
             d2 = np.square(blk[:, 0] - w32[i, 0])
             d2 += np.square(blk[:, 1] - w32[i, 1])
             d2 += np.square(blk[:, 2] - w32[i, 2])
-            res = (d2 <= hi2) & (d2 >= lo2)
-            passed[a:b] = res
-            kept_partial[i] = np.count_nonzero(res)
-        ok[test] = passed
-        counts = np.bincount(wp[certain], weights=lengths[certain], minlength=n).astype(np.int64) + kept_partial
-        return idx[ok], counts
+            np.logical_and(d2 <= hi2, d2 >= lo2, out=passed[a:b])
+        # Output in run order: certain runs are whole ranges, boundary runs contribute their passed points.
+        kept = lengths.copy()
+        if ti.size:
+            kept[part] = np.add.reduceat(passed, p_first)
+        out_start = np.cumsum(kept) - kept
+        out = np.arange(int(kept.sum()), dtype=np.int64)
+        out += np.repeat(np.where(certain, starts - out_start, 0), kept)
+        kp = kept[part]
+        pos = np.arange(int(kp.sum()), dtype=np.int64)
+        pos += np.repeat(out_start[part] - (np.cumsum(kp) - kp), kp)
+        out[pos] = ti[passed]
+        counts = np.bincount(wp, weights=kept, minlength=n).astype(np.int64)
+        return out, counts
 
 
 def column_bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
