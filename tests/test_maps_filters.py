@@ -126,6 +126,8 @@ def test_occlusion_matches_dense_sampling_reference(step):
     grid = OccupancyGrid.from_points(occ_pts, 0.25)
     origin = np.array([0.1, -0.2, 0.05])
     targets = rng.uniform(-8, 8, (400, 3))
+    targets[:40, 1:] = origin[1:]  # axis-aligned rays (exact zero components)
+    targets[40:60, 2] = origin[2]
     got = grid.occluded(origin, targets, step=step)
     # Reference: fine sampling (5 mm) with the same exclusions (own voxels, clearance of one voxel). A ray with a
     # stretch at least one sample spacing long inside occupied voxels must be caught, and no ray may be
@@ -153,7 +155,7 @@ def test_occlusion_matches_dense_sampling_reference(step):
             ref_sure[i] = stretch >= spacing + 2 * ds
     assert not np.any(got & ~ref_any)
     assert not np.any(ref_sure & ~got)
-    assert ref_sure.sum() > 50 and np.sum(got) >= (0.85 if step < 1 else 0.75) * ref_any.sum()
+    assert ref_sure.sum() > 30 and np.sum(got) >= (0.85 if step < 1 else 0.75) * ref_any.sum()
 
 
 def test_fif_two_walls_no_landmark_retained_behind_the_near_wall(fif_dir):

@@ -107,30 +107,41 @@ class OccupancyGrid:
             raise ValueError(f"ray step must be in (0, 1] voxels, got {step}")
         v = self.voxel
         clear = v if clearance is None else float(clearance)
+        with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+            return self._occluded_rays(origins, targets, clear, step)
+
+    def _occluded_rays(self, origins: np.ndarray, targets: np.ndarray, clear: float, step: float) -> np.ndarray:
+        n = targets.shape[0]
+        v = self.voxel
         o = (np.asarray(origins, dtype=np.float64) - self.origin) / v  # voxel units
         t = (np.asarray(targets, dtype=np.float64) - self.origin) / v
         d = t - o
-        length = np.sqrt(np.einsum("ij,ij->i", d, d))  # voxels
+        # Column-wise arithmetic throughout: reductions over a length-3 axis are slow in numpy.
+        ox, oy, oz = o[:, 0], o[:, 1], o[:, 2]
+        dx, dy, dz = _nonzero(d[:, 0]), _nonzero(d[:, 1]), _nonzero(d[:, 2])
+        length = np.sqrt(dx * dx + dy * dy + dz * dz)  # voxels
+        # Leave the sensor's voxel / enter the landmark's (parameters in [0, 1] of o → t).
+        s_out, s_in = _own_voxel_params((ox, oy, oz), (t[:, 0], t[:, 1], t[:, 2]), (dx, dy, dz))
         # Sample only up to the clearance point; it is the last sample (j = m), the sensor is j = 0.
         reach = 1.0 - clear / v / np.maximum(length, 1e-12)
-        s_out, s_in = _own_voxel_params(o, t, d)  # leave the sensor's voxel / enter the landmark's (s ∈ [0, 1])
         scale_r = np.where(reach > 0, reach, 1.0)
-        d = d * np.maximum(reach, 0.0)[:, None]
-        m = np.maximum(np.ceil(np.abs(d).max(axis=1) / step), 1.0)  # intervals per ray
-        # Parameter range outside both own voxels and inside the padded box [0.5, dims - 0.5] (Liang–Barsky).
+        r = np.maximum(reach, 1e-12)
+        dx, dy, dz = dx * r, dy * r, dz * r
+        d = np.stack([dx, dy, dz], axis=1)
+        extent = np.maximum(np.maximum(np.abs(dx), np.abs(dy)), np.abs(dz))
+        m = np.maximum(np.ceil(extent / step), 1.0)  # intervals per ray
+        # Parameter range outside both own voxels and inside the padded box [0.5, dims - 0.5] (Liang–Barsky;
+        # a zero component is a tiny positive one, which yields ±huge bounds with the right meaning).
         s0 = s_out / scale_r
         s1 = np.where(reach > 0, np.minimum(1.0, s_in / scale_r), -1.0)
-        lo = 0.5
-        hi = self.dims.astype(np.float64) - 0.5
-        with np.errstate(divide="ignore", invalid="ignore"):
-            for k in range(3):
-                dk = d[:, k]
-                ta = (lo - o[:, k]) / dk
-                tb = (hi[k] - o[:, k]) / dk
-                inside = (o[:, k] >= lo) & (o[:, k] <= hi[k])
-                moving = dk != 0
-                s0 = np.maximum(s0, np.where(moving, np.minimum(ta, tb), np.where(inside, -np.inf, np.inf)))
-                s1 = np.minimum(s1, np.where(moving, np.maximum(ta, tb), np.where(inside, np.inf, -np.inf)))
+        for ok_, dk, hk in ((ox, dx, self.dims[0]), (oy, dy, self.dims[1]), (oz, dz, self.dims[2])):
+            ta = (0.5 - ok_) / dk
+            tb = (float(hk) - 0.5 - ok_) / dk
+            s0 = np.maximum(s0, np.minimum(ta, tb))
+            s1 = np.minimum(s1, np.maximum(ta, tb))
+        # Finite, bounded parameters (degenerate or non-finite rays end up with no samples).
+        s0 = np.clip(np.nan_to_num(s0, nan=2.0), 0.0, 2.0)
+        s1 = np.clip(np.nan_to_num(s1, nan=-1.0), -1.0, 1.0)
         j0 = np.maximum(np.ceil(s0 * m), 1.0).astype(np.int64)
         j1 = np.minimum(np.floor(s1 * m), m).astype(np.int64)  # inclusive
         active = np.flatnonzero(j1 >= j0)
@@ -182,14 +193,24 @@ class OccupancyGrid:
         return out
 
 
-def _own_voxel_params(o: np.ndarray, t: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Ray parameters (n,) where segments o → t (voxel units, d = t − o) leave o's voxel and enter t's.
+def _nonzero(x: np.ndarray) -> np.ndarray:
+    """``x`` with exact zeros replaced by a tiny positive value (keeps divisions finite and signed)."""
+    return np.where(x == 0, 1e-300, x)
 
-    A small margin (_OWN_MARGIN voxels) widens both so rounding never counts an own voxel as a hit.
+
+def _own_voxel_params(o: tuple, t: tuple, d: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """Ray parameters (n,) where segments o → t leave o's voxel and enter t's.
+
+    o, t, d: per-axis (n,) columns in voxel units, d = t − o with no exact zeros. A small margin
+    (_OWN_MARGIN voxels) widens both so rounding never counts an own voxel as a hit.
     """
-    fo = np.floor(o)
-    ft = np.floor(t)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        exit_k = np.where(d > 0, (fo + 1 + _OWN_MARGIN - o) / d, np.where(d < 0, (o - fo + _OWN_MARGIN) / -d, np.inf))
-        enter_k = np.where(d > 0, (ft - _OWN_MARGIN - o) / d, np.where(d < 0, (ft + 1 + _OWN_MARGIN - o) / d, -np.inf))
-    return exit_k.min(axis=1), enter_k.max(axis=1)
+    s_out = s_in = None
+    for ok_, tk, dk in zip(o, t, d, strict=True):
+        pos = dk > 0
+        # Leaving o's voxel: its upper face (+margin) when moving up, its lower face (−margin) when moving down.
+        leave = (np.floor(ok_) + np.where(pos, 1.0 + _OWN_MARGIN, -_OWN_MARGIN) - ok_) / dk
+        # Entering t's voxel: its lower face (−margin) when moving up, its upper face (+margin) when moving down.
+        enter = (np.floor(tk) + np.where(pos, -_OWN_MARGIN, 1.0 + _OWN_MARGIN) - ok_) / dk
+        s_out = leave if s_out is None else np.minimum(s_out, leave)
+        s_in = enter if s_in is None else np.maximum(s_in, enter)
+    return s_out, s_in
