@@ -275,3 +275,11 @@ def test_sparse_occupancy_grid_matches_dense(monkeypatch):
     np.testing.assert_array_equal(got, dense.occluded(origin, targets))
     assert 0.2 < got.mean() < 0.95
     np.testing.assert_array_equal(sparse.is_occupied(targets), dense.is_occupied(targets))
+
+
+def test_degenerate_and_non_finite_rays_are_not_blocked():
+    wall = _wall(1.0, 2.0, 0.1)
+    grid = OccupancyGrid.from_points(wall, 0.2)
+    origin = np.array([0.0, 0.1, 0.0])
+    targets = np.array([[0.0, 0.1, 0.0], [np.nan, 0.0, 0.0], [3.0, 0.1, 0.0], [0.05, 0.1, 0.0]])
+    np.testing.assert_array_equal(grid.occluded(origin, targets), [False, False, True, False])
