@@ -144,6 +144,8 @@ class OccupancyGrid:
         s1 = np.clip(np.nan_to_num(s1, nan=-1.0), -1.0, 1.0)
         j0 = np.maximum(np.ceil(s0 * m), 1.0).astype(np.int64)
         j1 = np.minimum(np.floor(s1 * m), m).astype(np.int64)  # inclusive
+        bad = ~(np.isfinite(length) & np.isfinite(o).all(axis=1))
+        j0[bad], j1[bad] = 1, 0
         active = np.flatnonzero(j1 >= j0)
         out = np.zeros(n, dtype=bool)
         if active.size == 0:
