@@ -165,3 +165,10 @@ def test_summary_describes_the_snapshot(fif_dir):
                               "targets": {"count": 1, "weight_multiplier": 2.0}}
     np.testing.assert_allclose(info["bounds_max"], [2.5, 2.5, 1.0], atol=1e-4)
     assert info["occupancy_voxel"] == 0.5 and info["occupied_voxels"] > 20
+
+
+def test_non_finite_waypoints_are_rejected():
+    store = MapStore()
+    store.set_layer("base", _cloud([[1, 0, 0]]))
+    with pytest.raises(InputError, match="waypoint 1 is not finite"):
+        store.snapshot().retained(np.array([[0, 0, 0], [np.nan, 0, 0]]), RetainedFilter(max_range=2))

@@ -98,6 +98,8 @@ class MapSnapshot:
         n = w.shape[0]
         if n == 0:
             return []
+        if not np.isfinite(w).all():
+            raise InputError(f"waypoint {int(np.argmax(~np.isfinite(w).all(axis=1)))} is not finite (NaN or inf)")
         if flt.occlusion and self.occupancy is None:
             raise InputError("occlusion filter requested but the map has no occupancy grid (set an occlusion voxel)")
         if len(self) == 0:
