@@ -40,7 +40,7 @@ def test_grid_range_query_equals_brute_force(seed, cell, rmin, span):
     pts = (rng.random((3000, 3)) * rng.uniform(1, 15, 3) - 2).astype(np.float32)
     index, order = GridIndex.build(pts, cell)
     sorted_pts = pts[order]
-    waypoints = rng.uniform(-6, 18, (5, 3))
+    waypoints = rng.uniform(-6, 18, (11, 3))  # more than one query group
     idx, counts = index.query(sorted_pts, waypoints, rmin, rmin + span)
     blocks = np.split(idx, np.cumsum(counts)[:-1])
     for w, got in zip(waypoints, blocks, strict=True):
