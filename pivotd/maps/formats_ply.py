@@ -1,0 +1,64 @@
+"""PLY landmark maps (ASCII, binary little- and big-endian) read with ``plyfile``.
+
+The ``vertex`` element must carry ``x``, ``y``, ``z``; other properties (normals, colours, …) are
+ignored. Weights come from ``weight_property`` (error when missing) or, by default, from a
+``weight`` property when the file has one.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import plyfile
+
+from pivotd.errors import InputError
+from pivotd.maps.formats import LandmarkCloud, make_cloud
+
+DEFAULT_WEIGHT_PROPERTY = "weight"
+
+
+def load_ply(path: Path, *, weight_property: str | None = None) -> LandmarkCloud:
+    """Read vertex x, y, z (and a weight) from a PLY file; errors name the file and the vertex row."""
+    try:
+        with open(path, "rb") as fh:
+            ply = plyfile.PlyData.read(fh, mmap=False)
+    except plyfile.PlyElementParseError as exc:
+        where = f"vertex {exc.row}" if exc.row is not None else "data"
+        raise InputError(f"{path}: corrupt or truncated PLY at {where} ({exc.message})") from None
+    except plyfile.PlyHeaderParseError as exc:
+        raise InputError(f"{path}: bad PLY header ({exc})") from None
+    except (ValueError, OSError, EOFError, UnicodeDecodeError, IndexError) as exc:
+        raise InputError(f"{path}: not a readable PLY file ({exc})") from None
+    try:
+        vertex = ply["vertex"]
+    except KeyError:
+        names = ", ".join(e.name for e in ply.elements) or "none"
+        raise InputError(f"{path}: PLY has no 'vertex' element (elements: {names})") from None
+    props = [p.name for p in vertex.properties]
+    missing = [c for c in ("x", "y", "z") if c not in props]
+    if missing:
+        raise InputError(f"{path}: PLY vertex lacks {', '.join(missing)} (properties: {', '.join(props)})")
+    data = vertex.data
+    points = np.empty((len(data), 3), dtype=np.float32)
+    for k, c in enumerate("xyz"):
+        _check_scalar(path, vertex, c)
+        points[:, k] = data[c]
+    weights = None
+    name = weight_property
+    if name is None and DEFAULT_WEIGHT_PROPERTY in props:
+        name = DEFAULT_WEIGHT_PROPERTY
+    if name is not None:
+        if name not in props:
+            raise InputError(
+                f"{path}: PLY vertex has no weight property '{name}' (properties: {', '.join(props)})"
+            )
+        _check_scalar(path, vertex, name)
+        weights = np.asarray(data[name], dtype=np.float32)
+    return make_cloud(path, points, weights, row_name="vertex")
+
+
+def _check_scalar(path: Path, vertex: plyfile.PlyElement, name: str) -> None:
+    prop = vertex.ply_property(name)
+    if isinstance(prop, plyfile.PlyListProperty):
+        raise InputError(f"{path}: PLY vertex property '{name}' is a list, expected a scalar")

@@ -1,0 +1,332 @@
+"""Layered landmark map with immutable snapshots for lock-free readers.
+
+A :class:`MapStore` holds named layers (e.g. ``base`` from the map file, ``targets`` from semantic
+detections with their own weight multiplier). Every update builds a new :class:`MapSnapshot`
+off to the side — sorted points, grid index, occupancy grid — and swaps one reference, so readers
+calling :meth:`MapStore.snapshot` never wait for writers and never see a half-built map. Writers
+are serialised by a lock. Each update increments ``version`` so planners can cache per version.
+
+Memory per landmark: points 12 B + weights 4 B (float32) + grid index ≤ 16 B (sorted cell keys and
+offsets, typically much less) [+ directions 12 B when known]. A single layer with multiplier 1 is
+shared without copies; several layers are concatenated into the snapshot arrays.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pivotd.errors import InputError
+from pivotd.maps.filters import RetainedFilter, view_direction_mask
+from pivotd.maps.formats import POINT_DTYPE, LandmarkCloud, load_landmarks
+from pivotd.maps.grid_index import GridIndex, column_bounds
+from pivotd.maps.occlusion import OccupancyGrid
+
+log = logging.getLogger(__name__)
+
+BASE_LAYER = "base"
+DEFAULT_INDEX_CELL = 1.0  # m
+
+
+@dataclass(frozen=True)
+class LayerInfo:
+    """Where a layer lives in the snapshot arrays: ``rows`` slice, landmark count, weight multiplier."""
+
+    rows: slice
+    count: int
+    weight_multiplier: float
+
+
+@dataclass(frozen=True)
+class _Layer:
+    cloud: LandmarkCloud  # points sorted by grid cell
+    index: GridIndex
+    weight_multiplier: float
+
+
+@dataclass(frozen=True)
+class MapSnapshot:
+    """An immutable view of the map.
+
+    points: (M, 3) float32 [m]; weights: (M,) float32 with layer multipliers applied; directions:
+    (M, 3) float32 unit landmark→camera directions (zero rows unknown) or None; version: increases on
+    every update; layers: name → :class:`LayerInfo`; occupancy: grid for the occlusion filter or None.
+    Landmark order is the store's (grouped by layer, sorted by grid cell), not the file's.
+    """
+
+    points: np.ndarray
+    weights: np.ndarray
+    directions: np.ndarray | None
+    version: int
+    layers: dict[str, LayerInfo]
+    occupancy: OccupancyGrid | None = None
+    _indexes: tuple[tuple[int, GridIndex], ...] = field(default=(), repr=False)
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+    @property
+    def index_nbytes(self) -> int:
+        """Bytes held by the spatial index (all layers)."""
+        return sum(ix.nbytes for _, ix in self._indexes)
+
+    def summary(self) -> dict:
+        """JSON-friendly description: landmark count, bounds [m], layers, directions, occupancy, version."""
+        out: dict = {
+            "landmarks": len(self),
+            "version": self.version,
+            "layers": {k: {"count": v.count, "weight_multiplier": v.weight_multiplier} for k, v in self.layers.items()},
+            "directions": self.directions is not None,
+            "bounds_min": None,
+            "bounds_max": None,
+            "occupancy_voxel": None if self.occupancy is None else self.occupancy.voxel,
+            "occupied_voxels": None if self.occupancy is None else self.occupancy.occupied_count,
+        }
+        if len(self):
+            lo, hi = column_bounds(self.points)
+            out["bounds_min"], out["bounds_max"] = lo.tolist(), hi.tolist()
+        return out
+
+    def retained(self, waypoints: np.ndarray, flt: RetainedFilter) -> list[np.ndarray]:
+        """Retained landmark indices for each waypoint (N, 3) [m]: a list of N ascending int64 arrays."""
+        w = np.asarray(waypoints, dtype=np.float64).reshape(-1, 3)
+        n = w.shape[0]
+        if n == 0:
+            return []
+        if not np.isfinite(w).all():
+            raise InputError(f"waypoint {int(np.argmax(~np.isfinite(w).all(axis=1)))} is not finite (NaN or inf)")
+        if flt.occlusion and self.occupancy is None:
+            raise InputError("occlusion filter requested but the map has no occupancy grid (set an occlusion voxel)")
+        if len(self) == 0:
+            return [np.zeros(0, np.int64) for _ in range(n)]
+        idx, counts = self._in_range(w, flt.min_range, flt.max_range)
+        bounds = np.concatenate([[0], np.cumsum(counts)])
+        blocks = [idx[bounds[i]:bounds[i + 1]] for i in range(n)]
+        if flt.max_view_angle_deg is not None and self.directions is not None:
+            blocks = [
+                b[view_direction_mask(np.take(self.points, b, axis=0), np.take(self.directions, b, axis=0), w[i],
+                                      flt.max_view_angle_deg)] if b.size else b
+                for i, b in enumerate(blocks)
+            ]
+        if flt.occlusion:
+            sizes = np.array([b.size for b in blocks])
+            flat = np.concatenate(blocks)
+            owner = np.repeat(np.arange(n), sizes)
+            blocked = self.occupancy.occluded_rays(
+                w[owner], np.take(self.points, flat, axis=0).astype(np.float64),
+                clearance=flt.occlusion_clearance, step=flt.occlusion_step,
+            )
+            flat = flat[~blocked]
+            kept = np.bincount(owner[~blocked], minlength=n)
+            blocks = np.split(flat, np.cumsum(kept)[:-1])
+        return blocks
+
+    def _in_range(self, w: np.ndarray, rmin: float, rmax: float) -> tuple[np.ndarray, np.ndarray]:
+        n = w.shape[0]
+        if not math.isfinite(rmax):
+            return self._in_range_brute(w, rmin)
+        parts = []
+        for offset, index in self._indexes:
+            lo = offset
+            hi = offset + index.count
+            idx, counts = index.query(self.points[lo:hi], w, rmin, rmax)
+            parts.append((idx + offset, counts))
+        if len(parts) == 1:
+            return parts[0]
+        counts = np.sum([c for _, c in parts], axis=0)
+        owner = np.concatenate([np.repeat(np.arange(n), c) for _, c in parts])
+        idx = np.concatenate([i for i, _ in parts])
+        order = np.argsort(owner, kind="stable")  # layers are in row order, so indices stay ascending
+        return idx[order], counts
+
+    def _in_range_brute(self, w: np.ndarray, rmin: float) -> tuple[np.ndarray, np.ndarray]:
+        """Unbounded max_range: every landmark, minus those closer than ``rmin`` (cost O(M) per waypoint)."""
+        m = len(self)
+        if rmin <= 0:
+            return np.tile(np.arange(m, dtype=np.int64), w.shape[0]), np.full(w.shape[0], m, np.int64)
+        blocks = []
+        for wi in w:
+            d = self.points.astype(np.float64) - wi
+            blocks.append(np.flatnonzero(np.einsum("ij,ij->i", d, d) >= rmin * rmin))
+        return np.concatenate(blocks), np.array([b.size for b in blocks], np.int64)
+
+
+class MapStore:
+    """Thread-safe layered map; :meth:`snapshot` is wait-free, updates return the new version.
+
+    occupancy_voxel [m]: build an occupancy grid of that voxel size from all map layers on every
+    update; occupancy_points (K, 3): build it once from these points instead (needs the voxel size).
+    index_cell [m]: grid index cell edge (default 1 m).
+    """
+
+    def __init__(
+        self,
+        occupancy_voxel: float | None = None,
+        occupancy_points: np.ndarray | None = None,
+        index_cell: float = DEFAULT_INDEX_CELL,
+    ) -> None:
+        if occupancy_voxel is not None and not occupancy_voxel > 0:
+            raise InputError(f"occupancy voxel must be > 0 m, got {occupancy_voxel}")
+        if occupancy_points is not None and occupancy_voxel is None:
+            raise InputError("occupancy points need an occupancy voxel size")
+        if not index_cell > 0:
+            raise InputError(f"map index cell must be > 0 m, got {index_cell}")
+        self._voxel = occupancy_voxel
+        self._index_cell = float(index_cell)
+        self._static_occupancy = (
+            OccupancyGrid.from_points(np.asarray(occupancy_points, dtype=np.float64), occupancy_voxel)
+            if occupancy_points is not None
+            else None
+        )
+        self._layers: dict[str, _Layer] = {}
+        self._write_lock = threading.Lock()
+        self._snapshot = MapSnapshot(
+            points=np.zeros((0, 3), POINT_DTYPE),
+            weights=np.zeros(0, POINT_DTYPE),
+            directions=None,
+            version=0,
+            layers={},
+            occupancy=self._static_occupancy,
+        )
+
+    def snapshot(self) -> MapSnapshot:
+        """The current immutable snapshot (never blocks)."""
+        return self._snapshot
+
+    @property
+    def version(self) -> int:
+        return self._snapshot.version
+
+    def set_layer(self, name: str, cloud: LandmarkCloud, weight_multiplier: float = 1.0) -> int:
+        """Create or replace layer ``name``; returns the new version."""
+        if not (math.isfinite(weight_multiplier) and weight_multiplier >= 0):
+            raise InputError(f"map layer '{name}': weight multiplier must be finite and ≥ 0, got {weight_multiplier}")
+        layer = self._build_layer(cloud, weight_multiplier)
+        with self._write_lock:
+            layers = dict(self._layers)
+            layers[name] = layer
+            return self._publish(layers)
+
+    def add_to_layer(self, name: str, cloud: LandmarkCloud) -> int:
+        """Append landmarks to layer ``name`` (created with multiplier 1 if missing); returns the new version."""
+        with self._write_lock:
+            old = self._layers.get(name)
+            if old is not None:
+                cloud = _concat_clouds([old.cloud, cloud])
+            layer = self._build_layer(cloud, old.weight_multiplier if old is not None else 1.0)
+            layers = dict(self._layers)
+            layers[name] = layer
+            return self._publish(layers)
+
+    def remove_layer(self, name: str) -> int:
+        """Drop layer ``name``; returns the new version. Raises InputError if there is no such layer."""
+        with self._write_lock:
+            if name not in self._layers:
+                raise InputError(f"no map layer '{name}' (layers: {', '.join(self._layers) or 'none'})")
+            layers = {k: v for k, v in self._layers.items() if k != name}
+            return self._publish(layers)
+
+    def _build_layer(self, cloud: LandmarkCloud, weight_multiplier: float) -> _Layer:
+        points = np.ascontiguousarray(cloud.points, dtype=POINT_DTYPE)
+        weights = np.ascontiguousarray(cloud.weights, dtype=POINT_DTYPE)
+        directions = None if cloud.directions is None else np.ascontiguousarray(cloud.directions, dtype=POINT_DTYPE)
+        if points.ndim != 2 or points.shape[1] != 3 or weights.shape != (points.shape[0],) or (
+            directions is not None and directions.shape != points.shape
+        ):
+            raise InputError(f"map layer: inconsistent cloud shapes {points.shape}, {weights.shape}, "
+                             f"{None if directions is None else directions.shape}")
+        index, order = GridIndex.build(points, self._index_cell)
+        sorted_cloud = LandmarkCloud(
+            points=np.take(points, order, axis=0),
+            weights=np.take(weights, order),
+            directions=None if directions is None else np.take(directions, order, axis=0),
+        )
+        return _Layer(sorted_cloud, index, float(weight_multiplier))
+
+    def _publish(self, layers: dict[str, _Layer]) -> int:
+        """Build and swap in a snapshot of ``layers`` (caller holds the write lock)."""
+        version = self._snapshot.version + 1
+        items = list(layers.items())
+        infos: dict[str, LayerInfo] = {}
+        indexes = []
+        row = 0
+        for name, layer in items:
+            k = len(layer.cloud)
+            infos[name] = LayerInfo(slice(row, row + k), k, layer.weight_multiplier)
+            indexes.append((row, layer.index))
+            row += k
+        if len(items) == 1:
+            only = items[0][1]
+            points = only.cloud.points
+            weights = only.cloud.weights
+            if only.weight_multiplier != 1.0:
+                weights = (weights * np.float32(only.weight_multiplier)).astype(POINT_DTYPE)
+            directions = only.cloud.directions
+        elif items:
+            points = np.concatenate([ly.cloud.points for _, ly in items])
+            weights = np.concatenate([ly.cloud.weights * np.float32(ly.weight_multiplier) for _, ly in items])
+            weights = weights.astype(POINT_DTYPE, copy=False)
+            if any(ly.cloud.directions is not None for _, ly in items):
+                directions = np.concatenate([
+                    ly.cloud.directions if ly.cloud.directions is not None
+                    else np.zeros((len(ly.cloud), 3), POINT_DTYPE)
+                    for _, ly in items
+                ])
+            else:
+                directions = None
+        else:
+            points, weights, directions = np.zeros((0, 3), POINT_DTYPE), np.zeros(0, POINT_DTYPE), None
+        occupancy = self._static_occupancy
+        if occupancy is None and self._voxel is not None:
+            occupancy = OccupancyGrid.from_points(points, self._voxel)
+        for arr in (points, weights, directions):
+            if arr is not None:
+                arr.flags.writeable = False
+        snap = MapSnapshot(points, weights, directions, version, infos, occupancy, tuple(indexes))
+        self._layers = layers
+        self._snapshot = snap  # the single reference swap readers observe
+        log.debug("map version %d: %d landmarks in %d layers", version, len(snap), len(infos))
+        return version
+
+
+def _concat_clouds(clouds: list[LandmarkCloud]) -> LandmarkCloud:
+    points = np.concatenate([c.points for c in clouds])
+    weights = np.concatenate([c.weights for c in clouds])
+    directions = None
+    if any(c.directions is not None for c in clouds):
+        directions = np.concatenate([
+            c.directions if c.directions is not None else np.zeros((len(c), 3), POINT_DTYPE) for c in clouds
+        ])
+    return LandmarkCloud(points, weights, directions)
+
+
+def load_map_store(
+    path: str | Path,
+    *,
+    weight_property: str | None = None,
+    occlusion_voxel: float | None = None,
+    occupancy_file: str | Path | None = None,
+    allow_empty: bool = False,
+    index_cell: float = DEFAULT_INDEX_CELL,
+) -> MapStore:
+    """Load a map file into the ``base`` layer of a new :class:`MapStore`.
+
+    occlusion_voxel [m] enables the occupancy grid, built from ``occupancy_file`` (any landmark map
+    format) when given, else from the map itself.
+    """
+    if occupancy_file is not None and occlusion_voxel is None:
+        raise InputError(f"{occupancy_file}: an occupancy file needs an occlusion voxel size")
+    if occlusion_voxel is not None and not occlusion_voxel > 0:
+        raise InputError(f"occlusion voxel must be > 0 m, got {occlusion_voxel}")
+    occ_points = None
+    if occupancy_file is not None:
+        occ_points = load_landmarks(occupancy_file).points
+    cloud = load_landmarks(path, weight_property=weight_property, allow_empty=allow_empty)
+    store = MapStore(occupancy_voxel=occlusion_voxel, occupancy_points=occ_points, index_cell=index_cell)
+    store.set_layer(BASE_LAYER, cloud)
+    return store

@@ -1,0 +1,205 @@
+"""Map readers: .npy, text, PLY (written by plyfile and by hand), empties and bad files."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import plyfile
+import pytest
+
+from pivotd.errors import InputError
+from pivotd.maps.formats import LandmarkCloud, load_landmarks
+
+PTS = np.array([[0.0, 1.0, 2.0], [3.5, -4.25, 5.0], [-1.0, 0.5, 100.0]])
+W = np.array([1.0, 0.5, 2.0])
+
+
+def test_fif_text_map_loads_with_comment_header(fif_dir):
+    cloud = load_landmarks(fif_dir / "two_walls_points_w.txt")
+    assert len(cloud) == 1000
+    assert cloud.points.dtype == np.float32 and cloud.points.flags.c_contiguous
+    assert np.all(cloud.weights == 1.0)
+    assert cloud.directions is None
+    np.testing.assert_allclose(cloud.points[0], [2.5, 0.934531861147, -0.853235454156], rtol=1e-6)
+
+
+@pytest.mark.parametrize("sep", [" ", ",", "\t"])
+def test_text_with_weights(tmp_path, sep):
+    f = tmp_path / "m.csv"
+    f.write_text("# 3\n" + "\n".join(sep.join(f"{v:g}" for v in (*p, w)) for p, w in zip(PTS, W, strict=True)) + "\n")
+    cloud = load_landmarks(f)
+    np.testing.assert_allclose(cloud.points, PTS)
+    np.testing.assert_allclose(cloud.weights, W)
+
+
+def test_npy_3_and_4_columns(tmp_path):
+    np.save(tmp_path / "a.npy", PTS)
+    np.save(tmp_path / "b.npy", np.c_[PTS, W].astype(np.float32))
+    a = load_landmarks(tmp_path / "a.npy")
+    b = load_landmarks(tmp_path / "b.npy")
+    np.testing.assert_allclose(a.points, PTS)
+    np.testing.assert_allclose(a.weights, 1.0)
+    np.testing.assert_allclose(b.weights, W)
+
+
+def _ply_elements(with_extra: bool = True) -> plyfile.PlyElement:
+    dtype = [("x", "f4"), ("y", "f4"), ("z", "f4"), ("intensity", "f4")]
+    if with_extra:
+        dtype += [("nx", "f4"), ("red", "u1")]
+    arr = np.zeros(len(PTS), dtype=dtype)
+    arr["x"], arr["y"], arr["z"] = PTS.T
+    arr["intensity"] = W
+    return plyfile.PlyElement.describe(arr, "vertex")
+
+
+@pytest.mark.parametrize(("text", "byte_order"), [(True, "="), (False, "<"), (False, ">")])
+def test_ply_written_by_plyfile_with_named_weight(tmp_path, text, byte_order):
+    f = tmp_path / "m.ply"
+    plyfile.PlyData([_ply_elements()], text=text, byte_order=byte_order).write(str(f))
+    cloud = load_landmarks(f, weight_property="intensity")
+    np.testing.assert_allclose(cloud.points, PTS)
+    np.testing.assert_allclose(cloud.weights, W)
+    plain = load_landmarks(f)  # no 'weight' property: unit weights
+    np.testing.assert_allclose(plain.weights, 1.0)
+
+
+def test_ply_hand_written_ascii_uses_default_weight_property(tmp_path):
+    f = tmp_path / "hand.ply"
+    f.write_text(
+        "ply\nformat ascii 1.0\ncomment written by hand\nelement vertex 2\n"
+        "property double x\nproperty double y\nproperty double z\nproperty float weight\n"
+        "element face 0\nproperty list uchar int vertex_indices\nend_header\n"
+        "1 2 3 0.25\n-4 5.5 6 3\n"
+    )
+    cloud = load_landmarks(f)
+    np.testing.assert_allclose(cloud.points, [[1, 2, 3], [-4, 5.5, 6]])
+    np.testing.assert_allclose(cloud.weights, [0.25, 3])
+
+
+def test_empty_map_is_an_error_unless_allowed(tmp_path):
+    f = tmp_path / "e.txt"
+    f.write_text("# 0\n")
+    with pytest.raises(InputError, match=r"e\.txt: map is empty"):
+        load_landmarks(f)
+    assert len(load_landmarks(f, allow_empty=True)) == 0
+    ply = tmp_path / "e.ply"
+    empty = np.zeros(0, [("x", "f4"), ("y", "f4"), ("z", "f4")])
+    plyfile.PlyData([plyfile.PlyElement.describe(empty, "vertex")]).write(str(ply))
+    with pytest.raises(InputError, match="empty"):
+        load_landmarks(ply)
+    assert isinstance(load_landmarks(ply, allow_empty=True), LandmarkCloud)
+
+
+def _binary_ply(tmp_path, rows: int = 4) -> bytes:
+    arr = np.zeros(rows, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+    f = tmp_path / "b.ply"
+    plyfile.PlyData([plyfile.PlyElement.describe(arr, "vertex")], byte_order="<").write(str(f))
+    return f.read_bytes()
+
+
+def _message(exc: pytest.ExceptionInfo) -> str:
+    msg = str(exc.value)
+    assert "\n" not in msg
+    return msg
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "pattern"),
+    [
+        ("nan.txt", "1 2 3\n4 nan 6\n", r"nan\.txt:2: .*not finite"),
+        ("cols.txt", "1 2 3\n4 5\n", r"cols\.txt:2: expected 3 columns"),
+        ("word.csv", "1,2,3\n4,x,6\n", r"word\.csv:2: not a number"),
+        ("neg.txt", "1 2 3 1\n4 5 6 -1\n", r"neg\.txt: row 1 has a negative weight"),
+        ("bad.npy", b"not an npy file at all", r"bad\.npy: not a readable \.npy"),
+        ("magic.ply", b"plx\nformat ascii 1.0\nend_header\n", r"magic\.ply: bad PLY header"),
+        ("noz.ply", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n1 2\n",
+         r"noz\.ply: PLY vertex lacks z"),
+        ("nanv.ply", "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
+         "end_header\n1 2 3\n1 inf 3\n", r"nanv\.ply: vertex 1 is not finite"),
+        ("short.ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+         "end_header\n1 2 3\n", r"short\.ply: corrupt or truncated PLY at vertex 1"),
+        ("map.las", "whatever", r"map\.las: unknown map format"),
+    ],
+)
+def test_bad_files_give_one_line_errors(tmp_path, name, content, pattern):
+    f = tmp_path / name
+    if isinstance(content, bytes):
+        f.write_bytes(content)
+    else:
+        f.write_text(content)
+    with pytest.raises(InputError) as exc:
+        load_landmarks(f)
+    assert re.search(pattern, _message(exc)), _message(exc)
+
+
+def test_truncated_binary_ply_names_the_vertex(tmp_path):
+    data = _binary_ply(tmp_path, rows=4)
+    f = tmp_path / "cut.ply"
+    f.write_bytes(data[: len(data) - 14])  # last vertex incomplete
+    with pytest.raises(InputError, match=r"cut\.ply: corrupt or truncated PLY at vertex 2"):
+        load_landmarks(f)
+
+
+def test_npy_nan_row_and_shape(tmp_path):
+    arr = PTS.copy()
+    arr[2, 1] = np.nan
+    np.save(tmp_path / "n.npy", arr)
+    with pytest.raises(InputError, match=r"n\.npy: row 2 is not finite"):
+        load_landmarks(tmp_path / "n.npy")
+    np.save(tmp_path / "s.npy", np.zeros((3, 5)))
+    with pytest.raises(InputError, match=r"s\.npy: expected a numeric \(N,3\) or \(N,4\) array"):
+        load_landmarks(tmp_path / "s.npy")
+
+
+def test_missing_weight_property_lists_available(tmp_path):
+    f = tmp_path / "m.ply"
+    plyfile.PlyData([_ply_elements(with_extra=False)], text=True).write(str(f))
+    pattern = r"m\.ply: PLY vertex has no weight property 'score' \(properties: x, y, z, intensity\)"
+    with pytest.raises(InputError, match=pattern):
+        load_landmarks(f, weight_property="score")
+
+
+def test_weight_property_rejected_for_non_ply(fif_dir):
+    with pytest.raises(InputError, match="applies to PLY maps only"):
+        load_landmarks(fif_dir / "two_walls_points_w.txt", weight_property="w")
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(InputError, match=r"nope\.ply: no such file"):
+        load_landmarks(tmp_path / "nope.ply")
+
+
+def test_make_cloud_validates_arrays_from_any_source():
+    from pivotd.maps.formats import make_cloud
+
+    cloud = make_cloud("/pivot/targets", PTS, W)
+    assert cloud.points.dtype == np.float32 and len(cloud) == 3
+    with pytest.raises(InputError, match=r"/pivot/targets: expected landmark points of shape \(N, 3\)"):
+        make_cloud("/pivot/targets", np.zeros((3, 2)))
+    with pytest.raises(InputError, match=r"/pivot/targets: expected weights of shape \(3,\)"):
+        make_cloud("/pivot/targets", PTS, np.ones(2))
+    with pytest.raises(InputError, match=r"/pivot/targets: row 1 is not finite"):
+        make_cloud("/pivot/targets", np.array([[0, 0, 0], [np.inf, 0, 0.0]]))
+
+
+def test_points3d_name_with_other_extension_is_not_colmap(tmp_path):
+    f = tmp_path / "points3D.ply"
+    plyfile.PlyData([_ply_elements(with_extra=False)], text=True).write(str(f))
+    assert len(load_landmarks(f)) == 3
+
+
+def test_text_fast_and_line_parsers_agree(tmp_path, fif_dir):
+    from pivotd.maps.formats import _parse_clean_text, read_numeric_text
+
+    mixed = tmp_path / "mixed.txt"
+    mixed.write_text("# header\n1 2 3\n\n4,5,6\n7\t8 9\n")
+    assert _parse_clean_text(mixed.read_text(), (3, 4)) is None  # mixed separators: line parser
+    np.testing.assert_array_equal(read_numeric_text(mixed, (3, 4), "landmark"), [[1, 2, 3], [4, 5, 6], [7, 8, 9]])
+    text = (fif_dir / "ycorridor_6x20_points_w.txt").read_text()
+    fast = _parse_clean_text(text, (3, 4))
+    assert fast is not None and fast.shape[0] > 900
+    slow = tmp_path / "slow.txt"
+    slow.write_text(text.rstrip("\n") + "\n1 2 x\n")  # one bad trailing line forces the line parser
+    with pytest.raises(InputError, match=r"slow\.txt:\d+: not a number"):
+        read_numeric_text(slow, (3, 4), "landmark")
