@@ -9,6 +9,7 @@ serial link's reader thread and Zenoh's callback threads. Threads share only imm
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import signal
 import sys
@@ -28,7 +29,7 @@ from pivotd.config import Config, load_config
 from pivotd.control import ControlLoop, TickResult
 from pivotd.errors import PivotdError
 from pivotd.gimbal.link import GimbalLink
-from pivotd.maps.formats import LandmarkCloud
+from pivotd.maps.formats import LandmarkCloud, make_cloud
 from pivotd.maps.store import MapStore
 from pivotd.planner import Plan, RecedingHorizonPlanner
 from pivotd.runtime import (
@@ -81,6 +82,7 @@ class Daemon:
         self._path: tuple[np.ndarray, np.ndarray | None, int] | None = None
         self._path_version = 0
         self._pending_clouds: dict[str, CloudMsg] = {}
+        self._bus_layers: dict[str, LandmarkCloud] = {}  # layers received over Zenoh, kept across reloads
         self.plan: Plan | None = None
         self.store: MapStore = build_map_store(self.cfg)
         self.planner: RecedingHorizonPlanner = build_planner(self.cfg)
@@ -126,11 +128,16 @@ class Daemon:
         with self._lock:
             pending, self._pending_clouds = self._pending_clouds, {}
         for layer, cloud in pending.items():
-            weights = cloud.weights if cloud.weights is not None else np.ones(cloud.points.shape[0])
-            lc = LandmarkCloud(points=cloud.points, weights=weights)
+            topic = getattr(self.cfg.topics, layer, layer)
+            try:
+                lc = make_cloud(topic, cloud.points, cloud.weights)
+            except PivotdError as exc:
+                self._rl.warning(f"cloud:{layer}", f"dropped cloud: {exc}")
+                continue
             mult = float(getattr(self.cfg.map.layers, layer, 1.0))
             version = self.store.set_layer(layer, lc, weight_multiplier=mult)
-            log.info("map layer %r replaced from Zenoh: %d points (map version %d)", layer, len(lc), version)
+            self._bus_layers[layer] = lc
+            log.info("map layer %r replaced from %s: %d points (map version %d)", layer, topic, len(lc), version)
 
     def _planner_loop(self) -> None:
         period = 1.0 / self.cfg.planner.replan_hz
@@ -297,13 +304,9 @@ class Daemon:
             self._last_error = f"reload: {exc}"
             log.error("reload failed, keeping the running config and map: %s", exc)
         else:
-            # Carry Zenoh-provided layers over to the new map.
-            old = self.store.snapshot()
-            for name in old.layers:
-                if name != "base" and name in ("landmarks", "targets"):
-                    pts, w = old.layer_cloud(name) if hasattr(old, "layer_cloud") else (None, None)
-                    if pts is not None:
-                        store.set_layer(name, LandmarkCloud(points=pts, weights=w))
+            # Layers that arrived over Zenoh survive a reload (new multipliers apply).
+            for layer, lc in self._bus_layers.items():
+                store.set_layer(layer, lc, weight_multiplier=float(getattr(cfg.map.layers, layer, 1.0)))
             self.cfg, self.store = cfg, store
             planner.set_path(*(self._path or (None, None, 0)))
             self.planner = planner
@@ -405,10 +408,8 @@ class Daemon:
                 self.link.stop(disable=True)
             if self.bus is not None:
                 self.state = "stopped"
-                try:
+                with contextlib.suppress(Exception):
                     self.bus.publish_status(self.status())
-                except Exception:
-                    pass
                 self.bus.close()
             if self.session is not None:
                 self.session.close()

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support import REPO, ManagedProcess, PYTHON, free_tcp_port, wait_until
+from support import PYTHON, REPO, ManagedProcess, free_tcp_port, wait_until
 
 from pivotd.analysis import read_device_log, setpoint_dynamics, visible_counts
 from pivotd.bus import ros

@@ -38,8 +38,9 @@ def test_notify_watchdog_and_mcap_recording(tmp_path):
     with ManagedProcess([PYTHON, "-m", "pivotd.cli", "--config", str(config), "--record", str(record)], "pivotd",
                         env=env) as daemon:
         assert wait_until(lambda: drain() or any("READY=1" in m for m in messages), 30), daemon.output()
-        with ManagedProcess([PYTHON, str(REPO / "tools" / "sim_pose"), "--route", "hallway", "--connect", endpoint,
-                             "--rate", "50", "--duration", "4", "--quiet", "--wait-subscribers", "10"], "sim_pose") as sim:
+        sim_cmd = [PYTHON, str(REPO / "tools" / "sim_pose"), "--route", "hallway", "--connect", endpoint,
+                   "--rate", "50", "--duration", "4", "--quiet", "--wait-subscribers", "10"]
+        with ManagedProcess(sim_cmd, "sim_pose") as sim:
             assert wait_until(lambda: sim.returncode is not None, 40), sim.output()
         drain()
         watchdogs = sum("WATCHDOG=1" in m for m in messages)

@@ -101,7 +101,7 @@ def test_plan_beats_forward_looking_and_respects_joint_limits(scene_store):
     assert plan.directions.shape == (20, 3)
     np.testing.assert_allclose(plan.s, 0.5 * np.arange(20), atol=1e-9)
     # Reachable: every direction maps to joint angles inside the limits for its predicted attitude.
-    pan, tilt, clamped = world_directions_to_joints(plan.directions, plan.body_quats, Mount(), pl.limits)
+    pan, _tilt, clamped = world_directions_to_joints(plan.directions, plan.body_quats, Mount(), pl.limits)
     assert not clamped.any()
     # The rich wall is on the left: the plan looks left, and sees more than looking ahead.
     assert np.mean(pan) > math.radians(20)
@@ -122,7 +122,7 @@ def test_tight_limits_are_built_into_the_optimisation(scene_store):
     pl = _planner(limits=tight)
     pl.set_path(sc.path, None, 1)
     plan = pl.replan(store.snapshot(), sc.path[0], IDENTITY, None)
-    pan, tilt, clamped = world_directions_to_joints(plan.directions, plan.body_quats, Mount(), tight)
+    pan, _tilt, clamped = world_directions_to_joints(plan.directions, plan.body_quats, Mount(), tight)
     assert not clamped.any()
     assert np.all(pan <= math.radians(20) + 1e-6) and np.all(pan >= math.radians(-20) - 1e-6)
     # The best reachable view is pressed against the left pan limit, not somewhere arbitrary.
