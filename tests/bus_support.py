@@ -3,31 +3,20 @@
 from __future__ import annotations
 
 import queue
-import socket
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 import zenoh
+from support import free_tcp_port as free_port
+from support import wait_until
 
 from pivotd.bus.session import open_session
 
 
-def free_port() -> int:
-    """A TCP port on 127.0.0.1 that was free a moment ago."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def wait_for(predicate: Callable[[], bool], timeout: float = 10.0, interval: float = 0.02) -> bool:
-    """Poll ``predicate`` until true or ``timeout`` s pass; returns its last value."""
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(interval)
-    return bool(predicate())
+    """Poll ``predicate`` until true or ``timeout`` s pass (support.wait_until with bus-test defaults)."""
+    return wait_until(predicate, timeout, interval)
 
 
 def wait_connected(a: zenoh.Session, b: zenoh.Session, timeout: float = 10.0) -> None:

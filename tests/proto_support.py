@@ -10,9 +10,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+from support import REPO
+
 from pivotd.gimbal.link import LinkConfig
 
-REPO = Path(__file__).resolve().parent.parent
 MOCK_GIMBAL = REPO / "tools" / "mock_gimbal"
 
 
