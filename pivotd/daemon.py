@@ -39,6 +39,7 @@ from pivotd.runtime import (
     build_map_store,
     build_planner,
     park_joints,
+    release_free_memory,
 )
 from pivotd.systemd import Notifier, watchdog_interval
 
@@ -137,6 +138,7 @@ class Daemon:
             mult = float(getattr(self.cfg.map.layers, layer, 1.0))
             version = self.store.set_layer(layer, lc, weight_multiplier=mult)
             self._bus_layers[layer] = lc
+            release_free_memory()
             log.info("map layer %r replaced from %s: %d points (map version %d)", layer, topic, len(lc), version)
 
     def _planner_loop(self) -> None:

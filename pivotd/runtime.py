@@ -6,6 +6,7 @@ and the demo build the same things the same way.
 
 from __future__ import annotations
 
+import ctypes
 import math
 
 from pivotd.bus.pivot_bus import BusTopics
@@ -56,13 +57,27 @@ def build_map_store(cfg: Config) -> MapStore:
         if not m.allow_empty:
             raise ConfigError(f"{cfg.source}: map.file: required unless map.allow_empty is true")
         return MapStore(occupancy_voxel=m.filters.occlusion_voxel)
-    return load_map_store(
+    store = load_map_store(
         m.file,
         weight_property=m.weight_property,
         occlusion_voxel=m.filters.occlusion_voxel,
         occupancy_file=m.filters.occupancy_file,
         allow_empty=m.allow_empty,
     )
+    release_free_memory()
+    return store
+
+
+def release_free_memory() -> None:
+    """Give freed heap memory back to the OS (glibc ``malloc_trim``), e.g. after loading a large map.
+
+    Loading a map allocates and frees temporaries of several times the map's final size; glibc keeps
+    them in the heap, so without this the daemon's RSS stays at the loading peak. No-op elsewhere.
+    """
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
 
 
 def build_planner(cfg: Config) -> RecedingHorizonPlanner:
