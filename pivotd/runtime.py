@@ -6,6 +6,7 @@ and the demo build the same things the same way.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import math
 
@@ -74,10 +75,8 @@ def release_free_memory() -> None:
     Loading a map allocates and frees temporaries of several times the map's final size; glibc keeps
     them in the heap, so without this the daemon's RSS stays at the loading peak. No-op elsewhere.
     """
-    try:
+    with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
 
 
 def build_planner(cfg: Config) -> RecedingHorizonPlanner:
