@@ -1,0 +1,192 @@
+"""Single-pose PIVOT: the viewing direction that keeps the most (weighted) landmarks in a conical FoV.
+
+Practical enhancements of the paper (§IV-C): multi-start initialisation (centroid, orthogonal and
+tangent directions and landmark-seeded directions, each moved by two mean-shift steps, ranked by hard
+visible weight on a strided subsample, near-duplicates pruned, the top few refined together), a FoV
+schedule that starts wide and narrows to α with k_s recomputed from a target transition width, and
+normalised, clipped, adaptively scaled steps (see :func:`pivotd.pivot._ascent.ascend`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pivotd.geometry import optical_frame_from_direction
+from pivotd.pivot import _ascent
+from pivotd.pivot._checks import feature_weights, finite_array, half_angle, unit_vector
+from pivotd.pivot.visibility import ks_from_width, smooth_visibility
+
+
+@dataclass
+class ViewOptions:
+    """Tuning of :func:`optimize_view` (angles in degrees)."""
+
+    width_deg: float = 2.0  # sigmoid transition width at α (k_s from ks_from_width)
+    fov_start_deg: float | None = None  # widest half-angle of the schedule; None: min(90, α + 10)
+    stages: int = 3  # FoV schedule stages including the final one at α
+    wide_width_ratio: float = 0.25  # widened stages use width max(width, ratio · α_q)
+    stage_iters: int = 5
+    max_iterations: int = 40  # iteration budget at α
+    step_init_deg: float = 4.0
+    step_max_deg: float = 15.0
+    tol_deg: float = 0.1
+    sample: int = 1024  # landmarks (strided) used to rank the multi-start candidates
+    seeds: int = 48  # landmark-seeded candidates
+    mean_shift: int = 2  # mean-shift steps applied to every candidate before ranking
+    refine: int = 3  # candidates refined after ranking and pruning
+    final_candidates: int = 2  # at most this many go on to the full-resolution stage at α
+    keep_ratio: float = 0.5  # refine only candidates scoring ≥ ratio · best
+    active_cap: int = 1024
+    final_cap: int = 8192
+    drift_deg: float = 3.0
+
+
+@dataclass
+class ViewResult:
+    """direction (3,) unit; rotation (3, 3) camera-to-world with rotation @ e3 == direction;
+    visible: hard count (angle ≤ α); objective: F at α (eq. 6); iterations: gradient steps taken."""
+
+    direction: np.ndarray
+    rotation: np.ndarray
+    visible: int
+    objective: float
+    iterations: int
+
+
+def _candidates(B: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, init: np.ndarray | None) -> np.ndarray:
+    """Multi-start directions (K, 3), best first, near-duplicates (closer than α) removed."""
+    n = B.shape[0]
+    if n > opts.sample:
+        idx = np.linspace(0, n - 1, opts.sample).astype(np.intp)
+        Bs, ws = B[idx], w[idx]
+    else:
+        Bs, ws = B, w
+    Bs, ws = Bs.astype(np.float32), ws.astype(np.float32)
+    seeds = [np.eye(3), -np.eye(3)]
+    centroid = ws @ Bs
+    if np.linalg.norm(centroid) > 1e-9 * max(ws.sum(), 1e-12):
+        c0 = centroid / np.linalg.norm(centroid)
+        frame = optical_frame_from_direction(c0)
+        t1, t2 = frame[:, 0], frame[:, 1]
+        ca, sa = np.cos(2 * alpha), np.sin(2 * alpha)
+        seeds.append(np.stack([c0, ca * c0 + sa * t1, ca * c0 - sa * t1, ca * c0 + sa * t2, ca * c0 - sa * t2]))
+    if init is not None:
+        seeds.append(init[None])
+    k = min(opts.seeds, Bs.shape[0])
+    if k:
+        seeds.append(Bs[np.linspace(0, Bs.shape[0] - 1, k).astype(np.intp)])
+    C = np.concatenate(seeds).astype(np.float32)
+    cos_a = np.float32(np.cos(alpha))
+    for _ in range(opts.mean_shift):  # mean shift with a flat conical kernel
+        inside = (Bs @ C.T >= cos_a) * ws[:, None]
+        moved = inside.T @ Bs
+        nrm = np.linalg.norm(moved, axis=1)
+        ok = nrm > 1e-12
+        C[ok] = moved[ok] / nrm[ok, None]
+    score = ws @ (Bs @ C.T >= cos_a)
+    order = np.argsort(-score, kind="stable")
+    kept: list[int] = []
+    best = score[order[0]]
+    for i in order:
+        if len(kept) >= opts.refine or score[i] < opts.keep_ratio * best:
+            break
+        if all(C[i] @ C[j] < cos_a for j in kept):
+            kept.append(int(i))
+    return C[kept].astype(float)
+
+
+def optimize_view(
+    bearings: np.ndarray,
+    weights: np.ndarray | None,
+    alpha: float,
+    *,
+    init: np.ndarray | None = None,
+    options: ViewOptions | None = None,
+) -> ViewResult:
+    """Maximise F(R) = Σ_j s_j v(θ_j) (eq. 6) over R ∈ SO(3) for unit ``bearings`` (n, 3), half-angle α [rad].
+
+    ``weights`` (n,) are the feature weights s_j (None: uniform); zero-length bearings (a landmark at
+    the sensor) are ignored. ``init`` (3,) adds a starting direction to the multi-start set. Raises
+    ValueError on NaN/inf input or α outside (0, π).
+    """
+    opts = options or ViewOptions()
+    alpha = half_angle(alpha)
+    B = finite_array("bearings", bearings)
+    w = feature_weights(weights, B.shape[0])
+    init_v = None if init is None else unit_vector("init", init)
+    sq = np.einsum("ij,ij->i", B, B)
+    ok = (sq > 0.25) & (w > 0)
+    if not ok.all():
+        B, w = B[ok], w[ok]
+        sq = sq[ok]
+    if np.any(np.abs(sq - 1.0) > 1e-6):
+        B = B / np.sqrt(sq)[:, None]
+    if B.shape[0] == 0:
+        d = init_v if init_v is not None else np.array([1.0, 0.0, 0.0])
+        return ViewResult(d, optical_frame_from_direction(d), 0, 0.0, 0)
+    C0 = _candidates(B, w, alpha, opts, init_v)
+    rad = np.radians
+    start = rad(opts.fov_start_deg) if opts.fov_start_deg is not None else min(np.pi / 2, alpha + rad(10.0))
+    stages = schedule(alpha, start, opts.stages)
+    settings = _ascent.AscentSettings(
+        stages=stages[:-1],
+        width=rad(opts.width_deg),
+        wide_width_ratio=opts.wide_width_ratio,
+        stage_iters=opts.stage_iters,
+        final_iters=opts.max_iterations,
+        step_init=rad(opts.step_init_deg),
+        step_max=rad(opts.step_max_deg),
+        tol=rad(opts.tol_deg),
+        active_cap=opts.active_cap,
+        final_cap=opts.final_cap,
+        drift=rad(opts.drift_deg),
+        narrow_last=False,
+    )
+    B32 = B.astype(np.float32)
+    w32 = w.astype(np.float32)
+    total = float(w.sum())
+
+    def exact(rows: np.ndarray, cols: np.ndarray, C: np.ndarray) -> np.ndarray:
+        return np.einsum("ij,ij->i", B[cols], C[rows])
+
+    R = optical_frame_from_direction(C0)
+    iters = 0
+    if len(stages) > 1:  # widened stages on a strided subsample with weights scaled to the same total
+        if B.shape[0] > opts.sample:
+            idx = np.linspace(0, B.shape[0] - 1, opts.sample).astype(np.intp)
+            Bc, wc = B32[idx], w[idx] * (total / max(float(w[idx].sum()), 1e-300))
+        else:
+            Bc, wc = B32, w
+        coarse = _ascent.Geometry(Bc, np.zeros((R.shape[0], 3), np.float32), None, wc.astype(np.float32), exact)
+        R, iters = _ascent.ascend(coarse, R, np.full(R.shape[0], total), settings, coarse=coarse)
+        if R.shape[0] > 1:  # keep the candidates whose full hard visible weight is within 2 % of the best
+            score = w32 @ (B32 @ R[:, :, 2].T.astype(np.float32) >= np.float32(np.cos(alpha)))
+            keep = np.flatnonzero(score >= 0.98 * score.max())[: opts.final_candidates]
+            R = R[keep]
+    settings.stages = [alpha]
+    settings.narrow_last = True
+    geom = _ascent.Geometry(B32, np.zeros((R.shape[0], 3), np.float32), None, w32, exact)
+    R, it2 = _ascent.ascend(geom, R, np.full(R.shape[0], total), settings)
+    iters += it2
+    C = R[:, :, 2]
+    cos = B @ C.T
+    ca = np.cos(alpha)
+    score = ((cos >= ca - 1e-12) * w[:, None]).sum(axis=0)
+    best = int(np.argmax(score))
+    cb = cos[:, best]
+    visible = int(np.count_nonzero(cb >= ca - 1e-12))
+    ks = ks_from_width(alpha, rad(opts.width_deg))
+    near = cb >= np.cos(min(np.pi, alpha + 10.0 / (ks * max(np.sin(alpha), 1e-9))))
+    f = float(smooth_visibility(cb[near], alpha, ks) @ w[near])
+    return ViewResult(C[best].copy(), R[best].copy(), visible, f, iters)
+
+
+def schedule(alpha: float, start: float, stages: int) -> list[float]:
+    """FoV half-angles [rad] narrowing geometrically from ``start`` (≤ 90°) to α over ``stages`` steps."""
+    start = min(max(start, alpha), np.pi / 2) if alpha < np.pi / 2 else alpha
+    if stages <= 1 or start <= alpha * (1 + 1e-9):
+        return [alpha]
+    f = np.linspace(1.0, 0.0, stages)
+    return [float(alpha * (start / alpha) ** x) for x in f]
