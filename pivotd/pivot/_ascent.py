@@ -58,6 +58,16 @@ class Geometry:
         """Weights broadcast to (K, L)."""
         return np.broadcast_to(self.weights, (self.rows, self.weights.shape[-1]))
 
+    def take_rows(self, rows: np.ndarray) -> Geometry:
+        """The geometry of a subset of rows."""
+        return Geometry(
+            self.points if self.shared else self.points[rows],
+            self.origins[rows],
+            None if self.inv_dist is None else self.inv_dist[rows],
+            self.weights if self.weights.ndim == 1 else self.weights[rows],
+            self.exact,
+        )
+
     def bearings(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Unit bearings (n, 3) float32 for (row, landmark) pairs."""
         p = self.points[cols] if self.shared else self.points[rows, cols]
@@ -96,35 +106,100 @@ def _active(
     """Padded active bearings (K, L, 3) and weights (K, L): landmarks with cos_lo ≤ cos θ ≤ cos_hi.
 
     Rows with more than ``cap`` such landmarks keep an evenly strided subset whose weights are scaled
-    up so that each row's total active weight is preserved.
+    up so that each row's total active weight is preserved. With cos_lo ≤ −1 ≤ 1 ≤ cos_hi and unit
+    bearings (inv_dist None) within the cap, the stored arrays are returned as they are.
     """
-    if cos_lo <= -1.0 and cos_hi >= 1.0 and geom.shared and geom.inv_dist is None and geom.points.shape[0] <= cap:
-        return geom.points[None], geom.weights[None]  # everything, broadcast over rows
-    cos = geom.cos_all(C)
+    everything = cos_lo <= -1.0 and cos_hi >= 1.0
+    if everything and geom.inv_dist is None and geom.points.shape[-2] <= cap:
+        if geom.shared:
+            return geom.points[None], geom.weights[None]
+        return geom.points, geom.weight_rows()
     W = geom.weight_rows()
-    mask = (cos >= cos_lo) & (W > 0)
-    if cos_hi < 1.0:
-        mask &= cos <= cos_hi
-    rows, cols = _nonzero2d(mask)
-    K = geom.rows
+    if everything:
+        mask = W > 0
+    else:
+        cos = geom.cos_all(C)
+        mask = (cos >= cos_lo) & (W > 0)
+        if cos_hi < 1.0:
+            mask &= cos <= cos_hi
+    K, Lfull = mask.shape
+    flat = np.flatnonzero(mask)
+    rows = flat // Lfull
     counts = np.bincount(rows, minlength=K)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     pos = np.arange(rows.size) - starts[rows]
-    scale = np.ones(K, dtype=np.float32)
+    scale = None
     if counts.size and counts.max() > cap:
         stride = np.maximum(1, -(-counts // cap))
         keep = pos % stride[rows] == 0
         kept = np.bincount(rows[keep], minlength=K)
         scale = (counts / np.maximum(kept, 1)).astype(np.float32)
-        rows, cols, pos = rows[keep], cols[keep], pos[keep] // stride[rows[keep]]
+        flat, rows, pos = flat[keep], rows[keep], pos[keep] // stride[rows[keep]]
         counts = kept
     L = max(int(counts.max()) if counts.size else 0, 1)
-    B = np.zeros((K, L, 3), dtype=np.float32)
-    Wa = np.zeros((K, L), dtype=np.float32)
-    if rows.size:
-        B[rows, pos] = geom.bearings(rows, cols)
-        Wa[rows, pos] = W[rows, cols] * scale[rows]
+    B = np.zeros((K * L, 3), dtype=np.float32)
+    Wa = np.zeros(K * L, dtype=np.float32)
+    if flat.size:
+        dest = rows * L + pos
+        cols = flat - rows * Lfull
+        p = geom.points[cols] if geom.shared else geom.points.reshape(-1, 3)[flat]
+        if geom.inv_dist is not None:
+            p = (p - geom.origins[rows]) * geom.inv_dist.reshape(-1)[flat][:, None]
+        B[dest] = p
+        w = geom.weights[cols] if geom.weights.ndim == 1 else geom.weights.reshape(-1)[flat]
+        Wa[dest] = w if scale is None else w * scale[rows]
+    return B.reshape(K, L, 3), Wa.reshape(K, L)
+
+
+def _refresh_rows(
+    geom: Geometry,
+    C: np.ndarray,
+    rows: np.ndarray,
+    B: np.ndarray,
+    Wa: np.ndarray,
+    cos_lo: float,
+    cos_hi: float,
+    cap: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rebuild the active set of the given rows only, widening the padded arrays when needed."""
+    if rows.size > geom.rows // 2:
+        return _active(geom, C, cos_lo, cos_hi, cap)
+    Br, Wr = _active(geom.take_rows(rows), C[rows], cos_lo, cos_hi, cap)
+    L, Lr = B.shape[1], Br.shape[1]
+    if Lr > L:
+        B = np.concatenate([B, np.zeros((B.shape[0], Lr - L, 3), np.float32)], axis=1)
+        Wa = np.concatenate([Wa, np.zeros((Wa.shape[0], Lr - L), np.float32)], axis=1)
+    else:
+        B = B.copy() if not B.flags.writeable else B
+        Wa = Wa.copy() if not Wa.flags.writeable else Wa
+    B[rows] = 0.0
+    Wa[rows] = 0.0
+    B[rows, :Lr] = Br
+    Wa[rows, :Lr] = Wr
     return B, Wa
+
+
+def subsample(geom: Geometry, lengths: np.ndarray, cap: int) -> Geometry:
+    """At most ``cap`` evenly strided landmarks of each row as unit bearings, weights scaled to the row totals.
+
+    ``lengths`` (K,): how many leading columns of each row are real (the rest is padding).
+    """
+    K = geom.rows
+    k = np.arange(cap)
+    lengths = np.asarray(lengths, dtype=np.intp)
+    cols = np.where(lengths[:, None] > cap, (k[None, :] * lengths[:, None]) // cap, k[None, :])
+    real = k[None, :] < np.minimum(lengths, cap)[:, None]
+    cols = np.where(real, cols, 0)
+    rows = np.broadcast_to(np.arange(K)[:, None], cols.shape)
+    p = geom.points[cols] if geom.shared else geom.points[rows, cols]
+    w = geom.weights[cols] if geom.weights.ndim == 1 else geom.weights[rows, cols]
+    if geom.inv_dist is not None:
+        p = (p - geom.origins[:, None, :]) * geom.inv_dist[rows, cols][..., None]
+    w = np.where(real, w, 0.0)
+    total = geom.weight_rows().sum(axis=1, dtype=np.float64)
+    sub = w.sum(axis=1, dtype=np.float64)
+    w = w * (total / np.where(sub > 0, sub, 1.0))[:, None]
+    return Geometry(p.astype(np.float32), np.zeros((K, 3), np.float32), None, w.astype(np.float32), geom.exact)
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -205,7 +280,7 @@ def ascend(
         width = settings.width if final else max(settings.width, settings.wide_width_ratio * a_q)
         ks = ks_from_width(a_q, width)
         w_eff = min(width, a_q, np.pi - a_q)
-        margin = 3.0 * w_eff + settings.drift
+        margin = 2.0 * w_eff + settings.drift
         cos_lo = float(np.cos(min(np.pi, a_q + margin)))
         cos_hi = float(np.cos(max(0.0, a_q - margin))) if a_q - margin > 0 else 1.0
         cap = settings.final_cap if final else settings.active_cap
@@ -251,9 +326,11 @@ def ascend(
             if project is not None:
                 R = _turn_to(R, project(R[:, :, 2]))
             C = R[:, :, 2].copy()
-            if cos_lo > -1.0 and np.any(np.sum(C * C_ref, axis=1) < cos_drift):
-                B, Wa = _active(g_stage, C, cos_lo, cos_hi, cap)
-                C_ref = C.copy()
+            if cos_lo > -1.0:
+                moved = np.flatnonzero(np.sum(C * C_ref, axis=1) < cos_drift)
+                if moved.size:
+                    B, Wa = _refresh_rows(g_stage, C, moved, B, Wa, cos_lo, cos_hi, cap)
+                    C_ref[moved] = C[moved]
     return R, total
 
 
