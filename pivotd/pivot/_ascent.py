@@ -92,6 +92,7 @@ class AscentSettings:
     final_cap: int  # target stage: at most this many landmarks per row
     drift: float  # rebuild the active set when an axis moved more than this since it was built
     narrow_last: bool = True  # False: every stage (also the last) is run as a widened stage
+    lam_boost: float = 1.0  # smoothness weight multiplier, decaying geometrically over the stages to 1 at α
 
 
 def _nonzero2d(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -277,6 +278,7 @@ def ascend(
     last = len(settings.stages) - 1
     for q, a_q in enumerate(settings.stages):
         final = q == last and settings.narrow_last
+        lam_q = lam * settings.lam_boost ** (1.0 - q / last) if last > 0 else lam
         width = settings.width if final else max(settings.width, settings.wide_width_ratio * a_q)
         ks = ks_from_width(a_q, width)
         w_eff = min(width, a_q, np.pi - a_q)
@@ -313,7 +315,7 @@ def ascend(
                 nb[:-1] += C[1:]
                 if anchor is not None:
                     nb[0] += anchor
-                J += lam * _cross(C, nb)
+                J += lam_q * _cross(C, nb)
             nJ = np.linalg.norm(J, axis=1)
             agree = np.sum(J * J_prev, axis=1)
             h = np.where(agree < 0, 0.5 * h, np.minimum(1.25 * h, settings.step_max))

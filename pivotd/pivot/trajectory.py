@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pivotd.geometry import optical_frame_from_direction
-from pivotd.pivot import _ascent
+from pivotd.pivot import _ascent, chain
 from pivotd.pivot._checks import feature_weights, finite_array, half_angle, unit_vector
 from pivotd.pivot.constraints import PanTiltConstraint
 from pivotd.pivot.view import schedule
@@ -41,6 +41,11 @@ class TrajectoryOptions:
     active_cap: int = 256  # widened stages: landmarks per waypoint (strided subsample)
     final_cap: int = 4096  # final stage: landmarks per waypoint near the cone boundary
     drift_deg: float = 3.0
+    lam_boost: float = 1.0  # widened stages use λ × boost (geometric decay to λ at α): a smoothness homotopy
+    smooth_scale: float = 25.0  # κ: the smoothness term is λκ Σ c_{i+1}·c_i against per-waypoint visible fractions
+    chain_init: bool = True  # cold start: dynamic programming over a direction grid (pivotd.pivot.chain)
+    chain_resolution_deg: float = 12.0
+    chain_nodes: int = 100
 
 
 @dataclass
@@ -219,6 +224,7 @@ def optimize_trajectory(
         active_cap=opts.active_cap,
         final_cap=opts.final_cap,
         drift=rad(opts.drift_deg),
+        lam_boost=opts.lam_boost,
     )
     project = None if constraint is None else constraint.project
     if geom is None:
@@ -230,12 +236,21 @@ def optimize_trajectory(
     else:
         geom_run = geom
     coarse = None
-    if geom is not None and len(stages) > 1:
+    smooth = lam * opts.smooth_scale
+    if geom is not None and (len(stages) > 1 or (opts.chain_init and not warm)):
         lengths = (
             np.full(N, P.shape[0]) if retained is None else np.array([np.asarray(r).size for r in retained])
         )
         coarse = _ascent.subsample(geom, lengths, opts.active_cap)
-    R, iters = _ascent.ascend(geom_run, R0, norm, settings, lam=lam, anchor=a_vec, project=project, coarse=coarse)
+    if coarse is not None and opts.chain_init and not warm:
+        C_init = chain.initial_directions(
+            coarse.points, coarse.weights, alpha, smooth,
+            resolution_deg=opts.chain_resolution_deg, max_nodes=opts.chain_nodes, anchor=a_vec,
+        )
+        R0 = optical_frame_from_direction(C_init)
+        settings.stages = [alpha]
+        settings.step_init = rad(opts.chain_resolution_deg) / 2
+    R, iters = _ascent.ascend(geom_run, R0, norm, settings, lam=smooth, anchor=a_vec, project=project, coarse=coarse)
     C = R[:, :, 2].copy()
     if geom is None:
         visible = np.zeros(N, dtype=int)
@@ -245,7 +260,7 @@ def optimize_trajectory(
         F = _ascent.smooth_values(geom, C, alpha, rad(opts.width_deg))
     obj = float(np.sum(F / np.maximum(norm, 1e-12)))
     if lam > 0:
-        obj += lam * float(np.sum(C[1:] * C[:-1]))
+        obj += smooth * float(np.sum(C[1:] * C[:-1]))
         if a_vec is not None:
-            obj += lam * float(a_vec @ C[0])
+            obj += smooth * float(a_vec @ C[0])
     return TrajectoryResult(C, R, visible.astype(int), iters, obj)
