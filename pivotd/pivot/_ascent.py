@@ -337,11 +337,13 @@ def ascend(
 
 
 def hard_counts(geom: Geometry, C: np.ndarray, alpha: float) -> np.ndarray:
-    """Hard visible counts (K,) int: landmarks with weight > 0 and angle ≤ α, borderline pairs settled in float64."""
+    """Hard visible counts (K,) int: landmarks (any weight) with angle ≤ α, borderline pairs settled in float64.
+
+    Padding and landmarks at the sensor (inv_dist 0) never count; without inv_dist every column counts.
+    """
     cos = geom.cos_all(C)
-    W = geom.weight_rows()
     ca = np.cos(alpha)
-    valid = W > 0
+    valid = geom.inv_dist > 0 if geom.inv_dist is not None else np.ones(cos.shape, dtype=bool)
     inside = (cos >= ca) & valid
     unsure = (np.abs(cos - ca) < 2e-4) & valid
     rows, cols = _nonzero2d(unsure)

@@ -123,17 +123,18 @@ def _cone_cluster(rng: np.random.Generator, axis: np.ndarray, spread: float, n: 
 
 def two_clusters(
     n_large: int = 100,
-    n_small: int = 100,
-    separation_deg: float = 100.0,
-    large_spread_deg: float = 12.0,
-    small_spread_deg: float = 40.0,
+    n_small: int = 60,
+    separation_deg: float = 140.0,
+    large_spread_deg: float = 15.0,
+    small_spread_deg: float = 15.0,
     seed: int = 0,
 ) -> Scene:
     """The paper's toy example: two clusters of features seen from one sensor at the origin.
 
-    The "large" cluster is compact (angular radius ``large_spread_deg``) around azimuth +sep/2, the
-    other is spread out (``small_spread_deg``) around −sep/2, so with α = 45° the compact one offers
-    the larger visible count even for equal sizes. path: (1, 3) the origin.
+    The larger cluster (``n_large`` features within ``large_spread_deg`` of azimuth +sep/2) and the
+    smaller one (``n_small`` within ``small_spread_deg`` of −sep/2) lie in the horizontal plane. Without an
+    FoV limit the best axis points between them; with α = 45° only one fits, and the larger one wins.
+    path: (1, 3) the origin.
     """
     rng = np.random.default_rng(seed)
     half = np.radians(separation_deg) / 2

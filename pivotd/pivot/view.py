@@ -41,6 +41,7 @@ class ViewOptions:
     active_cap: int = 1024
     final_cap: int = 8192
     drift_deg: float = 3.0
+    polish_deg: float = 1.0  # final pattern search on the hard count starting at this radius (0: off)
 
 
 @dataclass
@@ -117,7 +118,7 @@ def optimize_view(
     w = feature_weights(weights, B.shape[0])
     init_v = None if init is None else unit_vector("init", init)
     sq = np.einsum("ij,ij->i", B, B)
-    ok = (sq > 0.25) & (w > 0)
+    ok = sq > 0.25
     if not ok.all():
         B, w = B[ok], w[ok]
         sq = sq[ok]
@@ -175,12 +176,54 @@ def optimize_view(
     ca = np.cos(alpha)
     score = ((cos >= ca - 1e-12) * w[:, None]).sum(axis=0)
     best = int(np.argmax(score))
+    c_best, R_best = C[best].copy(), R[best].copy()
+    if opts.polish_deg > 0:
+        c_new = polish_hard(c_best, B, w, alpha, rad(opts.polish_deg), rad(opts.tol_deg), cos[:, best])
+        if not np.allclose(c_new, c_best):
+            R_best = _ascent._turn_to(R_best[None], c_new[None])[0]
+            c_best = R_best[:, 2].copy()
+            cos = B @ c_best[:, None]
+            best = 0
     cb = cos[:, best]
     visible = int(np.count_nonzero(cb >= ca - 1e-12))
     ks = ks_from_width(alpha, rad(opts.width_deg))
     near = cb >= np.cos(min(np.pi, alpha + 10.0 / (ks * max(np.sin(alpha), 1e-9))))
     f = float(smooth_visibility(cb[near], alpha, ks) @ w[near])
-    return ViewResult(C[best].copy(), R[best].copy(), visible, f, iters)
+    return ViewResult(c_best, R_best, visible, f, iters)
+
+
+def polish_hard(
+    c: np.ndarray, B: np.ndarray, w: np.ndarray, alpha: float, radius: float, tol: float, cos_c: np.ndarray
+) -> np.ndarray:
+    """Pattern search on the hard visible weight around ``c``: try 8 directions at ``radius`` [rad],
+    move to the best strict improvement, otherwise halve the radius, until it is below ``tol``.
+
+    The axis moves at most 3·radius, so only landmarks within α ± 3.5·radius of ``c`` (``cos_c`` = B @ c)
+    can change the count: the others are counted once.
+    """
+    cos_a = np.cos(alpha)
+    reach = 3.5 * radius
+    lo, hi = np.cos(min(np.pi, alpha + reach)), np.cos(max(0.0, alpha - reach))
+    sel = (cos_c >= lo) & (cos_c <= hi)
+    band, wb = B[sel], w[sel]
+    if band.shape[0] == 0:
+        return c
+    best = float(wb @ (band @ c >= cos_a - 1e-12))
+    ang = np.arange(8) * (np.pi / 4)
+    r = radius
+    moved = 0.0
+    while r >= tol and moved < 2.0 * radius:
+        frame = optical_frame_from_direction(c)
+        off = np.outer(np.cos(ang), frame[:, 0]) + np.outer(np.sin(ang), frame[:, 1])
+        cand = np.cos(r) * c + np.sin(r) * off
+        vals = wb @ (band @ cand.T >= cos_a - 1e-12)
+        k = int(np.argmax(vals))
+        if vals[k] > best:
+            best, c = float(vals[k]), cand[k] / np.linalg.norm(cand[k])
+            moved += r
+        else:
+            r *= 0.5
+    return c
 
 
 def schedule(alpha: float, start: float, stages: int) -> list[float]:
