@@ -139,7 +139,7 @@ def test_extreme_half_angles(alpha_deg):
     r = optimize_view(B, None, alpha)
     assert np.isfinite(r.direction).all()
     _, best = brute_force_view(B, None, alpha, 1.0 if alpha_deg < 1 else 2.0)
-    assert r.visible >= (0.99 * best if alpha_deg > 45 else max(1, 0.5 * best))
+    assert r.visible >= (0.97 * best if alpha_deg > 45 else max(1, 0.5 * best))
 
 
 def test_alpha_outside_range_is_rejected():

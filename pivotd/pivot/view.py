@@ -25,13 +25,13 @@ class ViewOptions:
 
     width_deg: float = 2.0  # sigmoid transition width at α (k_s from ks_from_width)
     fov_start_deg: float | None = None  # widest half-angle of the schedule; None: min(90, α + 10)
-    stages: int = 3  # FoV schedule stages including the final one at α
+    stages: int = 1  # FoV schedule stages including the final one at α (1: no widening)
     wide_width_ratio: float = 0.25  # widened stages use width max(width, ratio · α_q)
     stage_iters: int = 5
     max_iterations: int = 40  # iteration budget at α
     step_init_deg: float = 4.0
     step_max_deg: float = 15.0
-    tol_deg: float = 0.1
+    tol_deg: float = 0.25
     sample: int = 1024  # landmarks (strided) used to rank the multi-start candidates
     seeds: int = 48  # landmark-seeded candidates
     mean_shift: int = 2  # mean-shift steps applied to every candidate before ranking
@@ -40,7 +40,7 @@ class ViewOptions:
     keep_ratio: float = 0.5  # refine only candidates scoring ≥ ratio · best
     active_cap: int = 1024
     final_cap: int = 8192
-    drift_deg: float = 3.0
+    drift_deg: float = 5.0
     polish_deg: float = 1.0  # final pattern search on the hard count starting at this radius (0: off)
 
 
@@ -80,13 +80,20 @@ def _candidates(B: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, i
         seeds.append(Bs[np.linspace(0, Bs.shape[0] - 1, k).astype(np.intp)])
     C = np.concatenate(seeds).astype(np.float32)
     cos_a = np.float32(np.cos(alpha))
+    raw = C.copy()
+    raw_score = None
     for _ in range(opts.mean_shift):  # mean shift with a flat conical kernel
         inside = (Bs @ C.T >= cos_a) * ws[:, None]
+        if raw_score is None:
+            raw_score = inside.sum(axis=0)
         moved = inside.T @ Bs
         nrm = np.linalg.norm(moved, axis=1)
         ok = nrm > 1e-12
         C[ok] = moved[ok] / nrm[ok, None]
     score = ws @ (Bs @ C.T >= cos_a)
+    if raw_score is not None:  # a seed can beat the mode it drifts to (wide cones): keep both
+        C = np.concatenate([C, raw])
+        score = np.concatenate([score, raw_score])
     order = np.argsort(-score, kind="stable")
     kept: list[int] = []
     best = score[order[0]]
@@ -162,34 +169,80 @@ def optimize_view(
             Bc, wc = B32, w
         coarse = _ascent.Geometry(Bc, np.zeros((R.shape[0], 3), np.float32), None, wc.astype(np.float32), exact)
         R, iters = _ascent.ascend(coarse, R, np.full(R.shape[0], total), settings, coarse=coarse)
-        if R.shape[0] > 1:  # keep the candidates whose full hard visible weight is within 2 % of the best
-            score = w32 @ (B32 @ R[:, :, 2].T.astype(np.float32) >= np.float32(np.cos(alpha)))
-            keep = np.flatnonzero(score >= 0.98 * score.max())[: opts.final_candidates]
-            R = R[keep]
-    settings.stages = [alpha]
-    settings.narrow_last = True
-    geom = _ascent.Geometry(B32, np.zeros((R.shape[0], 3), np.float32), None, w32, exact)
-    R, it2 = _ascent.ascend(geom, R, np.full(R.shape[0], total), settings)
-    iters += it2
-    C = R[:, :, 2]
-    cos = B @ C.T
+    cos_a32 = np.float32(np.cos(alpha))
+    if R.shape[0] > 1:  # refine only the candidates whose full hard visible weight is within 2 % of the best
+        score = w32 @ (B32 @ R[:, :, 2].T.astype(np.float32) >= cos_a32)
+        keep = np.flatnonzero(score >= 0.98 * score.max())[: opts.final_candidates]
+        R = R[keep]
+    refined = [_refine_one(B32, w32, R[k], alpha, opts) for k in range(R.shape[0])]
+    R = np.concatenate([np.stack([r for r, _ in refined]), R])  # never worse than a starting candidate
+    iters += max(n for _, n in refined)
+    best = int(np.argmax(w32 @ (B32 @ R[:, :, 2].T.astype(np.float32) >= cos_a32)))
+    c_best, R_best = R[best, :, 2].copy(), R[best].copy()
     ca = np.cos(alpha)
-    score = ((cos >= ca - 1e-12) * w[:, None]).sum(axis=0)
-    best = int(np.argmax(score))
-    c_best, R_best = C[best].copy(), R[best].copy()
+    cb = B @ c_best
     if opts.polish_deg > 0:
-        c_new = polish_hard(c_best, B, w, alpha, rad(opts.polish_deg), rad(opts.tol_deg), cos[:, best])
+        tol = min(rad(opts.tol_deg), 0.05 * alpha)
+        c_new = polish_hard(c_best, B, w, alpha, min(rad(opts.polish_deg), 0.5 * alpha), tol, cb)
         if not np.allclose(c_new, c_best):
             R_best = _ascent._turn_to(R_best[None], c_new[None])[0]
             c_best = R_best[:, 2].copy()
-            cos = B @ c_best[:, None]
-            best = 0
-    cb = cos[:, best]
+            cb = B @ c_best
     visible = int(np.count_nonzero(cb >= ca - 1e-12))
     ks = ks_from_width(alpha, rad(opts.width_deg))
     near = cb >= np.cos(min(np.pi, alpha + 10.0 / (ks * max(np.sin(alpha), 1e-9))))
     f = float(smooth_visibility(cb[near], alpha, ks) @ w[near])
     return ViewResult(c_best, R_best, visible, f, iters)
+
+
+def _refine_one(B: np.ndarray, w: np.ndarray, R: np.ndarray, alpha: float, opts: ViewOptions) -> tuple[np.ndarray, int]:
+    """Gradient ascent at α for one rotation R (3, 3) over float32 bearings B (n, 3) / weights w (n,).
+
+    Same step control as :func:`pivotd.pivot._ascent.ascend` (normalised direction, bound grows ×1.25,
+    halves on reversal), on the landmarks within the transition band α ± (2·width + drift) of the axis;
+    the band is re-selected when the axis drifts further than ``drift_deg`` from where it was selected.
+    """
+    width = np.radians(opts.width_deg)
+    ks = ks_from_width(alpha, width)
+    w_eff = min(width, alpha, np.pi - alpha)
+    drift = np.radians(opts.drift_deg)
+    margin = 2.0 * w_eff + drift
+    lo = np.float32(np.cos(min(np.pi, alpha + margin)))
+    hi = np.float32(np.cos(alpha - margin)) if alpha > margin else np.float32(2.0)
+    cos_a = np.float32(np.cos(alpha))
+    half_ks = np.float32(0.5 * ks)
+    tol = min(np.radians(opts.tol_deg), 0.05 * alpha)
+    h_max = min(np.radians(opts.step_max_deg), alpha)
+    h = min(np.radians(opts.step_init_deg), 0.5 * drift, 0.5 * alpha)
+    cos_drift = np.cos(drift)
+
+    def band(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cs = B @ c.astype(np.float32)
+        sel = (cs >= lo) & (cs <= hi)
+        return B[sel], w[sel]
+
+    c = R[:, 2].copy()
+    Bb, wb = band(c)
+    c_ref = c.copy()
+    J_prev = np.zeros(3)
+    it = 0
+    for it in range(1, opts.max_iterations + 1):  # noqa: B007
+        if Bb.shape[0] == 0:
+            break
+        t = np.tanh(half_ks * (Bb @ c.astype(np.float32) - cos_a))
+        S = ((1.0 - t * t) * wb) @ Bb
+        J = np.array([c[1] * S[2] - c[2] * S[1], c[2] * S[0] - c[0] * S[2], c[0] * S[1] - c[1] * S[0]])
+        nJ = float(np.sqrt(J @ J))
+        h = 0.5 * h if J @ J_prev < 0 else min(1.25 * h, h_max)
+        J_prev = J
+        if nJ < 1e-12 or h < tol:
+            break
+        R = _ascent._exp((J * (h / nJ))[None])[0] @ R
+        c = R[:, 2].copy()
+        if c @ c_ref < cos_drift:
+            Bb, wb = band(c)
+            c_ref = c.copy()
+    return R, it
 
 
 def polish_hard(
