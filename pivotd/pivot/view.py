@@ -95,14 +95,16 @@ def _candidates(B: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, i
         C = np.concatenate([C, raw])
         score = np.concatenate([score, raw_score])
     order = np.argsort(-score, kind="stable")
-    kept: list[int] = []
-    best = score[order[0]]
-    for i in order:
-        if len(kept) >= opts.refine or score[i] < opts.keep_ratio * best:
-            break
-        if all(C[i] @ C[j] < cos_a for j in kept):
-            kept.append(int(i))
-    return C[kept].astype(float)
+    order = order[score[order] >= opts.keep_ratio * score[order[0]]]
+    kept = [0]  # positions in ``order``
+    if opts.refine > 1 and order.size > 1:
+        near = (C[order] @ C[order].T) >= cos_a  # near-duplicates: closer than α
+        for i in range(1, order.size):
+            if not near[i, kept].any():
+                kept.append(i)
+                if len(kept) >= opts.refine:
+                    break
+    return C[order[kept]].astype(float)
 
 
 def optimize_view(
@@ -254,25 +256,28 @@ def polish_hard(
     The axis moves at most 3·radius, so only landmarks within α ± 3.5·radius of ``c`` (``cos_c`` = B @ c)
     can change the count: the others are counted once.
     """
-    cos_a = np.cos(alpha)
+    cos_a = np.cos(alpha) - 1e-12
     reach = 3.5 * radius
     lo, hi = np.cos(min(np.pi, alpha + reach)), np.cos(max(0.0, alpha - reach))
     sel = (cos_c >= lo) & (cos_c <= hi)
-    band, wb = B[sel], w[sel]
-    if band.shape[0] == 0:
+    if not sel.any():
         return c
-    best = float(wb @ (band @ c >= cos_a - 1e-12))
+    band, wb = B[sel], w[sel]
+    best = float(wb @ (band @ c >= cos_a))
     ang = np.arange(8) * (np.pi / 4)
+    ca8, sa8 = np.cos(ang)[:, None], np.sin(ang)[:, None]
     r = radius
     moved = 0.0
     while r >= tol and moved < 2.0 * radius:
-        frame = optical_frame_from_direction(c)
-        off = np.outer(np.cos(ang), frame[:, 0]) + np.outer(np.sin(ang), frame[:, 1])
-        cand = np.cos(r) * c + np.sin(r) * off
-        vals = wb @ (band @ cand.T >= cos_a - 1e-12)
+        x, y, z = c
+        t1 = np.array([y, -x, 0.0]) if abs(z) < 0.9 else np.array([0.0, z, -y])  # c × e_z or c × e_x
+        t1 /= np.sqrt(t1 @ t1)
+        t2 = np.array([y * t1[2] - z * t1[1], z * t1[0] - x * t1[2], x * t1[1] - y * t1[0]])
+        cand = np.cos(r) * c + np.sin(r) * (ca8 * t1 + sa8 * t2)
+        vals = wb @ (band @ cand.T >= cos_a)
         k = int(np.argmax(vals))
         if vals[k] > best:
-            best, c = float(vals[k]), cand[k] / np.linalg.norm(cand[k])
+            best, c = float(vals[k]), cand[k] / np.sqrt(cand[k] @ cand[k])
             moved += r
         else:
             r *= 0.5
