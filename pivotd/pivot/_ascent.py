@@ -92,6 +92,7 @@ class AscentSettings:
     final_cap: int  # target stage: at most this many landmarks per row
     drift: float  # rebuild the active set when an axis moved more than this since it was built
     narrow_last: bool = True  # False: every stage (also the last) is run as a widened stage
+    settle_frac: float = 0.0  # converged when at most this fraction of rows still takes steps ≥ tol
     lam_boost: float = 1.0  # smoothness weight multiplier, decaying geometrically over the stages to 1 at α
 
 
@@ -125,8 +126,8 @@ def _active(
             mask &= cos <= cos_hi
     K, Lfull = mask.shape
     flat = np.flatnonzero(mask)
-    rows = flat // Lfull
-    counts = np.bincount(rows, minlength=K)
+    counts = np.count_nonzero(mask, axis=1)
+    rows = np.repeat(np.arange(K), counts)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     pos = np.arange(rows.size) - starts[rows]
     scale = None
@@ -263,10 +264,12 @@ def ascend(
 
     With λ = 0 the rows are independent. Step control: the step direction is the combined gradient
     (eqs. 12, 18, 19) normalised by each row's feature weight ``norm`` (K,); its length is clipped to a
-    per-row bound h_k that grows ×1.25 while successive gradients agree and halves when they reverse
-    (overshoot), between ``tol`` and ``step_max``. ``project`` (optional) maps axes onto the reachable
-    set after every step (projected gradient ascent). ``coarse`` (optional) is a subsample of ``geom``
-    with weights scaled to the same totals, used for the widened stages. Returns the rotations and the iteration count.
+    per-row bound h_k that grows ×1.2 while successive gradients agree and halves when they reverse
+    (overshoot; the step after a reversal keeps its bound, as in iRprop), between ``tol`` and
+    ``step_max``. A stage ends when at most ``settle_frac`` of the rows still step by ≥ tol.
+    ``project`` (optional) maps axes onto the reachable set after every step (projected gradient
+    ascent). ``coarse`` (optional) is a subsample of ``geom`` with weights scaled to the same totals,
+    used for the widened stages. Returns the rotations and the iteration count.
     """
     R = np.array(R, dtype=float)
     K = R.shape[0]
@@ -318,10 +321,10 @@ def ascend(
                 J += lam_q * _cross(C, nb)
             nJ = np.linalg.norm(J, axis=1)
             agree = np.sum(J * J_prev, axis=1)
-            h = np.where(agree < 0, 0.5 * h, np.minimum(1.25 * h, settings.step_max))
-            J_prev = J
+            h = np.where(agree < 0, 0.5 * h, np.where(agree > 0, np.minimum(1.2 * h, settings.step_max), h))
+            J_prev = np.where((agree < 0)[:, None], 0.0, J)  # after a reversal the next step neither grows nor shrinks
             live = nJ > 1e-12
-            if not np.any(live & (h >= settings.tol)):
+            if np.count_nonzero(live & (h >= settings.tol)) <= settings.settle_frac * K:
                 break
             step = np.where(live[:, None], J / np.where(live, nJ, 1.0)[:, None] * h[:, None], 0.0)
             R = _exp(step) @ R

@@ -53,23 +53,25 @@ def best_chain(
     anchor (3,): a fixed direction before node 0 (cost of turning from it counts once).
     """
     K, G = scores.shape
-    value = scores[0] * span[0]
     if smooth <= 0:
         return np.argmax(scores, axis=1)
+    scores = scores.astype(np.float32)
+    value = scores[0] * np.float32(span[0])
     ang = np.arccos(np.clip(grid @ grid.T, -1.0, 1.0))
     if anchor is not None:
-        value = value + smooth * (grid @ anchor - 1.0)
+        value = value + (smooth * (grid @ anchor - 1.0)).astype(np.float32)
     back = np.zeros((K, G), dtype=np.intp)
+    cols = np.arange(G)
     cache: dict[int, np.ndarray] = {}
     for k in range(1, K):
         s = max(round(span[k]), 1)
         trans = cache.get(s)
         if trans is None:
-            trans = (s * smooth) * (np.cos(ang / s) - 1.0)
+            trans = ((s * smooth) * (np.cos(ang / s) - 1.0)).astype(np.float32)
             cache[s] = trans
         total = value[:, None] + trans  # (from, to)
         back[k] = np.argmax(total, axis=0)
-        value = total[back[k], np.arange(G)] + scores[k] * span[k]
+        value = total[back[k], cols] + scores[k] * np.float32(span[k])
     path = np.empty(K, dtype=np.intp)
     path[-1] = int(np.argmax(value))
     for k in range(K - 1, 0, -1):

@@ -38,14 +38,15 @@ class TrajectoryOptions:
     step_max_deg: float = 20.0
     tol_deg: float = 0.1
     distance_weights: bool = True  # eq. 15 distance weights s_ij
-    active_cap: int = 256  # widened stages: landmarks per waypoint (strided subsample)
-    final_cap: int = 4096  # final stage: landmarks per waypoint near the cone boundary
-    drift_deg: float = 3.0
+    active_cap: int = 128  # widened stages: landmarks per waypoint (strided subsample)
+    final_cap: int = 256  # final stage: landmarks per waypoint near the cone boundary
+    drift_deg: float = 5.0
+    settle_frac: float = 0.03  # stop once at most 3 % of the waypoints still move by ≥ tol per step
     lam_boost: float = 1.0  # widened stages use λ × boost (geometric decay to λ at α): a smoothness homotopy
     smooth_scale: float = 25.0  # κ: the smoothness term is λκ Σ c_{i+1}·c_i against per-waypoint visible fractions
     chain_init: bool = True  # cold start: dynamic programming over a direction grid (pivotd.pivot.chain)
     chain_resolution_deg: float = 12.0
-    chain_nodes: int = 100
+    chain_nodes: int = 64
 
 
 @dataclass
@@ -225,6 +226,7 @@ def optimize_trajectory(
         final_cap=opts.final_cap,
         drift=rad(opts.drift_deg),
         lam_boost=opts.lam_boost,
+        settle_frac=opts.settle_frac,
     )
     project = None if constraint is None else constraint.project
     if geom is None:

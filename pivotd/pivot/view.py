@@ -23,7 +23,8 @@ from pivotd.pivot.visibility import ks_from_width, smooth_visibility
 class ViewOptions:
     """Tuning of :func:`optimize_view` (angles in degrees)."""
 
-    width_deg: float = 2.0  # sigmoid transition width at α (k_s from ks_from_width)
+    width_deg: float = 2.0  # sigmoid transition width at α (k_s from ks_from_width) ...
+    width_ratio: float = 0.1  # ... but at least this fraction of α (wide cones need softer edges)
     fov_start_deg: float | None = None  # widest half-angle of the schedule; None: min(90, α + 10)
     stages: int = 1  # FoV schedule stages including the final one at α (1: no widening)
     wide_width_ratio: float = 0.25  # widened stages use width max(width, ratio · α_q)
@@ -142,7 +143,7 @@ def optimize_view(
     stages = schedule(alpha, start, opts.stages)
     settings = _ascent.AscentSettings(
         stages=stages[:-1],
-        width=rad(opts.width_deg),
+        width=_width(alpha, opts),
         wide_width_ratio=opts.wide_width_ratio,
         stage_iters=opts.stage_iters,
         final_iters=opts.max_iterations,
@@ -191,20 +192,25 @@ def optimize_view(
             c_best = R_best[:, 2].copy()
             cb = B @ c_best
     visible = int(np.count_nonzero(cb >= ca - 1e-12))
-    ks = ks_from_width(alpha, rad(opts.width_deg))
+    ks = ks_from_width(alpha, _width(alpha, opts))
     near = cb >= np.cos(min(np.pi, alpha + 10.0 / (ks * max(np.sin(alpha), 1e-9))))
     f = float(smooth_visibility(cb[near], alpha, ks) @ w[near])
     return ViewResult(c_best, R_best, visible, f, iters)
 
 
+def _width(alpha: float, opts: ViewOptions) -> float:
+    """Transition width [rad] used at α."""
+    return max(np.radians(opts.width_deg), opts.width_ratio * alpha)
+
+
 def _refine_one(B: np.ndarray, w: np.ndarray, R: np.ndarray, alpha: float, opts: ViewOptions) -> tuple[np.ndarray, int]:
     """Gradient ascent at α for one rotation R (3, 3) over float32 bearings B (n, 3) / weights w (n,).
 
-    Same step control as :func:`pivotd.pivot._ascent.ascend` (normalised direction, bound grows ×1.25,
+    Same step control as :func:`pivotd.pivot._ascent.ascend` (normalised direction, bound grows ×1.2,
     halves on reversal), on the landmarks within the transition band α ± (2·width + drift) of the axis;
     the band is re-selected when the axis drifts further than ``drift_deg`` from where it was selected.
     """
-    width = np.radians(opts.width_deg)
+    width = _width(alpha, opts)
     ks = ks_from_width(alpha, width)
     w_eff = min(width, alpha, np.pi - alpha)
     drift = np.radians(opts.drift_deg)
@@ -235,8 +241,9 @@ def _refine_one(B: np.ndarray, w: np.ndarray, R: np.ndarray, alpha: float, opts:
         S = ((1.0 - t * t) * wb) @ Bb
         J = np.array([c[1] * S[2] - c[2] * S[1], c[2] * S[0] - c[0] * S[2], c[0] * S[1] - c[1] * S[0]])
         nJ = float(np.sqrt(J @ J))
-        h = 0.5 * h if J @ J_prev < 0 else min(1.25 * h, h_max)
-        J_prev = J
+        agree = J @ J_prev
+        h = 0.5 * h if agree < 0 else (min(1.2 * h, h_max) if agree > 0 else h)
+        J_prev = J if agree >= 0 else np.zeros(3)
         if nJ < 1e-12 or h < tol:
             break
         R = _ascent._exp((J * (h / nJ))[None])[0] @ R
