@@ -35,6 +35,7 @@ class Geometry:
     inv_dist: np.ndarray | None
     weights: np.ndarray
     exact: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+    valid_all: bool = False  # True when no landmark sits at a sensor (inv_dist > 0 wherever weights exist)
 
     @property
     def rows(self) -> int:
@@ -125,19 +126,21 @@ def _active(
         if cos_hi < 1.0:
             mask &= cos <= cos_hi
     K, Lfull = mask.shape
-    flat = np.flatnonzero(mask)
     counts = np.count_nonzero(mask, axis=1)
+    scale = None
+    if counts.size and counts.max() > cap:  # thin crowded rows with a column stride before extracting
+        stride = np.maximum(1, counts // cap)
+        crowded = np.flatnonzero(stride > 1)
+        cols_idx = np.arange(Lfull)
+        for i in crowded:
+            mask[i] &= cols_idx % stride[i] == 0
+        kept = np.count_nonzero(mask, axis=1)
+        scale = (counts / np.maximum(kept, 1)).astype(np.float32)
+        counts = kept
+    flat = np.flatnonzero(mask)
     rows = np.repeat(np.arange(K), counts)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     pos = np.arange(rows.size) - starts[rows]
-    scale = None
-    if counts.size and counts.max() > cap:
-        stride = np.maximum(1, -(-counts // cap))
-        keep = pos % stride[rows] == 0
-        kept = np.bincount(rows[keep], minlength=K)
-        scale = (counts / np.maximum(kept, 1)).astype(np.float32)
-        flat, rows, pos = flat[keep], rows[keep], pos[keep] // stride[rows[keep]]
-        counts = kept
     L = max(int(counts.max()) if counts.size else 0, 1)
     B = np.zeros((K * L, 3), dtype=np.float32)
     Wa = np.zeros(K * L, dtype=np.float32)
@@ -339,25 +342,30 @@ def ascend(
     return R, total
 
 
-def hard_counts(geom: Geometry, C: np.ndarray, alpha: float) -> np.ndarray:
-    """Hard visible counts (K,) int: landmarks (any weight) with angle ≤ α, borderline pairs settled in float64.
+def evaluate(geom: Geometry, C: np.ndarray, alpha: float, width: float) -> tuple[np.ndarray, np.ndarray]:
+    """Hard visible counts (K,) int and smooth objectives F_k = Σ_j s_kj v(θ_kj) (K,) at α, from one cos pass.
 
-    Padding and landmarks at the sensor (inv_dist 0) never count; without inv_dist every column counts.
+    Counts include landmarks of any weight; padding and landmarks at the sensor (inv_dist 0) never
+    count. Pairs within 2e-4 of cos α are settled in float64. v is evaluated only inside the transition
+    band (|k_s (cos θ − cos α)| < 30); deeper inside it is 1, further out 0.
     """
     cos = geom.cos_all(C)
     ca = np.cos(alpha)
-    valid = geom.inv_dist > 0 if geom.inv_dist is not None else np.ones(cos.shape, dtype=bool)
-    inside = (cos >= ca) & valid
-    unsure = (np.abs(cos - ca) < 2e-4) & valid
+    ca32 = np.float32(ca)
+    inside = cos >= ca32
+    if geom.inv_dist is not None and geom.weights.ndim == 2 and not geom.valid_all:
+        inside &= geom.inv_dist > 0
+    unsure = np.abs(cos - ca32) < np.float32(2e-4)
     rows, cols = _nonzero2d(unsure)
     if rows.size:
-        inside[rows, cols] = geom.exact(rows, cols, C) >= ca - 1e-12
-    return np.count_nonzero(inside, axis=1)
-
-
-def smooth_values(geom: Geometry, C: np.ndarray, alpha: float, width: float) -> np.ndarray:
-    """F_k = Σ_j s_kj v(θ_kj) (K,) at the target α."""
+        ok = geom.inv_dist[rows, cols] > 0 if geom.inv_dist is not None else np.ones(rows.size, bool)
+        inside[rows[ok], cols[ok]] = geom.exact(rows[ok], cols[ok], C) >= ca - 1e-12
+    counts = np.count_nonzero(inside, axis=1)
     ks = ks_from_width(alpha, width)
-    cos = geom.cos_all(C)
-    v = 0.5 + 0.5 * np.tanh(np.float32(0.5 * ks) * (cos - np.float32(np.cos(alpha))))
-    return np.sum(v * geom.weight_rows(), axis=1, dtype=np.float64)
+    x = cos - ca32
+    x *= np.float32(0.5 * ks)
+    np.tanh(x, out=x)
+    x += np.float32(1.0)
+    x *= geom.weight_rows()
+    F = 0.5 * np.sum(x, axis=1, dtype=np.float64)
+    return counts, F

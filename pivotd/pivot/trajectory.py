@@ -83,26 +83,42 @@ def path_directions(waypoints: np.ndarray) -> np.ndarray:
 
 
 def _dense_geometry(points: np.ndarray, waypoints: np.ndarray, fw: np.ndarray, dist_w: bool):
-    """Geometry where every waypoint retains every landmark; returns (geometry, W_i totals)."""
+    """Geometry where every waypoint retains every landmark; returns (geometry, W_i totals).
+
+    Distances come from ‖p‖² + ‖t‖² − 2 t·p in float32 around the waypoints' centroid (one matrix
+    product); pairs closer than 1 % of the scene scale are recomputed in float64.
+    """
     centre = waypoints.mean(axis=0)
     P = (points - centre).astype(np.float32)
     T = (waypoints - centre).astype(np.float32)
-    d2 = np.einsum("ij,ij->i", P, P)[None, :] + np.einsum("ij,ij->i", T, T)[:, None] - 2.0 * (T @ P.T)
-    scale2 = float(max(np.max(np.einsum("ij,ij->i", P, P), initial=0.0), np.max(np.einsum("ij,ij->i", T, T))))
-    unsure = d2 < 1e-4 * max(scale2, 1e-12)  # float32 cancellation: recompute close pairs in float64
+    pp = np.einsum("ij,ij->i", P, P)
+    tt = np.einsum("ij,ij->i", T, T)
+    d = T @ P.T
+    d *= np.float32(-2.0)
+    d += pp[None, :]
+    d += tt[:, None]
+    scale2 = float(max(np.max(pp, initial=0.0), np.max(tt)))
+    unsure = d < np.float32(1e-4 * max(scale2, 1e-12))  # float32 cancellation: recompute close pairs in float64
     rows, cols = _ascent._nonzero2d(unsure)
     if rows.size:
-        d2[rows, cols] = np.sum((points[cols] - waypoints[rows]) ** 2, axis=1)
-    d = np.sqrt(np.maximum(d2, 0.0))
-    valid = d > 1e-9 * max(1.0, np.sqrt(scale2))
-    inv = np.where(valid, 1.0 / np.where(valid, d, 1.0), 0.0).astype(np.float32)
-    W = _weights(d, valid, fw[None, :], dist_w)
+        d[rows, cols] = np.sum((points[cols] - waypoints[rows]) ** 2, axis=1)
+    np.maximum(d, 0.0, out=d)
+    np.sqrt(d, out=d)
+    eps = np.float32(1e-9 * max(1.0, np.sqrt(scale2)))
+    valid_all = bool(d.min(initial=np.inf) > eps)
+    valid = None if valid_all else d > eps
+    if valid_all:
+        inv = np.divide(np.float32(1.0), d)
+    else:
+        inv = np.zeros_like(d)
+        np.divide(np.float32(1.0), d, out=inv, where=valid)
+    W = _weights(d, valid, fw.astype(np.float32)[None, :], dist_w)
 
     def exact(r: np.ndarray, c: np.ndarray, C: np.ndarray) -> np.ndarray:
         v = points[c] - waypoints[r]
         return np.einsum("ij,ij->i", v, C[r]) / np.maximum(np.linalg.norm(v, axis=1), 1e-300)
 
-    return _ascent.Geometry(P, T, inv, W, exact), W.sum(axis=1, dtype=np.float64)
+    return _ascent.Geometry(P, T, inv, W, exact, valid_all), W.sum(axis=1, dtype=np.float64)
 
 
 def _ragged_geometry(points, waypoints, fw, dist_w, retained: Sequence[np.ndarray]):
@@ -138,15 +154,31 @@ def _ragged_geometry(points, waypoints, fw, dist_w, retained: Sequence[np.ndarra
     return _ascent.Geometry(P, T, inv, W, exact), W.sum(axis=1, dtype=np.float64)
 
 
-def _weights(d: np.ndarray, valid: np.ndarray, fw: np.ndarray, dist_w: bool) -> np.ndarray:
+def _weights(d: np.ndarray, valid: np.ndarray | None, fw: np.ndarray, dist_w: bool) -> np.ndarray:
     """s_ij (N, L) float32: feature weight × (optionally) the distance weight of eq. 15; 0 where invalid."""
+    fw = fw.astype(np.float32, copy=False)
+    if valid is None:  # every pair is valid
+        if not dist_w:
+            return np.ascontiguousarray(np.broadcast_to(fw, d.shape))
+        dmin = d.min(axis=1, keepdims=True)
+        dmax = d.max(axis=1, keepdims=True)
+        s = d - dmin
+        s *= (np.float32(-1.0) / np.maximum(np.float32(1e-6), dmax - dmin)).astype(np.float32)
+        s += np.float32(1.0)
+        s *= fw
+        return s
     if not dist_w:
-        return np.where(valid, fw, 0.0).astype(np.float32)
-    dmin = np.where(valid, d, np.inf).min(axis=1, keepdims=True)
-    dmax = np.where(valid, d, -np.inf).max(axis=1, keepdims=True)
-    span = np.maximum(1e-6, np.where(np.isfinite(dmax - dmin), dmax - dmin, 1.0))
-    s = 1.0 - (d - np.where(np.isfinite(dmin), dmin, 0.0)) / span
-    return np.where(valid, fw * s, 0.0).astype(np.float32)
+        return np.where(valid, fw, np.float32(0.0))
+    dmin = np.where(valid, d, np.float32(np.inf)).min(axis=1, keepdims=True)
+    dmax = np.where(valid, d, np.float32(-np.inf)).max(axis=1, keepdims=True)
+    empty = ~np.isfinite(dmin)
+    dmin[empty], dmax[empty] = 0.0, 1.0
+    s = d - dmin
+    s *= (np.float32(-1.0) / np.maximum(np.float32(1e-6), dmax - dmin)).astype(np.float32)
+    s += np.float32(1.0)
+    s *= fw
+    s[~valid] = 0.0
+    return s.astype(np.float32, copy=False)
 
 
 def optimize_trajectory(
@@ -258,8 +290,7 @@ def optimize_trajectory(
         visible = np.zeros(N, dtype=int)
         F = np.zeros(N)
     else:
-        visible = _ascent.hard_counts(geom, C, alpha)
-        F = _ascent.smooth_values(geom, C, alpha, rad(opts.width_deg))
+        visible, F = _ascent.evaluate(geom, C, alpha, rad(opts.width_deg))
     obj = float(np.sum(F / np.maximum(norm, 1e-12)))
     if lam > 0:
         obj += smooth * float(np.sum(C[1:] * C[:-1]))
