@@ -34,7 +34,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="3 levels × 40 poses (under a minute on 2 cores)")
     parser.add_argument("--json", metavar="FILE", help="write the result table as JSON")
     parser.add_argument("--plot", metavar="FILE", help="draw the figure-4 equivalents (matplotlib)")
-    parser.add_argument("--poses", type=int, default=None, help="use every k-th pose so that about N remain")
+    parser.add_argument("--poses", type=int, default=None, help="poses per level (a fixed spread subset; default 400)")
     parser.add_argument("--fov-deg", type=float, default=30.0, help="full FoV opening angle (default 30)")
     parser.add_argument("--resolution-deg", type=float, default=2.0, help="brute-force grid resolution")
 
@@ -133,8 +133,8 @@ def run(args: argparse.Namespace) -> int:
     n_poses = args.poses if args.poses else (40 if args.quick else 400)
     if n_poses < 1:
         raise InputError(f"--poses must be ≥ 1, got {n_poses}")
-    step = max(1, 400 // n_poses)
-    pose_idx = np.arange(0, 400, step)[:n_poses]
+    # a fixed, spatially spread subset of the 20 × 20 grid (all 400 when n_poses ≥ 400)
+    pose_idx = np.sort(np.random.default_rng(0).permutation(400)[: min(n_poses, 400)])
     print(f"Monte Carlo: 9 clusters, FoV {args.fov_deg:g} deg, brute force at {args.resolution_deg:g} deg, "
           f"{len(pose_idx)} poses per level, single thread")
     _print_header()
