@@ -37,6 +37,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--poses", type=int, default=None, help="poses per level (a fixed spread subset; default 400)")
     parser.add_argument("--fov-deg", type=float, default=30.0, help="full FoV opening angle (default 30)")
     parser.add_argument("--resolution-deg", type=float, default=2.0, help="brute-force grid resolution")
+    parser.add_argument(
+        "--replan", action="store_true",
+        help="only the warm-started replanning regime: 40 waypoints, 20k landmarks, anchor + pan/tilt limits",
+    )
 
 
 def _level_rows(levels: list[int], pose_idx: np.ndarray, alpha: float, res: float) -> tuple[list[dict], dict]:
@@ -123,8 +127,56 @@ def fif_section(repeats: int = 5) -> dict | None:
     }
 
 
+def replan_section(replans: int = 200) -> dict:
+    """Warm-started trajectory replans as a receding-horizon planner issues them: a 40-waypoint window
+    slides one waypoint per replan along a 2 m-spaced path over the 18k Monte Carlo map plus 2k more
+    features (20k), warm start from the previous plan shifted by one, anchor = the previous first
+    direction, tilt limited to ±60° (continuous pan). Returns latency statistics [ms]."""
+    from pivotd.pivot.constraints import PanTiltConstraint
+    from pivotd.pivot.scenes import monte_carlo_map
+    from pivotd.pivot.trajectory import optimize_trajectory
+
+    pts = np.concatenate([monte_carlo_map(), monte_carlo_map(seed=1)[:2000]])
+    n = 40
+    x = np.linspace(-300.0, 300.0, replans + n + 1)
+    path = np.column_stack([x, 50.0 + 40.0 * np.sin(x / 60.0), np.full_like(x, 20.0)])
+    alpha = math.radians(15.0)
+    con = PanTiltConstraint(np.tile(np.eye(3), (n, 1, 1)), -np.inf, np.inf, -math.radians(60), math.radians(60))
+    prev = optimize_trajectory(pts, path[:n], alpha, 0.6, constraint=con).directions
+    times, iters, steps = [], [], []
+    for k in range(1, replans + 1):
+        init = np.vstack([prev[1:], prev[-1:]])
+        r, dt = timed(optimize_trajectory, pts, path[k : k + n], alpha, 0.6, init_directions=init,
+                      anchor=prev[0], constraint=con)
+        times.append(dt)
+        iters.append(r.iterations)
+        steps.append(float(np.degrees(np.arccos(np.clip(prev[1] @ r.directions[0], -1.0, 1.0)))))
+        prev = r.directions
+    return {
+        "landmarks": int(pts.shape[0]),
+        "waypoints": n,
+        "replans": replans,
+        "median_ms": 1e3 * median(times),
+        "p99_ms": 1e3 * percentile(times, 99),
+        "max_ms": 1e3 * float(np.max(times)),
+        "iterations_mean": float(np.mean(iters)),
+        "first_direction_change_deg_max": float(np.max(steps)),
+    }
+
+
 def run(args: argparse.Namespace) -> int:
     from pivotd.errors import InputError
+
+    if args.replan:
+        rp = replan_section(60 if args.quick else 200)
+        print(
+            f"warm replans ({rp['waypoints']} waypoints, {rp['landmarks']} landmarks, {rp['replans']} replans): "
+            f"median {rp['median_ms']:.2f} ms, p99 {rp['p99_ms']:.2f} ms, max {rp['max_ms']:.2f} ms, "
+            f"{rp['iterations_mean']:.1f} iterations"
+        )
+        if args.json:
+            Path(args.json).write_text(json.dumps({"replan": rp}, indent=2) + "\n")
+        return 0
 
     if not (0 < args.fov_deg < 180):
         raise InputError(f"--fov-deg must be in (0, 180), got {args.fov_deg}")
