@@ -120,9 +120,9 @@ def _active(
     W = geom.weight_rows()
     if everything:
         mask = W > 0
-    else:
+    else:  # zero-weight landmarks may slip in: they add nothing to the gradient
         cos = geom.cos_all(C)
-        mask = (cos >= cos_lo) & (W > 0)
+        mask = cos >= cos_lo
         if cos_hi < 1.0:
             mask &= cos <= cos_hi
     K, Lfull = mask.shape

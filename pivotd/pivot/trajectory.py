@@ -98,9 +98,9 @@ def _dense_geometry(points: np.ndarray, waypoints: np.ndarray, fw: np.ndarray, d
     d += pp[None, :]
     d += tt[:, None]
     scale2 = float(max(np.max(pp, initial=0.0), np.max(tt)))
-    unsure = d < np.float32(1e-4 * max(scale2, 1e-12))  # float32 cancellation: recompute close pairs in float64
-    rows, cols = _ascent._nonzero2d(unsure)
-    if rows.size:
+    close = np.float32(1e-4 * max(scale2, 1e-12))
+    if d.min(initial=np.inf) < close:  # float32 cancellation: recompute close pairs in float64
+        rows, cols = _ascent._nonzero2d(d < close)
         d[rows, cols] = np.sum((points[cols] - waypoints[rows]) ** 2, axis=1)
     np.maximum(d, 0.0, out=d)
     np.sqrt(d, out=d)
