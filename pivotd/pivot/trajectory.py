@@ -40,7 +40,8 @@ class TrajectoryOptions:
     distance_weights: bool = True  # eq. 15 distance weights s_ij
     active_cap: int = 128  # widened stages: landmarks per waypoint (strided subsample)
     final_cap: int = 256  # final stage: landmarks per waypoint near the cone boundary
-    drift_deg: float = 5.0
+    drift_deg: float = 12.0  # cold start: rebuild a waypoint's active set after its axis moved this far
+    warm_drift_deg: float = 5.0  # warm start: the same (tighter: warm bands are crowded, thinning hurts)
     settle_frac: float = 0.03  # stop once at most 3 % of the waypoints still move by ≥ tol per step
     lam_boost: float = 1.0  # widened stages use λ × boost (geometric decay to λ at α): a smoothness homotopy
     smooth_scale: float = 25.0  # κ: the smoothness term is λκ Σ c_{i+1}·c_i against per-waypoint visible fractions
@@ -256,7 +257,7 @@ def optimize_trajectory(
         tol=rad(opts.tol_deg),
         active_cap=opts.active_cap,
         final_cap=opts.final_cap,
-        drift=rad(opts.drift_deg),
+        drift=rad(opts.warm_drift_deg if warm else opts.drift_deg),
         lam_boost=opts.lam_boost,
         settle_frac=opts.settle_frac,
     )
