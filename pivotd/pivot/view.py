@@ -257,37 +257,39 @@ def _refine_one(B: np.ndarray, w: np.ndarray, R: np.ndarray, alpha: float, opts:
 def polish_hard(
     c: np.ndarray, B: np.ndarray, w: np.ndarray, alpha: float, radius: float, tol: float, cos_c: np.ndarray
 ) -> np.ndarray:
-    """Pattern search on the hard visible weight around ``c``: try 8 directions at ``radius`` [rad],
-    move to the best strict improvement, otherwise halve the radius, until it is below ``tol``.
+    """Pattern search on the hard visible weight around ``c``: evaluate 8 directions on each of the rings
+    radius, radius/2, …, ≥ tol [rad] at once, move to the best strict improvement, repeat (at most 4 moves).
 
-    The axis moves at most 3·radius, so only landmarks within α ± 3.5·radius of ``c`` (``cos_c`` = B @ c)
-    can change the count: the others are counted once.
+    The axis moves at most 4·radius, so only landmarks within α ± 4.5·radius of ``c`` (``cos_c`` = B @ c)
+    can change the count: the others are counted once. Float32 inside; the caller recounts exactly.
     """
-    cos_a = np.cos(alpha) - 1e-12
-    reach = 3.5 * radius
+    reach = 4.5 * radius
     lo, hi = np.cos(min(np.pi, alpha + reach)), np.cos(max(0.0, alpha - reach))
     sel = (cos_c >= lo) & (cos_c <= hi)
     if not sel.any():
         return c
-    band, wb = B[sel], w[sel]
-    best = float(wb @ (band @ c >= cos_a))
+    band, wb = B[sel].astype(np.float32), w[sel].astype(np.float32)
+    cos_a = np.float32(np.cos(alpha) - 1e-7)
+    radii = [radius]
+    while radii[-1] * 0.5 >= tol:
+        radii.append(radii[-1] * 0.5)
     ang = np.arange(8) * (np.pi / 4)
-    ca8, sa8 = np.cos(ang)[:, None], np.sin(ang)[:, None]
-    r = radius
-    moved = 0.0
-    while r >= tol and moved < 2.0 * radius:
+    r = np.repeat(radii, 8)[:, None]
+    ca = np.tile(np.cos(ang), len(radii))[:, None]
+    sa = np.tile(np.sin(ang), len(radii))[:, None]
+    cos_r, sin_r = np.cos(r), np.sin(r)
+    best = float(wb @ (band @ c.astype(np.float32) >= cos_a))
+    for _ in range(4):
         x, y, z = c
         t1 = np.array([y, -x, 0.0]) if abs(z) < 0.9 else np.array([0.0, z, -y])  # c × e_z or c × e_x
         t1 /= np.sqrt(t1 @ t1)
         t2 = np.array([y * t1[2] - z * t1[1], z * t1[0] - x * t1[2], x * t1[1] - y * t1[0]])
-        cand = np.cos(r) * c + np.sin(r) * (ca8 * t1 + sa8 * t2)
-        vals = wb @ (band @ cand.T >= cos_a)
+        cand = cos_r * c + sin_r * (ca * t1 + sa * t2)
+        vals = wb @ (band @ cand.T.astype(np.float32) >= cos_a)
         k = int(np.argmax(vals))
-        if vals[k] > best:
-            best, c = float(vals[k]), cand[k] / np.sqrt(cand[k] @ cand[k])
-            moved += r
-        else:
-            r *= 0.5
+        if vals[k] <= best:
+            break
+        best, c = float(vals[k]), cand[k] / np.sqrt(cand[k] @ cand[k])
     return c
 
 
