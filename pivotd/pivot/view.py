@@ -69,9 +69,11 @@ def _candidates(B: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, i
     seeds = [np.eye(3), -np.eye(3)]
     centroid = ws @ Bs
     if np.linalg.norm(centroid) > 1e-9 * max(ws.sum(), 1e-12):
-        c0 = centroid / np.linalg.norm(centroid)
-        frame = optical_frame_from_direction(c0)
-        t1, t2 = frame[:, 0], frame[:, 1]
+        c0 = (centroid / np.sqrt(centroid @ centroid)).astype(float)
+        x, y, z = c0
+        t1 = np.array([y, -x, 0.0]) if abs(z) < 0.9 else np.array([0.0, z, -y])
+        t1 /= np.sqrt(t1 @ t1)
+        t2 = np.array([y * t1[2] - z * t1[1], z * t1[0] - x * t1[2], x * t1[1] - y * t1[0]])
         ca, sa = np.cos(2 * alpha), np.sin(2 * alpha)
         seeds.append(np.stack([c0, ca * c0 + sa * t1, ca * c0 - sa * t1, ca * c0 + sa * t2, ca * c0 - sa * t2]))
     if init is not None:
@@ -97,14 +99,15 @@ def _candidates(B: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, i
         score = np.concatenate([score, raw_score])
     order = np.argsort(-score, kind="stable")
     order = order[score[order] >= opts.keep_ratio * score[order[0]]]
-    kept = [0]  # positions in ``order``
-    if opts.refine > 1 and order.size > 1:
-        near = (C[order] @ C[order].T) >= cos_a  # near-duplicates: closer than α
-        for i in range(1, order.size):
-            if not near[i, kept].any():
-                kept.append(i)
-                if len(kept) >= opts.refine:
-                    break
+    near = (C[order] @ C[order].T) >= cos_a  # near-duplicates: closer than α
+    remaining = np.ones(order.size, dtype=bool)
+    kept = []  # positions in ``order``, best first
+    for _ in range(max(1, opts.refine)):
+        left = np.flatnonzero(remaining)
+        if left.size == 0:
+            break
+        kept.append(int(left[0]))
+        remaining &= ~near[left[0]]
     return C[order[kept]].astype(float)
 
 
