@@ -69,13 +69,6 @@ class Geometry:
             self.exact,
         )
 
-    def bearings(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """Unit bearings (n, 3) float32 for (row, landmark) pairs."""
-        p = self.points[cols] if self.shared else self.points[rows, cols]
-        if self.inv_dist is None:
-            return p
-        return (p - self.origins[rows]) * self.inv_dist[rows, cols][:, None]
-
 
 @dataclass
 class AscentSettings:
