@@ -28,7 +28,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--path", required=True, metavar="PATH", help="path CSV: x,y,z or t,x,y,z,qw,qx,qy,qz rows")
     parser.add_argument("--fov-deg", type=float, default=30.0, help="full cone opening angle [deg] (default 30)")
     parser.add_argument(
-        "--lambda", dest="lam", type=float, default=0.6,
+        "--lambda", dest="lam", type=float, default=0.6, metavar="LAMBDA",
         help="smoothness weight λ ≥ 0 (default 0.6); 0 optimises every waypoint independently",
     )
     parser.add_argument("--min-range", type=float, default=None, metavar="M", help="ignore landmarks closer than M")
