@@ -124,9 +124,11 @@ def _active(
     if counts.size and counts.max() > cap:  # thin crowded rows with a column stride before extracting
         stride = np.maximum(1, counts // cap)
         crowded = np.flatnonzero(stride > 1)
-        cols_idx = np.arange(Lfull)
         for i in crowded:
-            mask[i] &= cols_idx % stride[i] == 0
+            st = int(stride[i])
+            thinned = np.zeros(Lfull, dtype=bool)
+            thinned[::st] = mask[i, ::st]
+            mask[i] = thinned
         kept = np.count_nonzero(mask, axis=1)
         scale = (counts / np.maximum(kept, 1)).astype(np.float32)
         counts = kept
@@ -357,8 +359,7 @@ def evaluate(geom: Geometry, C: np.ndarray, alpha: float, width: float) -> tuple
     ks = ks_from_width(alpha, width)
     x = cos - ca32
     x *= np.float32(0.5 * ks)
-    np.tanh(x, out=x)
-    x += np.float32(1.0)
-    x *= geom.weight_rows()
-    F = 0.5 * np.sum(x, axis=1, dtype=np.float64)
+    np.tanh(x, out=x)  # v = (1 + tanh) / 2
+    W = geom.weight_rows()
+    F = 0.5 * (np.sum(W, axis=1, dtype=np.float64) + np.einsum("ij,ij->i", W, x).astype(np.float64))
     return counts, F

@@ -94,19 +94,20 @@ def _dense_geometry(points: np.ndarray, waypoints: np.ndarray, fw: np.ndarray, d
     T = (waypoints - centre).astype(np.float32)
     pp = np.einsum("ij,ij->i", P, P)
     tt = np.einsum("ij,ij->i", T, T)
-    d = T @ P.T
-    d *= np.float32(-2.0)
+    d = (T * np.float32(-2.0)) @ P.T
     d += pp[None, :]
     d += tt[:, None]
     scale2 = float(max(np.max(pp, initial=0.0), np.max(tt)))
     close = np.float32(1e-4 * max(scale2, 1e-12))
-    if d.min(initial=np.inf) < close:  # float32 cancellation: recompute close pairs in float64
+    d2_min = float(d.min(initial=np.inf))
+    if d2_min < close:  # float32 cancellation: recompute close pairs in float64
         rows, cols = _ascent._nonzero2d(d < close)
         d[rows, cols] = np.sum((points[cols] - waypoints[rows]) ** 2, axis=1)
-    np.maximum(d, 0.0, out=d)
+        np.maximum(d, 0.0, out=d)
+        d2_min = float(d.min(initial=np.inf))
     np.sqrt(d, out=d)
     eps = np.float32(1e-9 * max(1.0, np.sqrt(scale2)))
-    valid_all = bool(d.min(initial=np.inf) > eps)
+    valid_all = bool(np.sqrt(max(d2_min, 0.0)) > eps)
     valid = None if valid_all else d > eps
     if valid_all:
         inv = np.divide(np.float32(1.0), d)
@@ -163,9 +164,9 @@ def _weights(d: np.ndarray, valid: np.ndarray | None, fw: np.ndarray, dist_w: bo
             return np.ascontiguousarray(np.broadcast_to(fw, d.shape))
         dmin = d.min(axis=1, keepdims=True)
         dmax = d.max(axis=1, keepdims=True)
-        s = d - dmin
-        s *= (np.float32(-1.0) / np.maximum(np.float32(1e-6), dmax - dmin)).astype(np.float32)
-        s += np.float32(1.0)
+        inv_span = (np.float32(1.0) / np.maximum(np.float32(1e-6), dmax - dmin)).astype(np.float32)
+        s = d * -inv_span  # s = 1 − (d − dmin)/span, in three passes
+        s += (np.float32(1.0) + dmin * inv_span).astype(np.float32)
         s *= fw
         return s
     if not dist_w:
