@@ -140,19 +140,24 @@ def _ragged_geometry(points, waypoints, fw, dist_w, retained: Sequence[np.ndarra
         idx[i, : r.size] = r
         pad[i, : r.size] = True
     centre = waypoints.mean(axis=0)
-    diff = points[idx] - waypoints[:, None, :]
-    d = np.linalg.norm(diff, axis=2)
+    P = (points - centre).astype(np.float32)[idx]  # (N, L, 3), float32 around the waypoints' centroid
+    T = (waypoints - centre).astype(np.float32)
+    diff = P - T[:, None, :]
+    d = np.sqrt(np.einsum("nlk,nlk->nl", diff, diff))
     scale = float(max(np.abs(points - centre).max(initial=0.0), np.abs(waypoints - centre).max(), 1.0))
+    close = d < 1e-2 * scale  # float32 rounding matters only for close pairs: recompute those in float64
+    rows, cols = _ascent._nonzero2d(close & pad)
+    if rows.size:
+        d[rows, cols] = np.linalg.norm(points[idx[rows, cols]] - waypoints[rows], axis=1)
     valid = pad & (d > 1e-9 * scale)
-    inv = np.where(valid, 1.0 / np.where(valid, d, 1.0), 0.0).astype(np.float32)
+    inv = np.zeros_like(d)
+    np.divide(np.float32(1.0), d, out=inv, where=valid)
     W = _weights(d, valid, fw[idx], dist_w)
 
     def exact(r: np.ndarray, c: np.ndarray, C: np.ndarray) -> np.ndarray:
         v = points[idx[r, c]] - waypoints[r]
         return np.einsum("ij,ij->i", v, C[r]) / np.maximum(np.linalg.norm(v, axis=1), 1e-300)
 
-    P = (points[idx] - centre).astype(np.float32)
-    T = (waypoints - centre).astype(np.float32)
     return _ascent.Geometry(P, T, inv, W, exact), W.sum(axis=1, dtype=np.float64)
 
 
