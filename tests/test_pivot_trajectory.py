@@ -117,6 +117,17 @@ def test_landmark_at_a_waypoint_is_ignored():
     assert abs(int(r.visible[3]) - int(ref.visible[3])) <= 2
 
 
+def test_landmark_at_a_waypoint_is_ignored_with_retained_lists():
+    scene = competing_clusters_path(length=10.0)
+    pts = np.vstack([scene.points, scene.path[3]])
+    everything = [np.arange(len(pts))] * len(scene.path)
+    r = optimize_trajectory(pts, scene.path, np.radians(30), 0.6, retained=everything)
+    ref = optimize_trajectory(scene.points, scene.path, np.radians(30), 0.6)
+    assert np.isfinite(r.directions).all()
+    assert abs(int(r.visible[3]) - int(ref.visible[3])) <= 2
+    assert r.visible.max() <= len(scene.points)
+
+
 def test_zero_landmarks_and_a_single_waypoint():
     path = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0]])
     r = optimize_trajectory(np.zeros((0, 3)), path, 0.3, 0.6)

@@ -341,24 +341,20 @@ def evaluate(geom: Geometry, C: np.ndarray, alpha: float, width: float) -> tuple
     """Hard visible counts (K,) int and smooth objectives F_k = Σ_j s_kj v(θ_kj) (K,) at α, from one cos pass.
 
     Counts include landmarks of any weight; padding and landmarks at the sensor (inv_dist 0) never
-    count. Pairs within 2e-4 of cos α are settled in float64. v is evaluated only inside the transition
-    band (|k_s (cos θ − cos α)| < 30); deeper inside it is 1, further out 0.
+    count. Pairs within 2e-4 of cos α are settled in float64.
     """
-    cos = geom.cos_all(C)
+    x = geom.cos_all(C)
     ca = np.cos(alpha)
-    ca32 = np.float32(ca)
-    inside = cos >= ca32
+    x -= np.float32(ca)  # x = cos θ − cos α
+    inside = x >= 0
     if geom.inv_dist is not None and geom.weights.ndim == 2 and not geom.valid_all:
         inside &= geom.inv_dist > 0
-    unsure = np.abs(cos - ca32) < np.float32(2e-4)
-    rows, cols = _nonzero2d(unsure)
+    rows, cols = _nonzero2d(np.abs(x) < np.float32(2e-4))
     if rows.size:
         ok = geom.inv_dist[rows, cols] > 0 if geom.inv_dist is not None else np.ones(rows.size, bool)
         inside[rows[ok], cols[ok]] = geom.exact(rows[ok], cols[ok], C) >= ca - 1e-12
     counts = np.count_nonzero(inside, axis=1)
-    ks = ks_from_width(alpha, width)
-    x = cos - ca32
-    x *= np.float32(0.5 * ks)
+    x *= np.float32(0.5 * ks_from_width(alpha, width))
     np.tanh(x, out=x)  # v = (1 + tanh) / 2
     W = geom.weight_rows()
     F = 0.5 * (np.sum(W, axis=1, dtype=np.float64) + np.einsum("ij,ij->i", W, x).astype(np.float64))
