@@ -13,7 +13,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pivotd.geometry import so3_exp
 from pivotd.pivot.visibility import ks_from_width
 
 Projector = Callable[[np.ndarray], np.ndarray]
@@ -231,8 +230,8 @@ def _exp(w: np.ndarray) -> np.ndarray:
 def _turn_to(R: np.ndarray, target: np.ndarray) -> np.ndarray:
     """Left-multiply each R (K, 3, 3) by the smallest rotation taking R e3 to the unit ``target`` (K, 3)."""
     c = R[:, :, 2]
-    axis = np.cross(c, target)
-    s = np.linalg.norm(axis, axis=1)
+    axis = _cross(c, target)
+    s = np.sqrt(np.einsum("ij,ij->i", axis, axis))
     ang = np.arctan2(s, np.sum(c * target, axis=1))
     moved = ang > 1e-12
     if not np.any(moved):
@@ -245,7 +244,7 @@ def _turn_to(R: np.ndarray, target: np.ndarray) -> np.ndarray:
         bad = np.linalg.norm(perp, axis=1) < 1e-6
         perp[bad] = np.cross(c[antipodal][bad], np.array([0.0, 1.0, 0.0]))
         w[antipodal] = perp / np.linalg.norm(perp, axis=1, keepdims=True) * np.pi
-    return so3_exp(w) @ R
+    return _exp(w) @ R
 
 
 def ascend(
