@@ -1,0 +1,266 @@
+"""``pivotd bench montecarlo``: the paper's Monte Carlo evaluation (§V-A.2) and the FIF y-corridor plan.
+
+Per feature-count level: PIVOT (single-pose optimizer) and the 2° brute force on the same bearings of
+each pose, timed separately (median ms per pose), their ratio, and the retained visibility
+100·V_PIVOT/V_BF (mean, 5th percentile, min), next to the paper's figures. The FIF section times the
+whole-trajectory optimisation of tests/data/fif/ycorridor (30° FoV, λ = 0.6) and compares it with the
+λ = 0 plan.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+from pathlib import Path
+
+import numpy as np
+
+from pivotd.bench._stats import best_of, median, percentile, timed
+
+log = logging.getLogger(__name__)
+
+PAPER = {
+    "pivot_ms": (1.9, 15.2),
+    "brute_ms": (144.2, 1289.7),
+    "speedup": (76, 85),
+    "retained_pct": (98.1, 99.6),
+}
+FIF_DIR = Path(__file__).resolve().parents[2] / "tests" / "data" / "fif"
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--quick", action="store_true", help="3 levels × 40 poses (under a minute on 2 cores)")
+    parser.add_argument("--json", metavar="FILE", help="write the result table as JSON")
+    parser.add_argument("--plot", metavar="FILE", help="draw the figure-4 equivalents (matplotlib)")
+    parser.add_argument("--poses", type=int, default=None, help="poses per level (a fixed spread subset; default 400)")
+    parser.add_argument("--fov-deg", type=float, default=30.0, help="full FoV opening angle (default 30)")
+    parser.add_argument("--resolution-deg", type=float, default=2.0, help="brute-force grid resolution")
+    parser.add_argument(
+        "--replan", action="store_true",
+        help="only the warm-started replanning regime: 40 waypoints, 20k landmarks, anchor + pan/tilt limits",
+    )
+
+
+def _level_rows(levels: list[int], pose_idx: np.ndarray, alpha: float, res: float) -> tuple[list[dict], dict]:
+    from pivotd.pivot.brute import brute_force_view
+    from pivotd.pivot.scenes import monte_carlo_levels, monte_carlo_map, monte_carlo_poses
+    from pivotd.pivot.view import optimize_view
+
+    poses = monte_carlo_poses()[pose_idx]
+    counts = monte_carlo_levels()
+    rows, detail = [], {}
+    for level in levels:
+        pts = monte_carlo_map(level)
+        t_piv, t_bf, ratio, d_piv, d_bf = [], [], [], [], []
+        for t in poses:
+            diff = pts - t
+            bearings = diff / np.linalg.norm(diff, axis=1, keepdims=True)
+            r, dt = timed(optimize_view, bearings, None, alpha)
+            (d, best), db = timed(brute_force_view, bearings, None, alpha, res)
+            t_piv.append(dt)
+            t_bf.append(db)
+            ratio.append(100.0 * r.visible / best if best > 0 else 100.0)
+            d_piv.append(r.direction)
+            d_bf.append(d)
+        row = {
+            "level": level,
+            "features": counts[level],
+            "poses": len(poses),
+            "pivot_ms": 1e3 * median(t_piv),
+            "brute_ms": 1e3 * median(t_bf),
+            "speedup": median(t_bf) / median(t_piv),
+            "retained_mean_pct": float(np.mean(ratio)),
+            "retained_p5_pct": percentile(ratio, 5),
+            "retained_min_pct": float(np.min(ratio)),
+        }
+        rows.append(row)
+        detail[level] = {"ratio": np.array(ratio), "pivot": np.array(d_piv), "brute": np.array(d_bf)}
+        log.info("level %d (%d features) done", level, counts[level])
+        _print_row(row)
+    return rows, detail
+
+
+def _print_header() -> None:
+    print(
+        f"{'features':>8} {'poses':>5} {'PIVOT ms':>9} {'brute ms':>9} {'speedup':>8} "
+        f"{'ret mean%':>9} {'ret p5%':>8} {'ret min%':>8}"
+    )
+
+
+def _print_row(r: dict) -> None:
+    print(
+        f"{r['features']:>8} {r['poses']:>5} {r['pivot_ms']:>9.3f} {r['brute_ms']:>9.1f} {r['speedup']:>7.0f}x "
+        f"{r['retained_mean_pct']:>9.2f} {r['retained_p5_pct']:>8.2f} {r['retained_min_pct']:>8.2f}",
+        flush=True,
+    )
+
+
+def fif_section(repeats: int = 5) -> dict | None:
+    """Whole-trajectory plan on the FIF y-corridor: time (median of ``repeats``), max step, visible vs λ = 0."""
+    from pivotd.maps.formats import load_landmarks
+    from pivotd.paths import load_path
+    from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
+
+    map_file, path_file = FIF_DIR / "ycorridor_6x20_points_w.txt", FIF_DIR / "ycorridor_6x20.csv"
+    if not (map_file.exists() and path_file.exists()):
+        log.warning("FIF data not found under %s; skipping the FIF section", FIF_DIR)
+        return None
+    pts = load_landmarks(map_file).points
+    way = load_path(path_file).positions
+    alpha = math.radians(15.0)
+    opts = TrajectoryOptions(distance_weights=False)  # as `pivotd plan`
+    smooth, times = best_of(lambda: optimize_trajectory(pts, way, alpha, 0.6, options=opts), repeats)
+    free, times0 = best_of(lambda: optimize_trajectory(pts, way, alpha, 0.0, options=opts), max(1, repeats // 2))
+    C = smooth.directions
+    steps = np.degrees(np.arctan2(np.linalg.norm(np.cross(C[1:], C[:-1]), axis=1), np.sum(C[1:] * C[:-1], axis=1)))
+    return {
+        "landmarks": int(pts.shape[0]),
+        "waypoints": int(way.shape[0]),
+        "optimize_ms": 1e3 * median(times),
+        "optimize_ms_lambda0": 1e3 * median(times0),
+        "max_step_deg": float(steps.max()),
+        "visible_mean": float(smooth.visible.mean()),
+        "visible_mean_lambda0": float(free.visible.mean()),
+        "visible_ratio_pct": 100.0 * float(smooth.visible.mean()) / max(float(free.visible.mean()), 1e-12),
+    }
+
+
+def replan_section(replans: int = 200, nearest: int | None = None) -> dict:
+    """Warm-started trajectory replans as a receding-horizon planner issues them: a 40-waypoint window
+    slides one waypoint per replan along a 2 m-spaced path over the 18k Monte Carlo map plus 2k more
+    features (20k), warm start from the previous plan shifted by one, anchor = the previous first
+    direction, tilt limited to ±60° (continuous pan). With ``nearest``, each waypoint retains only its
+    ``nearest`` closest landmarks (index lists computed outside the timed call, as a spatial index would
+    deliver them). Returns latency statistics [ms]."""
+    from pivotd.pivot.constraints import PanTiltConstraint
+    from pivotd.pivot.scenes import monte_carlo_map
+    from pivotd.pivot.trajectory import optimize_trajectory
+
+    pts = np.concatenate([monte_carlo_map(), monte_carlo_map(seed=1)[:2000]])
+    n = 40
+    x = np.linspace(-300.0, 300.0, replans + n + 1)
+    path = np.column_stack([x, 50.0 + 40.0 * np.sin(x / 60.0), np.full_like(x, 20.0)])
+    alpha = math.radians(15.0)
+    con = PanTiltConstraint(np.tile(np.eye(3), (n, 1, 1)), -np.inf, np.inf, -math.radians(60), math.radians(60))
+    prev = optimize_trajectory(pts, path[:n], alpha, 0.6, constraint=con).directions
+    times, iters, steps = [], [], []
+    for k in range(1, replans + 1):
+        init = np.vstack([prev[1:], prev[-1:]])
+        window = path[k : k + n]
+        retained = None
+        if nearest:
+            d2 = np.sum((pts[None, :, :] - window[:, None, :]) ** 2, axis=2)
+            retained = list(np.argpartition(d2, nearest - 1, axis=1)[:, :nearest])
+        r, dt = timed(optimize_trajectory, pts, window, alpha, 0.6, init_directions=init,
+                      anchor=prev[0], constraint=con, retained=retained)
+        times.append(dt)
+        iters.append(r.iterations)
+        steps.append(float(np.degrees(np.arccos(np.clip(prev[1] @ r.directions[0], -1.0, 1.0)))))
+        prev = r.directions
+    return {
+        "landmarks": int(pts.shape[0]),
+        "retained_per_waypoint": int(nearest) if nearest else int(pts.shape[0]),
+        "waypoints": n,
+        "replans": replans,
+        "median_ms": 1e3 * median(times),
+        "p99_ms": 1e3 * percentile(times, 99),
+        "max_ms": 1e3 * float(np.max(times)),
+        "iterations_mean": float(np.mean(iters)),
+        "first_direction_change_deg_max": float(np.max(steps)),
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    from pivotd.errors import InputError
+
+    if args.replan:
+        out = []
+        for nearest in (None, 5000):
+            rp = replan_section(60 if args.quick else 200, nearest)
+            out.append(rp)
+            print(
+                f"warm replans ({rp['waypoints']} waypoints, {rp['landmarks']} landmarks, "
+                f"{rp['retained_per_waypoint']} retained per waypoint, {rp['replans']} replans): "
+                f"median {rp['median_ms']:.2f} ms, p99 {rp['p99_ms']:.2f} ms, max {rp['max_ms']:.2f} ms, "
+                f"{rp['iterations_mean']:.1f} iterations",
+                flush=True,
+            )
+        if args.json:
+            Path(args.json).write_text(json.dumps({"replan": out}, indent=2) + "\n")
+        return 0
+
+    if not (0 < args.fov_deg < 180):
+        raise InputError(f"--fov-deg must be in (0, 180), got {args.fov_deg}")
+    alpha = math.radians(args.fov_deg) / 2
+    levels = [0, 4, 9] if args.quick else list(range(10))
+    n_poses = args.poses if args.poses else (40 if args.quick else 400)
+    if n_poses < 1:
+        raise InputError(f"--poses must be ≥ 1, got {n_poses}")
+    # a fixed, spatially spread subset of the 20 × 20 grid (all 400 when n_poses ≥ 400)
+    pose_idx = np.sort(np.random.default_rng(0).permutation(400)[: min(n_poses, 400)])
+    print(f"Monte Carlo: 9 clusters, FoV {args.fov_deg:g} deg, brute force at {args.resolution_deg:g} deg, "
+          f"{len(pose_idx)} poses per level, single thread")
+    _print_header()
+    rows, detail = _level_rows(levels, pose_idx, alpha, args.resolution_deg)
+    p = PAPER
+    print(
+        f"paper (C++, i9-14900K): PIVOT {p['pivot_ms'][0]}–{p['pivot_ms'][1]} ms, brute {p['brute_ms'][0]}–"
+        f"{p['brute_ms'][1]} ms, speedup {p['speedup'][0]}–{p['speedup'][1]}x, retained "
+        f"{p['retained_pct'][0]}–{p['retained_pct'][1]} %"
+    )
+    fif = fif_section(3 if args.quick else 7)
+    if fif:
+        print(
+            f"FIF ycorridor ({fif['landmarks']} landmarks, {fif['waypoints']} waypoints, 30 deg, lambda 0.6): "
+            f"{fif['optimize_ms']:.1f} ms, max step {fif['max_step_deg']:.2f} deg, visible mean "
+            f"{fif['visible_mean']:.1f} = {fif['visible_ratio_pct']:.1f} % of the lambda 0 plan's "
+            f"{fif['visible_mean_lambda0']:.1f} ({fif['optimize_ms_lambda0']:.1f} ms)"
+        )
+    result = {"fov_deg": args.fov_deg, "resolution_deg": args.resolution_deg, "levels": rows, "paper": PAPER,
+              "fif": fif}
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+    if args.plot:
+        _plot(Path(args.plot), rows, detail, pose_idx)
+    return 0
+
+
+def _plot(out: Path, rows: list[dict], detail: dict, pose_idx: np.ndarray) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pivotd.pivot.scenes import monte_carlo_map, monte_carlo_poses
+
+    top = rows[-1]["level"]
+    poses = monte_carlo_poses()[pose_idx]
+    pts = monte_carlo_map(top)
+    fig, ax = plt.subplots(1, 3, figsize=(16, 5))
+    ax[0].scatter(pts[:, 0], pts[:, 1], s=0.3, c="0.7")
+    d_p, d_b = detail[top]["pivot"], detail[top]["brute"]
+    ax[0].quiver(poses[:, 0], poses[:, 1], d_b[:, 0], d_b[:, 1], color="tab:blue", label="brute force", width=0.004)
+    ax[0].quiver(poses[:, 0], poses[:, 1], d_p[:, 0], d_p[:, 1], color="tab:red", label="PIVOT", width=0.002)
+    ax[0].set_title(f"viewing directions ({rows[-1]['features']} features)")
+    ax[0].set_aspect("equal")
+    ax[0].legend(loc="upper right", fontsize=8)
+    gap = (100.0 - detail[top]["ratio"]) / 100.0
+    sc = ax[1].scatter(poses[:, 0], poses[:, 1], c=gap, cmap="viridis", s=60, marker="s")
+    fig.colorbar(sc, ax=ax[1], label="(V_BF − V_PIVOT) / V_BF")
+    ax[1].set_title("normalised visibility gap")
+    ax[1].set_aspect("equal")
+    f = [r["features"] for r in rows]
+    ax[2].semilogy(f, [r["pivot_ms"] for r in rows], "o-", label="PIVOT ms/pose")
+    ax[2].semilogy(f, [r["brute_ms"] for r in rows], "s-", label="brute force ms/pose")
+    ax[2].set_xlabel("features")
+    ax2 = ax[2].twinx()
+    ax2.plot(f, [r["retained_mean_pct"] for r in rows], "g^--", label="retained % (mean)")
+    ax2.set_ylim(90, 101)
+    ax2.set_ylabel("retained visibility %")
+    ax[2].legend(loc="center left", fontsize=8)
+    ax[2].set_title("scaling with feature count")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,360 @@
+"""Batched on-manifold gradient ascent shared by the single-pose and trajectory optimizers.
+
+Rows are independent optical axes (waypoints of a trajectory, or multi-start candidates of one pose),
+all updated in lock-step with padded numpy arrays: R_k ← exp((h_k Ĵ_k)^) R_k (paper eqs. 8, 13, 20).
+Landmark geometry is held once (float32, centred) and each stage works on the landmarks near the
+current cone only ("active set"), rebuilt when an axis drifts away from where the set was built.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from pivotd.pivot.visibility import ks_from_width
+
+Projector = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass
+class Geometry:
+    """Landmarks seen from K rows.
+
+    points: (M, 3) shared by every row, or (K, L, 3) per row (padded), float32, minus ``centre``;
+    origins: (K, 3) float32 sensor positions minus ``centre``; inv_dist: (K, L) float32 1/‖p − t‖
+    (0 for padding / landmarks at the sensor), or None when points are already unit bearings seen
+    from the origin; weights: (K, L) or (L,) float32 feature weights (0 for padding);
+    exact: callable (rows, cols, C) -> float64 cos θ for the given pairs (to settle hard counts).
+    """
+
+    points: np.ndarray
+    origins: np.ndarray
+    inv_dist: np.ndarray | None
+    weights: np.ndarray
+    exact: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+    valid_all: bool = False  # True when no landmark sits at a sensor (inv_dist > 0 wherever weights exist)
+
+    @property
+    def rows(self) -> int:
+        return int(self.origins.shape[0])
+
+    @property
+    def shared(self) -> bool:
+        return self.points.ndim == 2
+
+    def cos_all(self, C: np.ndarray) -> np.ndarray:
+        """cos θ (K, L) float32 between every row's axis C (K, 3) and each of its landmarks."""
+        C32 = C.astype(np.float32)
+        raw = C32 @ self.points.T if self.shared else np.matmul(self.points, C32[:, :, None])[..., 0]
+        if self.inv_dist is None:
+            return raw
+        raw -= np.sum(self.origins * C32, axis=1)[:, None]
+        raw *= self.inv_dist
+        return raw
+
+    def weight_rows(self) -> np.ndarray:
+        """Weights broadcast to (K, L)."""
+        return np.broadcast_to(self.weights, (self.rows, self.weights.shape[-1]))
+
+    def take_rows(self, rows: np.ndarray) -> Geometry:
+        """The geometry of a subset of rows."""
+        return Geometry(
+            self.points if self.shared else self.points[rows],
+            self.origins[rows],
+            None if self.inv_dist is None else self.inv_dist[rows],
+            self.weights if self.weights.ndim == 1 else self.weights[rows],
+            self.exact,
+        )
+
+
+@dataclass
+class AscentSettings:
+    """Numbers steering :func:`ascend` (angles in radians)."""
+
+    stages: list[float]  # half-angle per stage, the last one is the target α
+    width: float  # target angular transition width of the sigmoid
+    wide_width_ratio: float  # widened stages use width max(width, ratio · α_q)
+    stage_iters: int  # iterations per widened stage
+    final_iters: int  # iteration budget at α
+    step_init: float  # first step bound
+    step_max: float  # largest step bound
+    tol: float  # converged when every step bound is below this
+    active_cap: int  # widened stages: at most this many landmarks per row (strided subsample)
+    final_cap: int  # target stage: at most this many landmarks per row
+    drift: float  # rebuild the active set when an axis moved more than this since it was built
+    narrow_last: bool = True  # False: every stage (also the last) is run as a widened stage
+    settle_frac: float = 0.0  # converged when at most this fraction of rows still takes steps ≥ tol
+    lam_boost: float = 1.0  # smoothness weight multiplier, decaying geometrically over the stages to 1 at α
+
+
+def _nonzero2d(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column indices of a 2-D mask in row-major order (much faster than np.nonzero in 2-D)."""
+    flat = np.flatnonzero(mask)
+    return np.divmod(flat, mask.shape[1])
+
+
+def _active(
+    geom: Geometry, C: np.ndarray, cos_lo: float, cos_hi: float, cap: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Padded active bearings (K, L, 3) and weights (K, L): landmarks with cos_lo ≤ cos θ ≤ cos_hi.
+
+    Rows with more than ``cap`` such landmarks keep an evenly strided subset whose weights are scaled
+    up so that each row's total active weight is preserved. With cos_lo ≤ −1 ≤ 1 ≤ cos_hi and unit
+    bearings (inv_dist None) within the cap, the stored arrays are returned as they are.
+    """
+    everything = cos_lo <= -1.0 and cos_hi >= 1.0
+    if everything and geom.inv_dist is None and geom.points.shape[-2] <= cap:
+        if geom.shared:
+            return geom.points[None], geom.weights[None]
+        return geom.points, geom.weight_rows()
+    W = geom.weight_rows()
+    if everything:
+        mask = W > 0
+    else:  # zero-weight landmarks may slip in: they add nothing to the gradient
+        cos = geom.cos_all(C)
+        mask = cos >= cos_lo
+        if cos_hi < 1.0:
+            mask &= cos <= cos_hi
+    K, Lfull = mask.shape
+    counts = np.count_nonzero(mask, axis=1)
+    scale = None
+    if counts.size and counts.max() > cap:  # thin crowded rows with a column stride before extracting
+        stride = np.maximum(1, counts // cap)
+        crowded = np.flatnonzero(stride > 1)
+        for i in crowded:
+            st = int(stride[i])
+            thinned = np.zeros(Lfull, dtype=bool)
+            thinned[::st] = mask[i, ::st]
+            mask[i] = thinned
+        kept = np.count_nonzero(mask, axis=1)
+        scale = (counts / np.maximum(kept, 1)).astype(np.float32)
+        counts = kept
+    flat = np.flatnonzero(mask)
+    rows = np.repeat(np.arange(K), counts)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    pos = np.arange(rows.size) - starts[rows]
+    L = max(int(counts.max()) if counts.size else 0, 1)
+    B = np.zeros((K * L, 3), dtype=np.float32)
+    Wa = np.zeros(K * L, dtype=np.float32)
+    if flat.size:
+        dest = rows * L + pos
+        cols = flat - rows * Lfull
+        p = geom.points[cols] if geom.shared else geom.points.reshape(-1, 3)[flat]
+        if geom.inv_dist is not None:
+            p = (p - geom.origins[rows]) * geom.inv_dist.reshape(-1)[flat][:, None]
+        B[dest] = p
+        w = geom.weights[cols] if geom.weights.ndim == 1 else geom.weights.reshape(-1)[flat]
+        Wa[dest] = w if scale is None else w * scale[rows]
+    return B.reshape(K, L, 3), Wa.reshape(K, L)
+
+
+def _refresh_rows(
+    geom: Geometry,
+    C: np.ndarray,
+    rows: np.ndarray,
+    B: np.ndarray,
+    Wa: np.ndarray,
+    cos_lo: float,
+    cos_hi: float,
+    cap: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rebuild the active set of the given rows only, widening the padded arrays when needed."""
+    if rows.size > geom.rows // 2:
+        return _active(geom, C, cos_lo, cos_hi, cap)
+    Br, Wr = _active(geom.take_rows(rows), C[rows], cos_lo, cos_hi, cap)
+    L, Lr = B.shape[1], Br.shape[1]
+    if Lr > L:
+        B = np.concatenate([B, np.zeros((B.shape[0], Lr - L, 3), np.float32)], axis=1)
+        Wa = np.concatenate([Wa, np.zeros((Wa.shape[0], Lr - L), np.float32)], axis=1)
+    else:
+        B = B.copy() if not B.flags.writeable else B
+        Wa = Wa.copy() if not Wa.flags.writeable else Wa
+    B[rows] = 0.0
+    Wa[rows] = 0.0
+    B[rows, :Lr] = Br
+    Wa[rows, :Lr] = Wr
+    return B, Wa
+
+
+def subsample(geom: Geometry, lengths: np.ndarray, cap: int) -> Geometry:
+    """At most ``cap`` evenly strided landmarks of each row as unit bearings, weights scaled to the row totals.
+
+    ``lengths`` (K,): how many leading columns of each row are real (the rest is padding).
+    """
+    K = geom.rows
+    k = np.arange(cap)
+    lengths = np.asarray(lengths, dtype=np.intp)
+    cols = np.where(lengths[:, None] > cap, (k[None, :] * lengths[:, None]) // cap, k[None, :])
+    real = k[None, :] < np.minimum(lengths, cap)[:, None]
+    cols = np.where(real, cols, 0)
+    rows = np.broadcast_to(np.arange(K)[:, None], cols.shape)
+    p = geom.points[cols] if geom.shared else geom.points[rows, cols]
+    w = geom.weights[cols] if geom.weights.ndim == 1 else geom.weights[rows, cols]
+    if geom.inv_dist is not None:
+        p = (p - geom.origins[:, None, :]) * geom.inv_dist[rows, cols][..., None]
+    w = np.where(real, w, 0.0)
+    total = geom.weight_rows().sum(axis=1, dtype=np.float64)
+    sub = w.sum(axis=1, dtype=np.float64)
+    w = w * (total / np.where(sub > 0, sub, 1.0))[:, None]
+    return Geometry(p.astype(np.float32), np.zeros((K, 3), np.float32), None, w.astype(np.float32), geom.exact)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise a × b for (K, 3) arrays (cheaper than np.cross for small K)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
+def _exp(w: np.ndarray) -> np.ndarray:
+    """exp(ω^) (K, 3, 3) for rotation vectors (K, 3) (Rodrigues; same as geometry.so3_exp, less overhead)."""
+    th = np.sqrt(np.einsum("ij,ij->i", w, w))
+    small = th < 1e-8
+    safe = np.where(small, 1.0, th)
+    a = np.where(small, 1.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5, (1.0 - np.cos(safe)) / safe**2)
+    K = np.zeros((w.shape[0], 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
+    out = np.matmul(K, K) * b[:, None, None] + K * a[:, None, None]
+    out[:, 0, 0] += 1.0
+    out[:, 1, 1] += 1.0
+    out[:, 2, 2] += 1.0
+    return out
+
+
+def _turn_to(R: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Left-multiply each R (K, 3, 3) by the smallest rotation taking R e3 to the unit ``target`` (K, 3)."""
+    c = R[:, :, 2]
+    axis = _cross(c, target)
+    s = np.sqrt(np.einsum("ij,ij->i", axis, axis))
+    ang = np.arctan2(s, np.sum(c * target, axis=1))
+    moved = ang > 1e-12
+    if not np.any(moved):
+        return R
+    w = np.zeros_like(axis)
+    w[moved] = axis[moved] / np.maximum(s[moved], 1e-300)[:, None] * ang[moved, None]
+    antipodal = moved & (s < 1e-12)
+    if np.any(antipodal):  # turn by π about any axis ⟂ c
+        perp = np.cross(c[antipodal], np.array([1.0, 0.0, 0.0]))
+        bad = np.linalg.norm(perp, axis=1) < 1e-6
+        perp[bad] = np.cross(c[antipodal][bad], np.array([0.0, 1.0, 0.0]))
+        w[antipodal] = perp / np.linalg.norm(perp, axis=1, keepdims=True) * np.pi
+    return _exp(w) @ R
+
+
+def ascend(
+    geom: Geometry,
+    R: np.ndarray,
+    norm: np.ndarray,
+    settings: AscentSettings,
+    lam: float = 0.0,
+    anchor: np.ndarray | None = None,
+    project: Projector | None = None,
+    coarse: Geometry | None = None,
+) -> tuple[np.ndarray, int]:
+    """Maximise Σ_k F_k(R_k)/norm_k + λ Σ_k c_{k+1}·c_k (+ λ anchor·c_0) over rotations R (K, 3, 3).
+
+    With λ = 0 the rows are independent. Step control: the step direction is the combined gradient
+    (eqs. 12, 18, 19) normalised by each row's feature weight ``norm`` (K,); its length is clipped to a
+    per-row bound h_k that grows ×1.2 while successive gradients agree and halves when they reverse
+    (overshoot; the step after a reversal keeps its bound, as in iRprop), between ``tol`` and
+    ``step_max``. A stage ends when at most ``settle_frac`` of the rows still step by ≥ tol.
+    ``project`` (optional) maps axes onto the reachable set after every step (projected gradient
+    ascent). ``coarse`` (optional) is a subsample of ``geom`` with weights scaled to the same totals,
+    used for the widened stages. Returns the rotations and the iteration count.
+    """
+    R = np.array(R, dtype=float)
+    K = R.shape[0]
+    inv_norm = (1.0 / np.maximum(norm, 1e-12)).astype(np.float32)
+    if project is not None:
+        R = _turn_to(R, project(R[:, :, 2]))
+    total = 0
+    coupled = (lam > 0 and K > 1) or (lam > 0 and anchor is not None)
+    last = len(settings.stages) - 1
+    for q, a_q in enumerate(settings.stages):
+        final = q == last and settings.narrow_last
+        lam_q = lam * settings.lam_boost ** (1.0 - q / last) if last > 0 else lam
+        width = settings.width if final else max(settings.width, settings.wide_width_ratio * a_q)
+        ks = ks_from_width(a_q, width)
+        w_eff = min(width, a_q, np.pi - a_q)
+        margin = 2.0 * w_eff + settings.drift
+        cos_lo = float(np.cos(min(np.pi, a_q + margin)))
+        cos_hi = float(np.cos(max(0.0, a_q - margin))) if a_q - margin > 0 else 1.0
+        cap = settings.final_cap if final else settings.active_cap
+        if not final and coarse is not None:
+            cos_lo, cos_hi = -2.0, 1.0  # the subsample is small: keep all of it, never rebuild
+        iters = settings.final_iters if final else settings.stage_iters
+        cos_a = np.float32(np.cos(a_q))
+        half_ks = np.float32(0.5 * ks)
+        quarter_ks = np.float32(0.25 * ks)
+        h0 = min(settings.step_init, max(a_q, settings.tol))
+        if final:
+            h0 = min(h0, 0.5 * settings.drift)
+        h = np.full(K, h0)
+        J_prev = np.zeros((K, 3))
+        C = R[:, :, 2].copy()
+        g_stage = geom if final or coarse is None else coarse
+        B, Wa = _active(g_stage, C, cos_lo, cos_hi, cap)
+        C_ref = C.copy()
+        cos_drift = np.cos(settings.drift)
+        for _ in range(iters):
+            total += 1
+            cosv = np.matmul(B, C.astype(np.float32)[:, :, None])[..., 0]
+            t = np.tanh(half_ks * (cosv - cos_a))
+            g = Wa * (quarter_ks * (1.0 - t * t))
+            S = np.matmul(g[:, None, :], B)[:, 0, :].astype(float)
+            J = _cross(C, S) * inv_norm[:, None]
+            if coupled:
+                nb = np.zeros_like(C)
+                nb[1:] += C[:-1]
+                nb[:-1] += C[1:]
+                if anchor is not None:
+                    nb[0] += anchor
+                J += lam_q * _cross(C, nb)
+            nJ = np.linalg.norm(J, axis=1)
+            agree = np.sum(J * J_prev, axis=1)
+            h = np.where(agree < 0, 0.5 * h, np.where(agree > 0, np.minimum(1.2 * h, settings.step_max), h))
+            J_prev = np.where((agree < 0)[:, None], 0.0, J)  # after a reversal the next step neither grows nor shrinks
+            live = nJ > 1e-12
+            if np.count_nonzero(live & (h >= settings.tol)) <= settings.settle_frac * K:
+                break
+            step = np.where(live[:, None], J / np.where(live, nJ, 1.0)[:, None] * h[:, None], 0.0)
+            R = _exp(step) @ R
+            if project is not None:
+                R = _turn_to(R, project(R[:, :, 2]))
+            C = R[:, :, 2].copy()
+            if cos_lo > -1.0:
+                moved = np.flatnonzero(np.sum(C * C_ref, axis=1) < cos_drift)
+                if moved.size:
+                    B, Wa = _refresh_rows(g_stage, C, moved, B, Wa, cos_lo, cos_hi, cap)
+                    C_ref[moved] = C[moved]
+    return R, total
+
+
+def evaluate(geom: Geometry, C: np.ndarray, alpha: float, width: float) -> tuple[np.ndarray, np.ndarray]:
+    """Hard visible counts (K,) int and smooth objectives F_k = Σ_j s_kj v(θ_kj) (K,) at α, from one cos pass.
+
+    Counts include landmarks of any weight; padding and landmarks at the sensor (inv_dist 0) never
+    count. Pairs within 2e-4 of cos α are settled in float64.
+    """
+    x = geom.cos_all(C)
+    ca = np.cos(alpha)
+    x -= np.float32(ca)  # x = cos θ − cos α
+    inside = x >= 0
+    if geom.inv_dist is not None and geom.weights.ndim == 2 and not geom.valid_all:
+        inside &= geom.inv_dist > 0
+    rows, cols = _nonzero2d(np.abs(x) < np.float32(2e-4))
+    if rows.size:
+        ok = geom.inv_dist[rows, cols] > 0 if geom.inv_dist is not None else np.ones(rows.size, bool)
+        inside[rows[ok], cols[ok]] = geom.exact(rows[ok], cols[ok], C) >= ca - 1e-12
+    counts = np.count_nonzero(inside, axis=1)
+    x *= np.float32(0.5 * ks_from_width(alpha, width))
+    np.tanh(x, out=x)  # v = (1 + tanh) / 2
+    W = geom.weight_rows()
+    F = 0.5 * (np.sum(W, axis=1, dtype=np.float64) + np.einsum("ij,ij->i", W, x).astype(np.float64))
+    return counts, F

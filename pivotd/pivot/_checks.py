@@ -1,0 +1,47 @@
+"""Input validation shared by the optimizer entry points (raise ValueError with a clear message)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def finite_array(name: str, value: np.ndarray, shape_tail: tuple[int, ...] = (3,)) -> np.ndarray:
+    """``value`` as float64 of shape (n, *shape_tail); raises ValueError on a wrong shape or NaN/inf."""
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:
+        want = "(n, " + ", ".join(map(str, shape_tail)) + ")"
+        raise ValueError(f"{name} must have shape {want}, got {arr.shape}")
+    if not np.isfinite(arr).all():
+        bad = int(np.argmax(~np.isfinite(arr.reshape(arr.shape[0], -1)).all(axis=1)))
+        raise ValueError(f"{name} row {bad} is not finite (NaN or inf)")
+    return arr
+
+
+def feature_weights(weights: np.ndarray | None, n: int) -> np.ndarray:
+    """Weights (n,) float64 ≥ 0 (all ones for None); raises ValueError on a wrong shape, NaN/inf or a negative."""
+    if weights is None:
+        return np.ones(n)
+    w = np.asarray(weights, dtype=float)
+    if w.shape != (n,):
+        raise ValueError(f"weights must have shape ({n},), got {w.shape}")
+    if not np.isfinite(w).all():
+        raise ValueError(f"weights row {int(np.argmax(~np.isfinite(w)))} is not finite (NaN or inf)")
+    if (w < 0).any():
+        raise ValueError(f"weights row {int(np.argmax(w < 0))} is negative")
+    return w
+
+
+def half_angle(alpha: float) -> float:
+    """α as a float in (0, π); raises ValueError otherwise."""
+    a = float(alpha)
+    if not (np.isfinite(a) and 0.0 < a < np.pi):
+        raise ValueError(f"FoV half-angle alpha must be in (0, pi) rad, got {alpha}")
+    return a
+
+
+def unit_vector(name: str, value: np.ndarray) -> np.ndarray:
+    """A finite non-zero (3,) vector, normalised; raises ValueError otherwise."""
+    v = np.asarray(value, dtype=float)
+    if v.shape != (3,) or not np.isfinite(v).all() or np.linalg.norm(v) < 1e-12:
+        raise ValueError(f"{name} must be a finite non-zero 3-vector, got {value!r}")
+    return v / np.linalg.norm(v)

@@ -1,0 +1,133 @@
+"""Global initialisation of a trajectory: dynamic programming over a grid of directions on S².
+
+Gradient ascent only finds the nearest local optimum; on paths whose best view switches between
+competing feature clusters that leaves a jump (a local optimum the smoothness gradient cannot undo:
+c × (c_prev + c_next) vanishes for antipodal neighbours). This module picks, for a subset of "node"
+waypoints, one grid direction each maximising
+
+    Σ_nodes s_n · V_n(d_n)  +  λκ Σ_transitions s · (cos(Δ_n / s) − 1)
+
+where V_n is the hard visible fraction of the node's (subsampled) landmarks, s the number of waypoints a
+node stands for and Δ_n the angle between consecutive node directions (a turn of Δ spread evenly over s
+waypoints). The result, interpolated along the path by slerp, seeds the gradient ascent.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pivotd.pivot.brute import sphere_grid
+
+
+def node_indices(n: int, max_nodes: int) -> np.ndarray:
+    """At most ``max_nodes`` evenly spread waypoint indices, always including the first and last."""
+    if n <= max_nodes:
+        return np.arange(n)
+    return np.unique(np.round(np.linspace(0, n - 1, max_nodes)).astype(np.intp))
+
+
+def grid_scores(bearings: np.ndarray, weights: np.ndarray, grid: np.ndarray, alpha: float) -> np.ndarray:
+    """Hard visible fraction (K, G) per grid direction of unit ``bearings`` (K, L, 3) with ``weights`` (K, L)."""
+    K = bearings.shape[0]
+    total = weights.sum(axis=1, dtype=np.float64)
+    out = np.zeros((K, grid.shape[0]), dtype=np.float32)
+    g32 = grid.T.astype(np.float32)
+    cos_a = np.float32(np.cos(alpha))
+    chunk = max(1, int(4_000_000 // max(bearings.shape[1] * grid.shape[0], 1)))
+    for s in range(0, K, chunk):
+        inside = (bearings[s : s + chunk] @ g32) >= cos_a  # (k, L, G)
+        out[s : s + chunk] = np.matmul(weights[s : s + chunk, None, :], inside.astype(np.float32))[:, 0, :]
+    return out / np.where(total > 0, total, 1.0)[:, None].astype(np.float32)
+
+
+def best_chain(
+    scores: np.ndarray,
+    grid: np.ndarray,
+    span: np.ndarray,
+    smooth: float,
+    anchor: np.ndarray | None = None,
+) -> np.ndarray:
+    """Grid index per node (K,) maximising the module's objective (Viterbi).
+
+    scores (K, G): visible fractions; span (K,): waypoints each node stands for (≥ 1); smooth: λκ ≥ 0;
+    anchor (3,): a fixed direction before node 0 (cost of turning from it counts once).
+    """
+    K, G = scores.shape
+    if smooth <= 0:
+        return np.argmax(scores, axis=1)
+    scores = scores.astype(np.float32)
+    value = scores[0] * np.float32(span[0])
+    ang = np.arccos(np.clip(grid @ grid.T, -1.0, 1.0))
+    if anchor is not None:
+        value = value + (smooth * (grid @ anchor - 1.0)).astype(np.float32)
+    back = np.zeros((K, G), dtype=np.intp)
+    cols = np.arange(G)
+    cache: dict[int, np.ndarray] = {}
+    for k in range(1, K):
+        s = max(round(span[k]), 1)
+        trans = cache.get(s)
+        if trans is None:
+            trans = ((s * smooth) * (np.cos(ang / s) - 1.0)).astype(np.float32)
+            cache[s] = trans
+        total = value[:, None] + trans  # (from, to)
+        back[k] = np.argmax(total, axis=0)
+        value = total[back[k], cols] + scores[k] * np.float32(span[k])
+    path = np.empty(K, dtype=np.intp)
+    path[-1] = int(np.argmax(value))
+    for k in range(K - 1, 0, -1):
+        path[k - 1] = back[k, path[k]]
+    return path
+
+
+def slerp_fill(n: int, nodes: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """Unit directions (n, 3) for every waypoint, spherically interpolated between node directions (K, 3)."""
+    out = np.empty((n, 3))
+    out[: nodes[0] + 1] = dirs[0]
+    out[nodes[-1] :] = dirs[-1]
+    for a, b, da, db in zip(nodes[:-1], nodes[1:], dirs[:-1], dirs[1:], strict=True):
+        t = (np.arange(a, b + 1) - a) / max(b - a, 1)
+        cos_ab = float(np.clip(da @ db, -1.0, 1.0))
+        omega = np.arccos(cos_ab)
+        if omega < 1e-6:
+            seg = np.outer(1 - t, da) + np.outer(t, db)
+        else:
+            if np.pi - omega < 1e-6:  # antipodal: turn through any perpendicular direction
+                perp = np.cross(da, [0.0, 0.0, 1.0])
+                if np.linalg.norm(perp) < 1e-6:
+                    perp = np.cross(da, [1.0, 0.0, 0.0])
+                perp /= np.linalg.norm(perp)
+                db_eff, omega = perp, np.pi / 2
+                t = 2 * t
+                seg = np.where(
+                    (t <= 1)[:, None],
+                    (np.sin((1 - t) * omega)[:, None] * da + np.sin(t * omega)[:, None] * db_eff) / np.sin(omega),
+                    (np.sin((2 - t) * omega)[:, None] * db_eff + np.sin((t - 1) * omega)[:, None] * db)
+                    / np.sin(omega),
+                )
+            else:
+                seg = (np.sin((1 - t) * omega)[:, None] * da + np.sin(t * omega)[:, None] * db) / np.sin(omega)
+        out[a : b + 1] = seg
+    return out / np.linalg.norm(out, axis=1, keepdims=True)
+
+
+def initial_directions(
+    bearings: np.ndarray,
+    weights: np.ndarray,
+    alpha: float,
+    smooth: float,
+    *,
+    resolution_deg: float = 12.0,
+    max_nodes: int = 100,
+    anchor: np.ndarray | None = None,
+) -> np.ndarray:
+    """Chain initialisation (N, 3) from per-waypoint unit ``bearings`` (N, L, 3) and ``weights`` (N, L).
+
+    λ = 0 (``smooth`` 0) picks every waypoint's best grid direction independently (all waypoints are nodes).
+    """
+    N = bearings.shape[0]
+    grid = sphere_grid(resolution_deg)
+    nodes = np.arange(N) if smooth <= 0 else node_indices(N, max_nodes)
+    scores = grid_scores(bearings[nodes], weights[nodes], grid, alpha)
+    span = np.diff(nodes, prepend=nodes[0] - 1).astype(float) if nodes.size > 1 else np.ones(1)
+    choice = best_chain(scores, grid, span, smooth, anchor)
+    return slerp_fill(N, nodes, grid[choice])

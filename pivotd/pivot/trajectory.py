@@ -1,0 +1,306 @@
+"""Trajectory PIVOT (paper §IV-B): one viewing direction per waypoint, visibility plus smoothness.
+
+Maximises Σ_i F_i(R_i)/W_i + λ Σ_i c_{i+1}·c_i (+ λ a·c_0 with an anchor direction a), where
+F_i = Σ_j s_ij v(θ_ij) (eq. 6) over waypoint i's retained landmarks, s_ij = feature weight × distance
+weight (eq. 15) and W_i = Σ_j s_ij normalises each waypoint by its local feature weight (the paper's
+ε = 1/(nπ)). All waypoints are updated together with padded arrays: R_i ← exp((h_i Ĵ_i)^) R_i with
+J_i = J_vis,i/W_i + λ c_i × (c_{i−1} + c_{i+1}) (eqs. 12, 18–20; one neighbour at the ends).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from pivotd.geometry import optical_frame_from_direction
+from pivotd.pivot import _ascent, chain
+from pivotd.pivot._checks import feature_weights, finite_array, half_angle, unit_vector
+from pivotd.pivot.constraints import PanTiltConstraint
+from pivotd.pivot.view import schedule
+
+
+@dataclass
+class TrajectoryOptions:
+    """Tuning of :func:`optimize_trajectory` (angles in degrees)."""
+
+    fov_start_deg: float = 90.0  # cold start: FoV schedule from this half-angle down to α
+    warm_fov_start_deg: float | None = None  # warm start (init_directions given): None = no widening
+    stages: int = 4  # schedule stages including the final one at α
+    width_deg: float = 3.0  # sigmoid transition width at α (k_s from ks_from_width)
+    wide_width_ratio: float = 0.25  # widened stages use width max(width, ratio · α_q)
+    stage_iters: int = 6
+    max_iterations: int = 60  # iteration budget at α (cold start)
+    warm_iterations: int = 20  # iteration budget at α (warm start)
+    step_init_deg: float = 8.0
+    warm_step_init_deg: float = 1.0
+    step_max_deg: float = 20.0
+    tol_deg: float = 0.1
+    distance_weights: bool = True  # eq. 15 distance weights s_ij
+    active_cap: int = 128  # widened stages: landmarks per waypoint (strided subsample)
+    final_cap: int = 256  # final stage: landmarks per waypoint near the cone boundary
+    drift_deg: float = 12.0  # cold start: rebuild a waypoint's active set after its axis moved this far
+    warm_drift_deg: float = 5.0  # warm start: the same (tighter: warm bands are crowded, thinning hurts)
+    settle_frac: float = 0.03  # stop once at most 3 % of the waypoints still move by ≥ tol per step
+    lam_boost: float = 1.0  # widened stages use λ × boost (geometric decay to λ at α): a smoothness homotopy
+    smooth_scale: float = 25.0  # κ: the smoothness term is λκ Σ c_{i+1}·c_i against per-waypoint visible fractions
+    chain_init: bool = True  # cold start: dynamic programming over a direction grid (pivotd.pivot.chain)
+    chain_resolution_deg: float = 12.0
+    chain_nodes: int = 64
+
+
+@dataclass
+class TrajectoryResult:
+    """directions (N, 3) unit; rotations (N, 3, 3) with rotations[i] @ e3 == directions[i];
+    visible (N,) int hard counts (angle ≤ α); iterations: gradient steps; objective: the normalised
+    trajectory objective (module docstring) at α."""
+
+    directions: np.ndarray
+    rotations: np.ndarray
+    visible: np.ndarray
+    iterations: int
+    objective: float
+
+
+def path_directions(waypoints: np.ndarray) -> np.ndarray:
+    """Unit local path directions (N, 3): central differences, one-sided at the ends; +x where the path stalls."""
+    N = waypoints.shape[0]
+    d = np.zeros((N, 3))
+    if N > 1:
+        d[1:-1] = waypoints[2:] - waypoints[:-2]
+        d[0] = waypoints[1] - waypoints[0]
+        d[-1] = waypoints[-1] - waypoints[-2]
+    n = np.linalg.norm(d, axis=1)
+    good = n > 1e-9
+    if not good.any():
+        return np.tile([1.0, 0.0, 0.0], (N, 1))
+    d[good] /= n[good, None]
+    idx = np.where(good, np.arange(N), -1)
+    idx = np.maximum.accumulate(idx)  # carry the last good direction forward ...
+    first = int(np.argmax(good))
+    idx[idx < 0] = first  # ... and the first one backward
+    return d[idx]
+
+
+def _dense_geometry(points: np.ndarray, waypoints: np.ndarray, fw: np.ndarray, dist_w: bool):
+    """Geometry where every waypoint retains every landmark; returns (geometry, W_i totals).
+
+    Distances come from ‖p‖² + ‖t‖² − 2 t·p in float32 around the waypoints' centroid (one matrix
+    product); pairs closer than 1 % of the scene scale are recomputed in float64.
+    """
+    centre = waypoints.mean(axis=0)
+    P = (points - centre).astype(np.float32)
+    T = (waypoints - centre).astype(np.float32)
+    pp = np.einsum("ij,ij->i", P, P)
+    tt = np.einsum("ij,ij->i", T, T)
+    d = (T * np.float32(-2.0)) @ P.T
+    d += pp[None, :]
+    d += tt[:, None]
+    scale2 = float(max(np.max(pp, initial=0.0), np.max(tt)))
+    close = np.float32(1e-4 * max(scale2, 1e-12))
+    d2_min = float(d.min(initial=np.inf))
+    if d2_min < close:  # float32 cancellation: recompute close pairs in float64
+        rows, cols = _ascent._nonzero2d(d < close)
+        d[rows, cols] = np.sum((points[cols] - waypoints[rows]) ** 2, axis=1)
+        np.maximum(d, 0.0, out=d)
+        d2_min = float(d.min(initial=np.inf))
+    np.sqrt(d, out=d)
+    eps = np.float32(1e-9 * max(1.0, np.sqrt(scale2)))
+    valid_all = bool(np.sqrt(max(d2_min, 0.0)) > eps)
+    valid = None if valid_all else d > eps
+    if valid_all:
+        inv = np.divide(np.float32(1.0), d)
+    else:
+        inv = np.zeros_like(d)
+        np.divide(np.float32(1.0), d, out=inv, where=valid)
+    W = _weights(d, valid, fw.astype(np.float32)[None, :], dist_w)
+
+    def exact(r: np.ndarray, c: np.ndarray, C: np.ndarray) -> np.ndarray:
+        v = points[c] - waypoints[r]
+        return np.einsum("ij,ij->i", v, C[r]) / np.maximum(np.linalg.norm(v, axis=1), 1e-300)
+
+    return _ascent.Geometry(P, T, inv, W, exact, valid_all), W.sum(axis=1, dtype=np.float64)
+
+
+def _ragged_geometry(points, waypoints, fw, dist_w, retained: Sequence[np.ndarray]):
+    """Geometry from per-waypoint index arrays (padded to the longest); returns (geometry, W_i totals)."""
+    N = waypoints.shape[0]
+    if len(retained) != N:
+        raise ValueError(f"retained must have one index array per waypoint ({N}), got {len(retained)}")
+    lists = [np.asarray(r, dtype=np.intp).ravel() for r in retained]
+    M = points.shape[0]
+    for i, r in enumerate(lists):
+        if r.size and (r.min() < 0 or r.max() >= M):
+            raise ValueError(f"retained[{i}] indexes outside 0..{M - 1}")
+    L = max(max((r.size for r in lists), default=0), 1)
+    idx = np.zeros((N, L), dtype=np.intp)
+    pad = np.zeros((N, L), dtype=bool)
+    for i, r in enumerate(lists):
+        idx[i, : r.size] = r
+        pad[i, : r.size] = True
+    centre = waypoints.mean(axis=0)
+    P = (points - centre).astype(np.float32)[idx]  # (N, L, 3), float32 around the waypoints' centroid
+    T = (waypoints - centre).astype(np.float32)
+    diff = P - T[:, None, :]
+    d = np.sqrt(np.einsum("nlk,nlk->nl", diff, diff))
+    scale = float(max(np.abs(points - centre).max(initial=0.0), np.abs(waypoints - centre).max(), 1.0))
+    close = d < 1e-2 * scale  # float32 rounding matters only for close pairs: recompute those in float64
+    rows, cols = _ascent._nonzero2d(close & pad)
+    if rows.size:
+        d[rows, cols] = np.linalg.norm(points[idx[rows, cols]] - waypoints[rows], axis=1)
+    valid = pad & (d > 1e-9 * scale)
+    inv = np.zeros_like(d)
+    np.divide(np.float32(1.0), d, out=inv, where=valid)
+    W = _weights(d, valid, fw[idx], dist_w)
+
+    def exact(r: np.ndarray, c: np.ndarray, C: np.ndarray) -> np.ndarray:
+        v = points[idx[r, c]] - waypoints[r]
+        return np.einsum("ij,ij->i", v, C[r]) / np.maximum(np.linalg.norm(v, axis=1), 1e-300)
+
+    return _ascent.Geometry(P, T, inv, W, exact), W.sum(axis=1, dtype=np.float64)
+
+
+def _weights(d: np.ndarray, valid: np.ndarray | None, fw: np.ndarray, dist_w: bool) -> np.ndarray:
+    """s_ij (N, L) float32: feature weight × (optionally) the distance weight of eq. 15; 0 where invalid."""
+    fw = fw.astype(np.float32, copy=False)
+    if valid is None:  # every pair is valid
+        if not dist_w:
+            return np.ascontiguousarray(np.broadcast_to(fw, d.shape))
+        dmin = d.min(axis=1, keepdims=True)
+        dmax = d.max(axis=1, keepdims=True)
+        inv_span = (np.float32(1.0) / np.maximum(np.float32(1e-6), dmax - dmin)).astype(np.float32)
+        s = d * -inv_span  # s = 1 − (d − dmin)/span, in three passes
+        s += (np.float32(1.0) + dmin * inv_span).astype(np.float32)
+        s *= fw
+        return s
+    if not dist_w:
+        return np.where(valid, fw, np.float32(0.0))
+    dmin = np.where(valid, d, np.float32(np.inf)).min(axis=1, keepdims=True)
+    dmax = np.where(valid, d, np.float32(-np.inf)).max(axis=1, keepdims=True)
+    empty = ~np.isfinite(dmin)
+    dmin[empty], dmax[empty] = 0.0, 1.0
+    s = d - dmin
+    s *= (np.float32(-1.0) / np.maximum(np.float32(1e-6), dmax - dmin)).astype(np.float32)
+    s += np.float32(1.0)
+    s *= fw
+    s[~valid] = 0.0
+    return s.astype(np.float32, copy=False)
+
+
+def optimize_trajectory(
+    points: np.ndarray,
+    waypoints: np.ndarray,
+    alpha: float,
+    lam: float,
+    *,
+    weights: np.ndarray | None = None,
+    retained: Sequence[np.ndarray] | None = None,
+    init_directions: np.ndarray | None = None,
+    anchor: np.ndarray | None = None,
+    constraint: PanTiltConstraint | None = None,
+    options: TrajectoryOptions | None = None,
+) -> TrajectoryResult:
+    """Optimise viewing directions for landmarks ``points`` (M, 3) [m] along ``waypoints`` (N, 3) [m].
+
+    α: FoV half-angle [rad]; λ ≥ 0: smoothness weight; ``weights`` (M,) feature weights (None: 1);
+    ``retained``: per-waypoint index arrays into ``points`` (None: every landmark everywhere);
+    ``init_directions`` (N, 3): warm start (no multi-start, no FoV widening unless configured) — None
+    starts along the local path direction with the FoV schedule; ``anchor`` (3,): a fixed direction
+    just before waypoint 0 (adds λ anchor·c_0); ``constraint``: pan/tilt limits enforced at every step.
+    Landmarks coinciding with a waypoint are ignored there. Raises ValueError on NaN/inf or bad shapes.
+    """
+    opts = options or TrajectoryOptions()
+    alpha = half_angle(alpha)
+    lam = float(lam)
+    if not (np.isfinite(lam) and lam >= 0):
+        raise ValueError(f"lambda must be a finite number ≥ 0, got {lam}")
+    P = finite_array("points", points)
+    T = finite_array("waypoints", waypoints)
+    N = T.shape[0]
+    if N == 0:
+        raise ValueError("waypoints is empty")
+    fw = feature_weights(weights, P.shape[0])
+    if constraint is not None and len(constraint) != N:
+        raise ValueError(f"constraint has {len(constraint)} waypoints, the path has {N}")
+    a_vec = None if anchor is None else unit_vector("anchor", anchor)
+    warm = init_directions is not None
+    if warm:
+        C0 = finite_array("init_directions", init_directions)
+        if C0.shape[0] != N:
+            raise ValueError(f"init_directions must have shape ({N}, 3), got {C0.shape}")
+        n0 = np.linalg.norm(C0, axis=1)
+        if np.any(n0 < 1e-12):
+            raise ValueError(f"init_directions row {int(np.argmin(n0))} is zero")
+        C0 = C0 / n0[:, None]
+    else:
+        C0 = path_directions(T)
+    R0 = optical_frame_from_direction(C0)
+
+    if P.shape[0] == 0:
+        geom, norm = None, np.zeros(N)
+    elif retained is None:
+        geom, norm = _dense_geometry(P, T, fw, opts.distance_weights)
+    else:
+        geom, norm = _ragged_geometry(P, T, fw, opts.distance_weights, retained)
+
+    rad = np.radians
+    if warm:
+        start = alpha if opts.warm_fov_start_deg is None else rad(opts.warm_fov_start_deg)
+        stages, budget, h0 = schedule(alpha, start, opts.stages), opts.warm_iterations, rad(opts.warm_step_init_deg)
+    else:
+        stages, budget, h0 = schedule(alpha, rad(opts.fov_start_deg), opts.stages), opts.max_iterations, rad(
+            opts.step_init_deg
+        )
+    settings = _ascent.AscentSettings(
+        stages=stages,
+        width=rad(opts.width_deg),
+        wide_width_ratio=opts.wide_width_ratio,
+        stage_iters=opts.stage_iters,
+        final_iters=budget,
+        step_init=h0,
+        step_max=rad(opts.step_max_deg),
+        tol=rad(opts.tol_deg),
+        active_cap=opts.active_cap,
+        final_cap=opts.final_cap,
+        drift=rad(opts.warm_drift_deg if warm else opts.drift_deg),
+        lam_boost=opts.lam_boost,
+        settle_frac=opts.settle_frac,
+    )
+    project = None if constraint is None else constraint.project
+    if geom is None:
+        empty = _ascent.Geometry(
+            np.zeros((0, 3), np.float32), np.zeros((N, 3), np.float32), None, np.zeros(0, np.float32),
+            lambda r, c, C: np.zeros(0),
+        )
+        geom_run = empty
+    else:
+        geom_run = geom
+    coarse = None
+    smooth = lam * opts.smooth_scale
+    if geom is not None and (len(stages) > 1 or (opts.chain_init and not warm)):
+        lengths = (
+            np.full(N, P.shape[0]) if retained is None else np.array([np.asarray(r).size for r in retained])
+        )
+        coarse = _ascent.subsample(geom, lengths, opts.active_cap)
+    if coarse is not None and opts.chain_init and not warm:
+        C_init = chain.initial_directions(
+            coarse.points, coarse.weights, alpha, smooth,
+            resolution_deg=opts.chain_resolution_deg, max_nodes=opts.chain_nodes, anchor=a_vec,
+        )
+        R0 = optical_frame_from_direction(C_init)
+        settings.stages = [alpha]
+        settings.step_init = rad(opts.chain_resolution_deg) / 2
+    R, iters = _ascent.ascend(geom_run, R0, norm, settings, lam=smooth, anchor=a_vec, project=project, coarse=coarse)
+    C = R[:, :, 2].copy()
+    if geom is None:
+        visible = np.zeros(N, dtype=int)
+        F = np.zeros(N)
+    else:
+        visible, F = _ascent.evaluate(geom, C, alpha, rad(opts.width_deg))
+    obj = float(np.sum(F / np.maximum(norm, 1e-12)))
+    if lam > 0:
+        obj += smooth * float(np.sum(C[1:] * C[:-1]))
+        if a_vec is not None:
+            obj += smooth * float(a_vec @ C[0])
+    return TrajectoryResult(C, R, visible.astype(int), iters, obj)

@@ -1,0 +1,305 @@
+"""Single-pose PIVOT: the viewing direction that keeps the most (weighted) landmarks in a conical FoV.
+
+Practical enhancements of the paper (§IV-C): multi-start initialisation (centroid, orthogonal and
+tangent directions and landmark-seeded directions, each moved by two mean-shift steps, ranked by hard
+visible weight on a strided subsample, near-duplicates pruned, the top few refined together), a FoV
+schedule that starts wide and narrows to α with k_s recomputed from a target transition width, and
+normalised, clipped, adaptively scaled steps (see :func:`pivotd.pivot._ascent.ascend`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pivotd.geometry import optical_frame_from_direction
+from pivotd.pivot import _ascent
+from pivotd.pivot._checks import feature_weights, finite_array, half_angle, unit_vector
+from pivotd.pivot.visibility import ks_from_width, smooth_visibility
+
+
+@dataclass
+class ViewOptions:
+    """Tuning of :func:`optimize_view` (angles in degrees)."""
+
+    width_deg: float = 2.0  # sigmoid transition width at α (k_s from ks_from_width) ...
+    width_ratio: float = 0.1  # ... but at least this fraction of α (wide cones need softer edges)
+    fov_start_deg: float | None = None  # widest half-angle of the schedule; None: min(90, α + 10)
+    stages: int = 1  # FoV schedule stages including the final one at α (1: no widening)
+    wide_width_ratio: float = 0.25  # widened stages use width max(width, ratio · α_q)
+    stage_iters: int = 5
+    max_iterations: int = 40  # iteration budget at α
+    step_init_deg: float = 4.0
+    step_max_deg: float = 15.0
+    tol_deg: float = 0.25
+    sample: int = 1024  # landmarks (strided) used to rank the multi-start candidates
+    seeds: int = 48  # landmark-seeded candidates
+    mean_shift: int = 2  # mean-shift steps applied to every candidate before ranking
+    refine: int = 3  # candidates refined after ranking and pruning
+    final_candidates: int = 2  # at most this many go on to the full-resolution stage at α
+    keep_ratio: float = 0.5  # refine only candidates scoring ≥ ratio · best
+    active_cap: int = 1024
+    final_cap: int = 8192
+    drift_deg: float = 5.0
+    polish_deg: float = 1.0  # final pattern search on the hard count starting at this radius (0: off)
+
+
+@dataclass
+class ViewResult:
+    """direction (3,) unit; rotation (3, 3) camera-to-world with rotation @ e3 == direction;
+    visible: hard count (angle ≤ α); objective: F at α (eq. 6); iterations: gradient steps taken."""
+
+    direction: np.ndarray
+    rotation: np.ndarray
+    visible: int
+    objective: float
+    iterations: int
+
+
+def _candidates(B: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, init: np.ndarray | None) -> np.ndarray:
+    """Multi-start directions (K, 3), best first, near-duplicates (closer than α) removed."""
+    n = B.shape[0]
+    if n > opts.sample:
+        idx = np.linspace(0, n - 1, opts.sample).astype(np.intp)
+        Bs, ws = B[idx], w[idx]
+    else:
+        Bs, ws = B, w
+    Bs, ws = Bs.astype(np.float32), ws.astype(np.float32)
+    seeds = [np.eye(3), -np.eye(3)]
+    centroid = ws @ Bs
+    if np.linalg.norm(centroid) > 1e-9 * max(ws.sum(), 1e-12):
+        c0 = (centroid / np.sqrt(centroid @ centroid)).astype(float)
+        x, y, z = c0
+        t1 = np.array([y, -x, 0.0]) if abs(z) < 0.9 else np.array([0.0, z, -y])
+        t1 /= np.sqrt(t1 @ t1)
+        t2 = np.array([y * t1[2] - z * t1[1], z * t1[0] - x * t1[2], x * t1[1] - y * t1[0]])
+        ca, sa = np.cos(2 * alpha), np.sin(2 * alpha)
+        seeds.append(np.stack([c0, ca * c0 + sa * t1, ca * c0 - sa * t1, ca * c0 + sa * t2, ca * c0 - sa * t2]))
+    if init is not None:
+        seeds.append(init[None])
+    k = min(opts.seeds, Bs.shape[0])
+    if k:
+        seeds.append(Bs[np.linspace(0, Bs.shape[0] - 1, k).astype(np.intp)])
+    C = np.concatenate(seeds).astype(np.float32)
+    cos_a = np.float32(np.cos(alpha))
+    raw = C.copy()
+    raw_score = None
+    for _ in range(opts.mean_shift):  # mean shift with a flat conical kernel
+        inside = (Bs @ C.T >= cos_a) * ws[:, None]
+        if raw_score is None:
+            raw_score = inside.sum(axis=0)
+        moved = inside.T @ Bs
+        nrm = np.linalg.norm(moved, axis=1)
+        ok = nrm > 1e-12
+        C[ok] = moved[ok] / nrm[ok, None]
+    score = ws @ (Bs @ C.T >= cos_a)
+    if raw_score is not None:  # a seed can beat the mode it drifts to (wide cones): keep both
+        C = np.concatenate([C, raw])
+        score = np.concatenate([score, raw_score])
+    order = np.argsort(-score, kind="stable")
+    order = order[score[order] >= opts.keep_ratio * score[order[0]]]
+    near = (C[order] @ C[order].T) >= cos_a  # near-duplicates: closer than α
+    remaining = np.ones(order.size, dtype=bool)
+    kept = []  # positions in ``order``, best first
+    for _ in range(max(1, opts.refine)):
+        left = np.flatnonzero(remaining)
+        if left.size == 0:
+            break
+        kept.append(int(left[0]))
+        remaining &= ~near[left[0]]
+    return C[order[kept]].astype(float)
+
+
+def optimize_view(
+    bearings: np.ndarray,
+    weights: np.ndarray | None,
+    alpha: float,
+    *,
+    init: np.ndarray | None = None,
+    options: ViewOptions | None = None,
+) -> ViewResult:
+    """Maximise F(R) = Σ_j s_j v(θ_j) (eq. 6) over R ∈ SO(3) for unit ``bearings`` (n, 3), half-angle α [rad].
+
+    ``weights`` (n,) are the feature weights s_j (None: uniform); zero-length bearings (a landmark at
+    the sensor) are ignored. ``init`` (3,) adds a starting direction to the multi-start set. Raises
+    ValueError on NaN/inf input or α outside (0, π).
+    """
+    opts = options or ViewOptions()
+    alpha = half_angle(alpha)
+    B = finite_array("bearings", bearings)
+    w = feature_weights(weights, B.shape[0])
+    init_v = None if init is None else unit_vector("init", init)
+    sq = np.einsum("ij,ij->i", B, B)
+    ok = sq > 0.25
+    if not ok.all():
+        B, w = B[ok], w[ok]
+        sq = sq[ok]
+    if np.any(np.abs(sq - 1.0) > 1e-6):
+        B = B / np.sqrt(sq)[:, None]
+    if B.shape[0] == 0:
+        d = init_v if init_v is not None else np.array([1.0, 0.0, 0.0])
+        return ViewResult(d, optical_frame_from_direction(d), 0, 0.0, 0)
+    C0 = _candidates(B, w, alpha, opts, init_v)
+    rad = np.radians
+    start = rad(opts.fov_start_deg) if opts.fov_start_deg is not None else min(np.pi / 2, alpha + rad(10.0))
+    stages = schedule(alpha, start, opts.stages)
+    settings = _ascent.AscentSettings(
+        stages=stages[:-1],
+        width=_width(alpha, opts),
+        wide_width_ratio=opts.wide_width_ratio,
+        stage_iters=opts.stage_iters,
+        final_iters=opts.max_iterations,
+        step_init=rad(opts.step_init_deg),
+        step_max=rad(opts.step_max_deg),
+        tol=rad(opts.tol_deg),
+        active_cap=opts.active_cap,
+        final_cap=opts.final_cap,
+        drift=rad(opts.drift_deg),
+        narrow_last=False,
+    )
+    B32 = B.astype(np.float32)
+    w32 = w.astype(np.float32)
+    total = float(w.sum())
+
+    def exact(rows: np.ndarray, cols: np.ndarray, C: np.ndarray) -> np.ndarray:
+        return np.einsum("ij,ij->i", B[cols], C[rows])
+
+    R = optical_frame_from_direction(C0)
+    iters = 0
+    if len(stages) > 1:  # widened stages on a strided subsample with weights scaled to the same total
+        if B.shape[0] > opts.sample:
+            idx = np.linspace(0, B.shape[0] - 1, opts.sample).astype(np.intp)
+            Bc, wc = B32[idx], w[idx] * (total / max(float(w[idx].sum()), 1e-300))
+        else:
+            Bc, wc = B32, w
+        coarse = _ascent.Geometry(Bc, np.zeros((R.shape[0], 3), np.float32), None, wc.astype(np.float32), exact)
+        R, iters = _ascent.ascend(coarse, R, np.full(R.shape[0], total), settings, coarse=coarse)
+    cos_a32 = np.float32(np.cos(alpha))
+    if R.shape[0] > 1:  # refine only the candidates whose full hard visible weight is within 2 % of the best
+        score = w32 @ (B32 @ R[:, :, 2].T.astype(np.float32) >= cos_a32)
+        keep = np.flatnonzero(score >= 0.98 * score.max())[: opts.final_candidates]
+        R = R[keep]
+    refined = [_refine_one(B32, w32, R[k], alpha, opts) for k in range(R.shape[0])]
+    R = np.concatenate([np.stack([r for r, _ in refined]), R])  # never worse than a starting candidate
+    iters += max(n for _, n in refined)
+    best = int(np.argmax(w32 @ (B32 @ R[:, :, 2].T.astype(np.float32) >= cos_a32)))
+    c_best, R_best = R[best, :, 2].copy(), R[best].copy()
+    ca = np.cos(alpha)
+    cb = B @ c_best
+    if opts.polish_deg > 0:
+        tol = min(rad(opts.tol_deg), 0.05 * alpha)
+        c_new = polish_hard(c_best, B, w, alpha, min(rad(opts.polish_deg), 0.5 * alpha), tol, cb)
+        if not np.allclose(c_new, c_best):
+            R_best = _ascent._turn_to(R_best[None], c_new[None])[0]
+            c_best = R_best[:, 2].copy()
+            cb = B @ c_best
+    visible = int(np.count_nonzero(cb >= ca - 1e-12))
+    ks = ks_from_width(alpha, _width(alpha, opts))
+    near = cb >= np.cos(min(np.pi, alpha + 10.0 / (ks * max(np.sin(alpha), 1e-9))))
+    f = float(smooth_visibility(cb[near], alpha, ks) @ w[near])
+    return ViewResult(c_best, R_best, visible, f, iters)
+
+
+def _width(alpha: float, opts: ViewOptions) -> float:
+    """Transition width [rad] used at α."""
+    return max(np.radians(opts.width_deg), opts.width_ratio * alpha)
+
+
+def _refine_one(B: np.ndarray, w: np.ndarray, R: np.ndarray, alpha: float, opts: ViewOptions) -> tuple[np.ndarray, int]:
+    """Gradient ascent at α for one rotation R (3, 3) over float32 bearings B (n, 3) / weights w (n,).
+
+    Same step control as :func:`pivotd.pivot._ascent.ascend` (normalised direction, bound grows ×1.2,
+    halves on reversal), on the landmarks within the transition band α ± (2·width + drift) of the axis;
+    the band is re-selected when the axis drifts further than ``drift_deg`` from where it was selected.
+    """
+    width = _width(alpha, opts)
+    ks = ks_from_width(alpha, width)
+    w_eff = min(width, alpha, np.pi - alpha)
+    drift = np.radians(opts.drift_deg)
+    margin = 2.0 * w_eff + drift
+    lo = np.float32(np.cos(min(np.pi, alpha + margin)))
+    hi = np.float32(np.cos(alpha - margin)) if alpha > margin else np.float32(2.0)
+    cos_a = np.float32(np.cos(alpha))
+    half_ks = np.float32(0.5 * ks)
+    tol = min(np.radians(opts.tol_deg), 0.05 * alpha)
+    h_max = min(np.radians(opts.step_max_deg), alpha)
+    h = min(np.radians(opts.step_init_deg), 0.5 * drift, 0.5 * alpha)
+    cos_drift = np.cos(drift)
+
+    def band(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cs = B @ c.astype(np.float32)
+        sel = (cs >= lo) & (cs <= hi)
+        return B[sel], w[sel]
+
+    c = R[:, 2].copy()
+    Bb, wb = band(c)
+    c_ref = c.copy()
+    J_prev = np.zeros(3)
+    it = 0
+    for it in range(1, opts.max_iterations + 1):  # noqa: B007
+        if Bb.shape[0] == 0:
+            break
+        t = np.tanh(half_ks * (Bb @ c.astype(np.float32) - cos_a))
+        S = ((1.0 - t * t) * wb) @ Bb
+        J = np.array([c[1] * S[2] - c[2] * S[1], c[2] * S[0] - c[0] * S[2], c[0] * S[1] - c[1] * S[0]])
+        nJ = float(np.sqrt(J @ J))
+        agree = J @ J_prev
+        h = 0.5 * h if agree < 0 else (min(1.2 * h, h_max) if agree > 0 else h)
+        J_prev = J if agree >= 0 else np.zeros(3)
+        if nJ < 1e-12 or h < tol:
+            break
+        R = _ascent._exp((J * (h / nJ))[None])[0] @ R
+        c = R[:, 2].copy()
+        if c @ c_ref < cos_drift:
+            Bb, wb = band(c)
+            c_ref = c.copy()
+    return R, it
+
+
+def polish_hard(
+    c: np.ndarray, B: np.ndarray, w: np.ndarray, alpha: float, radius: float, tol: float, cos_c: np.ndarray
+) -> np.ndarray:
+    """Pattern search on the hard visible weight around ``c``: evaluate 8 directions on each of the rings
+    radius, radius/2, …, ≥ tol [rad] at once, move to the best strict improvement, repeat (at most 4 moves).
+
+    The axis moves at most 4·radius, so only landmarks within α ± 4.5·radius of ``c`` (``cos_c`` = B @ c)
+    can change the count: the others are counted once. Float32 inside; the caller recounts exactly.
+    """
+    reach = 4.5 * radius
+    lo, hi = np.cos(min(np.pi, alpha + reach)), np.cos(max(0.0, alpha - reach))
+    sel = (cos_c >= lo) & (cos_c <= hi)
+    if not sel.any():
+        return c
+    band, wb = B[sel].astype(np.float32), w[sel].astype(np.float32)
+    cos_a = np.float32(np.cos(alpha) - 1e-7)
+    radii = [radius]
+    while radii[-1] * 0.5 >= tol:
+        radii.append(radii[-1] * 0.5)
+    ang = np.arange(8) * (np.pi / 4)
+    r = np.repeat(radii, 8)[:, None]
+    ca = np.tile(np.cos(ang), len(radii))[:, None]
+    sa = np.tile(np.sin(ang), len(radii))[:, None]
+    cos_r, sin_r = np.cos(r), np.sin(r)
+    best = float(wb @ (band @ c.astype(np.float32) >= cos_a))
+    for _ in range(4):
+        x, y, z = c
+        t1 = np.array([y, -x, 0.0]) if abs(z) < 0.9 else np.array([0.0, z, -y])  # c × e_z or c × e_x
+        t1 /= np.sqrt(t1 @ t1)
+        t2 = np.array([y * t1[2] - z * t1[1], z * t1[0] - x * t1[2], x * t1[1] - y * t1[0]])
+        cand = cos_r * c + sin_r * (ca * t1 + sa * t2)
+        vals = wb @ (band @ cand.T.astype(np.float32) >= cos_a)
+        k = int(np.argmax(vals))
+        if vals[k] <= best:
+            break
+        best, c = float(vals[k]), cand[k] / np.sqrt(cand[k] @ cand[k])
+    return c
+
+
+def schedule(alpha: float, start: float, stages: int) -> list[float]:
+    """FoV half-angles [rad] narrowing geometrically from ``start`` (≤ 90°) to α over ``stages`` steps."""
+    start = min(max(start, alpha), np.pi / 2) if alpha < np.pi / 2 else alpha
+    if stages <= 1 or start <= alpha * (1 + 1e-9):
+        return [alpha]
+    f = np.linspace(1.0, 0.0, stages)
+    return [float(alpha * (start / alpha) ** x) for x in f]
