@@ -1,10 +1,11 @@
 """The pivotd daemon: wiring, threads, state machine, signals (DESIGN.md §1, §8).
 
 Threads: the main thread (signals, status, supervision: reload, fault clearing, parking), the
-planner thread (receding-horizon PIVOT at ``planner.replan_hz``), the control thread (absolute
-deadlines at ``control.rate_hz``: plan -> pan/tilt -> Ruckig -> SETPOINT, systemd watchdog), the
-serial link's reader thread and Zenoh's callback threads. Threads share only immutable snapshots
-(pose, path, plan, map) swapped by reference assignment.
+planner thread (receding-horizon PIVOT at ``planner.replan_hz``, computed by the planner process of
+:mod:`pivotd.planner_worker`, which owns the map), the control thread (absolute deadlines at
+``control.rate_hz``: plan -> pan/tilt -> Ruckig -> SETPOINT, systemd watchdog), the serial link's
+reader thread and Zenoh's callback threads. Threads share only immutable objects (pose, path,
+plan) swapped by reference assignment.
 """
 
 from __future__ import annotations
@@ -30,17 +31,9 @@ from pivotd.control import ControlLoop, TickResult
 from pivotd.errors import PivotdError
 from pivotd.gimbal.link import GimbalLink
 from pivotd.maps.formats import LandmarkCloud, make_cloud
-from pivotd.maps.store import MapStore
-from pivotd.planner import Plan, RecedingHorizonPlanner
-from pivotd.runtime import (
-    build_bus_topics,
-    build_control_loop,
-    build_link_config,
-    build_map_store,
-    build_planner,
-    park_joints,
-    release_free_memory,
-)
+from pivotd.planner import Plan
+from pivotd.planner_worker import PlannerWorker, WorkerError
+from pivotd.runtime import build_bus_topics, build_control_loop, build_link_config, park_joints
 from pivotd.systemd import Notifier, watchdog_interval
 
 log = logging.getLogger("pivotd.daemon")
@@ -85,8 +78,10 @@ class Daemon:
         self._pending_clouds: dict[str, CloudMsg] = {}
         self._bus_layers: dict[str, LandmarkCloud] = {}  # layers received over Zenoh, kept across reloads
         self.plan: Plan | None = None
-        self.store: MapStore = build_map_store(self.cfg)
-        self.planner: RecedingHorizonPlanner = build_planner(self.cfg)
+        # The map and the optimizer live in the planner process (see pivotd/planner_worker.py).
+        self.worker = PlannerWorker(self.cfg, logging.getLogger().getEffectiveLevel())
+        self._sent_path_version = -1
+        self._worker_errors = 0
         self.link: GimbalLink | None = None
         self.bus: PivotBus | None = None
         self.session = None
@@ -136,10 +131,9 @@ class Daemon:
                 self._rl.warning(f"cloud:{layer}", f"dropped cloud: {exc}")
                 continue
             mult = float(getattr(self.cfg.map.layers, layer, 1.0))
-            version = self.store.set_layer(layer, lc, weight_multiplier=mult)
+            info = self.worker.set_layer(layer, lc, mult)
             self._bus_layers[layer] = lc
-            release_free_memory()
-            log.info("map layer %r replaced from %s: %d points (map version %d)", layer, topic, len(lc), version)
+            log.info("map layer %r replaced from %s: %d points (map version %d)", layer, topic, len(lc), info.version)
 
     def _planner_loop(self) -> None:
         period = 1.0 / self.cfg.planner.replan_hz
@@ -148,6 +142,12 @@ class Daemon:
             try:
                 self._apply_pending_clouds()
                 self._replan_once()
+            except WorkerError as exc:
+                self._worker_errors += 1
+                self._last_error = f"planner: {exc}"
+                if not self._stop.is_set():
+                    log.error("planner worker: %s; restarting it", exc)
+                    self._restart_worker()
             except Exception as exc:  # keep planning; never take the daemon down
                 self._rl.warning("planner", f"planner: replan failed: {exc!r}")
                 self._last_error = f"planner: {exc}"
@@ -163,17 +163,29 @@ class Daemon:
         if pose is None or time.monotonic() - pose.rx_time > self.cfg.control.pose_timeout_s:
             return
         path = self._path
-        if path is None:
-            self.planner.set_path(None, None, 0)
-        else:
-            self.planner.set_path(path[0], path[1], path[2])
+        version = 0 if path is None else path[2]
+        if version != self._sent_path_version:
+            self.worker.set_path(*(path or (None, None, 0)))
+            self._sent_path_version = version
         anchor = self.control.commanded_direction if self.control is not None else None
-        plan = self.planner.replan(self.store.snapshot(), pose.position, pose.quat, anchor)
+        plan = self.worker.replan(pose.position, pose.quat, anchor)
         self.plan = plan
         self._plans += 1
         self._solve.append(plan.solve_s)
         if self.bus is not None:
             self.bus.publish_view_plan(pose.stamp, plan.positions, plan.directions)
+
+    def _restart_worker(self) -> None:
+        """Start a fresh planner process and give it back the bus layers and the path."""
+        try:
+            self.worker.restart(self.cfg)
+        except PivotdError as exc:
+            log.error("planner worker restart failed: %s", exc)
+            self._stop.wait(1.0)
+            return
+        for layer, lc in self._bus_layers.items():
+            self.worker.set_layer(layer, lc, float(getattr(self.cfg.map.layers, layer, 1.0)))
+        self._sent_path_version = -1
 
     # ------------------------------------------------------------------ control thread
     def _control_loop(self) -> None:
@@ -279,7 +291,10 @@ class Daemon:
                 "horizon": 0 if plan is None else int(plan.directions.shape[0]),
                 "landmarks": 0 if plan is None else plan.landmarks,
                 "visible_now": None if plan is None else int(plan.visible[0]),
-                "progress_m": self.planner.progress,
+                "progress_m": None if plan is None or plan.s.shape[0] < 2 else round(float(plan.s[0]), 3),
+                "worker_pid": self.worker.pid,
+                "worker_restarts": self.worker.restarts,
+                "worker_errors": self._worker_errors,
             },
             "control": {
                 "rate_hz": self.cfg.control.rate_hz,
@@ -288,7 +303,8 @@ class Daemon:
                 "clamped": 0 if ctl is None else ctl.clamped,
                 "pose_latency_ms_p99": None if ctl is None else _percentile_ms(list(ctl.pose_latency), 99),
             },
-            "map": {"landmarks": len(self.store.snapshot()), "version": self.store.snapshot().version},
+            "map": {"landmarks": self.worker.map_info.landmarks, "version": self.worker.map_info.version,
+                    "layers": self.worker.map_info.layers},
             "link_counters": link.counters() if link is not None else {},
             "reloads": self._reloads,
             "reload_errors": self._reload_errors,
@@ -299,22 +315,17 @@ class Daemon:
         self.notifier.reloading()
         try:
             cfg = self._load_config()
-            store = build_map_store(cfg)
-            planner = build_planner(cfg)
+            info = self.worker.reload(cfg)
         except PivotdError as exc:
             self._reload_errors += 1
             self._last_error = f"reload: {exc}"
             log.error("reload failed, keeping the running config and map: %s", exc)
         else:
-            # Layers that arrived over Zenoh survive a reload (new multipliers apply).
-            for layer, lc in self._bus_layers.items():
-                store.set_layer(layer, lc, weight_multiplier=float(getattr(cfg.map.layers, layer, 1.0)))
-            self.cfg, self.store = cfg, store
-            planner.set_path(*(self._path or (None, None, 0)))
-            self.planner = planner
+            # Gimbal, Zenoh and control settings take effect on restart; map and planner now.
+            self.cfg = cfg
             self.plan = None
             self._reloads += 1
-            log.info("reloaded %s: %d landmarks", self.config_path, len(store.snapshot()))
+            log.info("reloaded %s: %d landmarks", self.config_path, info.landmarks)
         self.notifier.ready()
 
     def _park(self) -> None:
@@ -376,7 +387,7 @@ class Daemon:
             t.start()
             self._threads.append(t)
         self.notifier.ready()
-        log.info("pivotd %r ready: %d landmarks, gimbal %s, zenoh %s", cfg.name, len(self.store.snapshot()),
+        log.info("pivotd %r ready: %d landmarks, gimbal %s, zenoh %s", cfg.name, self.worker.map_info.landmarks,
                  cfg.gimbal.port, ", ".join([*z.listen, *z.connect]) or z.mode)
 
     def run(self) -> int:
@@ -417,5 +428,6 @@ class Daemon:
                 self.session.close()
             if self._recorder is not None:
                 self._recorder.close()
+            self.worker.close()
         log.info("pivotd stopped")
         return 0
