@@ -153,6 +153,7 @@ class ControlConfig:
     pose_timeout_s: float = 0.5
     status_hz: float = 2.0
     joint_state_hz: float = 50.0
+    realtime_priority: int = 0  # SCHED_FIFO priority of the control thread (0: normal scheduling)
 
     @property
     def dt(self) -> float:
@@ -464,6 +465,7 @@ def _control(s: Section) -> ControlConfig:
         pose_timeout_s=s.number("pose_timeout_s", d.pose_timeout_s, min=0.0, min_open=True),
         status_hz=s.number("status_hz", d.status_hz, min=1.0, max=5.0),
         joint_state_hz=s.number("joint_state_hz", d.joint_state_hz, min=0.0, max=rate, min_open=True),
+        realtime_priority=s.number("realtime_priority", d.realtime_priority, min=0, max=99, integer=True),
     )
     s.finish()
     return out

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import signal
 import sys
 import threading
@@ -190,6 +191,14 @@ class Daemon:
     # ------------------------------------------------------------------ control thread
     def _control_loop(self) -> None:
         assert self.control is not None and self.link is not None
+        prio = self.cfg.control.realtime_priority
+        if prio > 0:
+            try:  # this thread only (pid 0 = the calling thread on Linux)
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
+                log.info("control thread runs SCHED_FIFO priority %d", prio)
+            except (OSError, AttributeError) as exc:
+                log.warning("control.realtime_priority %d not applied (%s); running with normal scheduling "
+                            "(grant CAP_SYS_NICE or LimitRTPRIO in the service)", prio, exc)
         period = 1.0 / self.cfg.control.rate_hz
         js_every = max(1, round(self.cfg.control.rate_hz / self.cfg.control.joint_state_hz))
         wd = watchdog_interval()

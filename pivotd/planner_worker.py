@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing as mp
+import os
 import signal
 import threading
 from dataclasses import dataclass
@@ -32,6 +33,7 @@ from pivotd.planner import Plan
 log = logging.getLogger(__name__)
 
 START_TIMEOUT_S = 60.0
+WORKER_NICE = 10  # niceness added to the planner process
 
 
 @dataclass(frozen=True)
@@ -57,6 +59,8 @@ def _worker_main(conn, cfg: Config, log_level: int) -> None:  # pragma: no cover
     # The daemon handles SIGINT/SIGHUP; the worker only ends on "stop", a closed pipe or SIGTERM.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    # Planning is background work: when the CPU is contended the control thread must win.
+    os.nice(WORKER_NICE)
     logging.basicConfig(level=log_level, format="%(asctime)s %(levelname)s %(name)s[worker]: %(message)s")
     from pivotd.runtime import build_map_store, build_planner, release_free_memory
 
