@@ -34,6 +34,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--min-range", type=float, default=None, metavar="M", help="ignore landmarks closer than M")
     parser.add_argument("--max-range", type=float, default=None, metavar="M", help="ignore landmarks farther than M")
     parser.add_argument("--weights-from", default="auto", metavar="COLUMN", help=WEIGHTS_HELP)
+    parser.add_argument("--weight-property", default=None, metavar="NAME",
+                        help="PLY maps: the vertex property holding the feature weight")
+    parser.add_argument("--max-view-angle-deg", type=float, default=None, metavar="DEG",
+                        help="drop landmarks seen from more than DEG away from their mean observation direction "
+                             "(needs observation directions: a COLMAP model with its images)")
+    parser.add_argument("--occlusion-voxel", type=float, default=None, metavar="M",
+                        help="drop landmarks hidden from the waypoint by occupied voxels of this size [m]; the "
+                             "occupancy grid is built from the map itself or from --occupancy")
+    parser.add_argument("--occupancy", default=None, metavar="FILE",
+                        help="separate occupancy cloud (any map format) for --occlusion-voxel")
     parser.add_argument("--out", default=None, metavar="OUT.csv", help="write i,x,y,z,dx,dy,dz,visible rows here")
     parser.add_argument("--json", action="store_true", help="print one JSON object with the summary on stdout")
 
@@ -47,6 +57,12 @@ def _check_args(args: argparse.Namespace) -> None:
         v = getattr(args, name)
         if v is not None and not (math.isfinite(v) and v >= 0.0):
             raise InputError(f"--{name.replace('_', '-')} must be a finite distance >= 0 m, got {v}")
+    for name in ("max_view_angle_deg", "occlusion_voxel"):
+        v = getattr(args, name)
+        if v is not None and not (math.isfinite(v) and v > 0.0):
+            raise InputError(f"--{name.replace('_', '-')} must be a finite number > 0, got {v}")
+    if args.occupancy is not None and args.occlusion_voxel is None:
+        raise InputError(f"--occupancy {args.occupancy}: needs --occlusion-voxel")
     if args.min_range is not None and args.max_range is not None and args.min_range > args.max_range:
         raise InputError(f"--min-range ({args.min_range}) is larger than --max-range ({args.max_range})")
     if args.weights_from.lower() not in ("auto", "4", "w", "none"):
@@ -85,45 +101,58 @@ def _column_count(path: Path) -> int | None:
     return None
 
 
-def retained_by_range(
-    points: np.ndarray, waypoints: np.ndarray, min_range: float | None, max_range: float | None
-) -> list[np.ndarray] | None:
-    """Per-waypoint index arrays of landmarks with min_range ≤ distance ≤ max_range [m] (None: no filter)."""
-    if min_range is None and max_range is None:
-        return None
-    lo2 = -1.0 if min_range is None else min_range**2
-    hi2 = np.inf if max_range is None else max_range**2
-    out = []
-    chunk = max(1, 2_000_000 // max(points.shape[0], 1))
-    for s in range(0, waypoints.shape[0], chunk):
-        d2 = np.sum((points[None, :, :] - waypoints[s : s + chunk, None, :]) ** 2, axis=2)
-        ok = (d2 >= lo2) & (d2 <= hi2)
-        out.extend(np.flatnonzero(row) for row in ok)
-    return out
+def _uses_map_filters(args: argparse.Namespace) -> bool:
+    return any(v is not None for v in (args.min_range, args.max_range, args.max_view_angle_deg, args.occlusion_voxel))
+
+
+def load_filtered(args: argparse.Namespace, waypoints: np.ndarray):
+    """Landmarks and per-waypoint retained index arrays from the map store (range, view, occlusion filters).
+
+    Returns (points (M, 3), weights (M,), retained list of N index arrays, seconds spent in the retained-set
+    query); points are in the store's order.
+    """
+    from pivotd.maps.filters import RetainedFilter
+    from pivotd.maps.store import load_map_store
+
+    store = load_map_store(args.map, weight_property=args.weight_property, occlusion_voxel=args.occlusion_voxel,
+                           occupancy_file=args.occupancy)
+    snap = store.snapshot()
+    if args.max_view_angle_deg is not None and snap.directions is None:
+        raise InputError(f"{args.map}: --max-view-angle-deg needs observation directions (a COLMAP model "
+                         "with images.bin/images.txt beside points3D)")
+    flt = RetainedFilter(min_range=args.min_range or 0.0,
+                         max_range=math.inf if args.max_range is None else args.max_range,
+                         max_view_angle_deg=args.max_view_angle_deg, occlusion=args.occlusion_voxel is not None)
+    t0 = time.perf_counter()
+    retained = snap.retained(waypoints, flt)
+    return snap.points, snap.weights, retained, time.perf_counter() - t0
 
 
 def run(args: argparse.Namespace) -> int:
-    from pivotd.maps.formats import load_landmarks
+    from pivotd.maps.formats import LandmarkCloud, load_landmarks
     from pivotd.paths import load_path
     from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
 
     _check_args(args)
-    cloud = load_landmarks(args.map)
     path = load_path(args.path)
-    weights = _weights(args, cloud)
-    points = cloud.points
     waypoints = path.positions
+    if _uses_map_filters(args):
+        points, cloud_weights, retained, filter_s = load_filtered(args, waypoints)
+        cloud = LandmarkCloud(points=points, weights=cloud_weights)
+    else:
+        cloud = load_landmarks(args.map, weight_property=args.weight_property)
+        points, retained, filter_s = cloud.points, None, 0.0
+    weights = _weights(args, cloud)
     alpha = math.radians(args.fov_deg) / 2.0
 
     t0 = time.perf_counter()
-    retained = retained_by_range(points, waypoints, args.min_range, args.max_range)
     # The plan is judged by hard visible counts, so landmarks are weighted by their feature weight only
     # (the paper's distance weights favour near landmarks over the count).
     result = optimize_trajectory(
         points, waypoints, alpha, args.lam, weights=weights, retained=retained,
         options=TrajectoryOptions(distance_weights=False),
     )
-    optimize_s = time.perf_counter() - t0
+    optimize_s = time.perf_counter() - t0 + filter_s
 
     C = result.directions
     steps = np.degrees(np.arctan2(np.linalg.norm(np.cross(C[1:], C[:-1]), axis=1), np.sum(C[1:] * C[:-1], axis=1)))
