@@ -101,28 +101,39 @@ class DynamicsReport:
 
 
 def setpoint_dynamics(positions: np.ndarray, dt: float, pan: AxisLimits, tilt: AxisLimits,
-                      resolution: float = WIRE_RESOLUTION) -> DynamicsReport:
-    """Finite-difference dynamics of setpoints (N, 2) streamed at the constant control period ``dt`` [s].
+                      rates: np.ndarray | None = None, resolution: float = WIRE_RESOLUTION) -> DynamicsReport:
+    """Dynamics of setpoints streamed at the constant control period ``dt`` [s].
 
-    The generator advances exactly one period per setpoint, so differences use ``dt``, not the
-    (jittery) send times. Positions rounded to ``resolution`` [rad] make the k-th difference wrong by
-    up to 2^(k-1)·resolution, i.e. ±resolution/dt, ±2·resolution/dt², ±4·resolution/dt³.
+    positions: (N, 2) [rad]; rates: (N, 2) [rad/s], the SETPOINT rate field, or None. The generator
+    advances exactly one period per setpoint, so differences use ``dt``, not the (jittery) send times.
+    Velocity is the larger of |rate| and the position difference; acceleration and jerk come from the
+    rates when given (micro-radian-per-second resolution: errors ≤ 2·res/dt, 4·res/dt²), otherwise from
+    positions (errors ≤ 2·res/dt², 4·res/dt³ for micro-radian angles). ``allowance_*`` hold these bounds.
     """
     p = np.asarray(positions, float)
-    v = np.diff(p, axis=0) / dt
-    a = np.diff(v, axis=0) / dt
-    j = np.diff(a, axis=0) / dt
+    v_pos = np.diff(p, axis=0) / dt
 
     def peak(x: np.ndarray) -> np.ndarray:
         return np.abs(x).max(axis=0) if x.shape[0] else np.zeros(2)
 
+    if rates is not None:
+        r = np.asarray(rates, float)
+        a = np.diff(r, axis=0) / dt
+        j = np.diff(a, axis=0) / dt
+        mv = np.maximum(peak(v_pos), peak(r))
+        allow = (resolution / dt, 2 * resolution / dt, 4 * resolution / dt**2)
+    else:
+        a = np.diff(v_pos, axis=0) / dt
+        j = np.diff(a, axis=0) / dt
+        mv = peak(v_pos)
+        allow = (resolution / dt, 2 * resolution / dt**2, 4 * resolution / dt**3)
     lim_v = np.array([pan.max_velocity, tilt.max_velocity])
     lim_a = np.array([pan.max_acceleration, tilt.max_acceleration])
     lim_j = np.array([pan.max_jerk, tilt.max_jerk])
-    mv, ma, mj = peak(v), peak(a), peak(j)
+    ma, mj = peak(a), peak(j)
     return DynamicsReport(mv, ma, mj, mv / lim_v, ma / lim_a, mj / lim_j,
                           p.min(axis=0) if p.size else np.zeros(2), p.max(axis=0) if p.size else np.zeros(2),
-                          resolution / dt, 2 * resolution / dt**2, 4 * resolution / dt**3, (lim_v, lim_a, lim_j))
+                          *allow, (lim_v, lim_a, lim_j))
 
 
 def visible_counts(points: np.ndarray, cameras: np.ndarray, directions: np.ndarray, half_angle: float,

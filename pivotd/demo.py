@@ -160,7 +160,7 @@ def analyse(cfg: Config, obs: Observations, device_log: Path) -> tuple[dict, dic
     n_piv = visible_counts(cloud.points, cams, piv, cfg.pivot.half_angle, flt.min_range, flt.max_range)
     n_fwd = visible_counts(cloud.points, cams, fwd, cfg.pivot.half_angle, flt.min_range, flt.max_range)
     dev = read_device_log(device_log)
-    dyn = setpoint_dynamics(dev.sp_pos, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt)
+    dyn = setpoint_dynamics(dev.sp_pos, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt, rates=dev.sp_rate)
     lim = cfg.gimbal.limits
     report = {
         "frames": len(frames),
@@ -177,7 +177,7 @@ def analyse(cfg: Config, obs: Observations, device_log: Path) -> tuple[dict, dic
         "acceleration_ratio": dyn.acceleration_ratio.round(3).tolist(),
         "jerk_ratio": dyn.jerk_ratio.round(3).tolist(),
         "within_limits": dyn.within_limits,
-        "jerk_allowance_deg_s3": round(float(np.degrees(dyn.allowance_jerk)), 1),
+        "jerk_allowance_deg_s3": round(float(np.degrees(dyn.allowance_jerk)), 2),
         "pan_range_deg": np.degrees([dyn.position_min[0], dyn.position_max[0]]).round(2).tolist(),
         "tilt_range_deg": np.degrees([dyn.position_min[1], dyn.position_max[1]]).round(2).tolist(),
         "joint_limits_deg": np.degrees([lim.pan_min, lim.pan_max, lim.tilt_min, lim.tilt_max]).round(1).tolist(),
@@ -302,8 +302,8 @@ def _print_summary(r: dict, cfg: Config, png: Path) -> None:
               f"of limit), acceleration {r['max_acceleration_deg_s2'][i]:7.2f} deg/s² "
               f"({r['acceleration_ratio'][i]:.0%}), jerk {r['max_jerk_deg_s3'][i]:8.1f} deg/s³ "
               f"({r['jerk_ratio'][i]:.0%})")
-    print(f"  within limits (allowing the 1 µrad wire resolution, ±{r['jerk_allowance_deg_s3']} deg/s³ in "
-          f"jerk by finite differences): {'yes' if r['within_limits'] else 'NO'}")
+    print(f"  within limits (acceleration and jerk from the setpoint rates; the wire's µrad/s resolution allows "
+          f"±{r['jerk_allowance_deg_s3']} deg/s³): {'yes' if r['within_limits'] else 'NO'}")
     print(f"  pan range {r['pan_range_deg']} deg, tilt range {r['tilt_range_deg']} deg "
           f"(limits pan/tilt {r['joint_limits_deg']})")
     print(f"  daemon exit code after SIGTERM: {r['daemon_exit_code']}")
