@@ -100,7 +100,7 @@ class PivotConfig:
     lam: float = 0.6
     transition_width: float = math.radians(4.0)
     iterations: int = 50
-    starts: int = 8
+    distance_weights: bool = True
 
     @property
     def fov_deg(self) -> float:
@@ -353,7 +353,7 @@ def _pivot(s: Section) -> PivotConfig:
         lam=s.number("lambda", d.lam, min=0.0),
         transition_width=math.radians(width_deg),
         iterations=s.number("iterations", d.iterations, min=1, max=10_000, integer=True),
-        starts=s.number("starts", d.starts, min=1, max=1000, integer=True),
+        distance_weights=s.boolean("distance_weights", d.distance_weights),
     )
     s.finish()
     return out

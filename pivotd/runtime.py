@@ -89,7 +89,9 @@ def build_planner(cfg: Config) -> RecedingHorizonPlanner:
         horizon=pl.horizon,
         max_landmarks_per_waypoint=pl.max_landmarks_per_waypoint,
         retained_filter=build_retained_filter(cfg),
-        options=TrajectoryOptions(width_deg=math.degrees(p.transition_width)),
+        options=TrajectoryOptions(width_deg=math.degrees(p.transition_width), max_iterations=p.iterations,
+                                  warm_iterations=min(p.iterations, TrajectoryOptions.warm_iterations),
+                                  distance_weights=p.distance_weights),
     )
     return RecedingHorizonPlanner(settings, cfg.gimbal.mount, cfg.gimbal.limits)
 
