@@ -27,12 +27,13 @@ FAULT_CLEARABLE_MASK = 0xFFFF
 
 @dataclass(frozen=True)
 class ControlSettings:
-    """rate_hz: control rate; pose_timeout: age [s] after which a pose is stale;
-    lookahead: horizon [s] of the velocity feed-forward taken from the plan."""
+    """rate_hz: control rate; pose_timeout: age [s] after which a pose is stale; lookahead: horizon [s]
+    of the velocity feed-forward taken from the plan; plan_timeout: age [s] after which a plan is stale."""
 
     rate_hz: float = 100.0
     pose_timeout: float = 0.5
     lookahead: float = 0.2
+    plan_timeout: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -142,7 +143,8 @@ class ControlLoop:
         elif pose is None:
             self.motion.hold()
             mode = "waiting"
-        elif now - pose.rx_time > self.settings.pose_timeout or plan is None:
+        elif (now - pose.rx_time > self.settings.pose_timeout or plan is None
+              or now - plan.created > self.settings.plan_timeout):
             self.motion.hold()
             mode = "holding"
         else:

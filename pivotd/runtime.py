@@ -120,7 +120,8 @@ def build_motion(cfg: Config) -> MotionGenerator:
 
 def build_control_loop(cfg: Config, link) -> ControlLoop:
     """The control tick for ``link`` (a :class:`~pivotd.gimbal.link.GimbalLink` or compatible)."""
-    settings = ControlSettings(rate_hz=cfg.control.rate_hz, pose_timeout=cfg.control.pose_timeout_s)
+    settings = ControlSettings(rate_hz=cfg.control.rate_hz, pose_timeout=cfg.control.pose_timeout_s,
+                               plan_timeout=max(1.0, 10.0 / cfg.planner.replan_hz))
     return ControlLoop(settings, build_motion(cfg), cfg.gimbal.mount, cfg.gimbal.limits, link)
 
 
