@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from pivotd.errors import InputError
+from pivotd.geometry import matrix_to_quat, normalize, yaw_to_matrix
 from pivotd.maps.formats import read_numeric_text
 
 
@@ -50,3 +51,90 @@ def load_path(path: str | Path) -> PathData:
         quats=quats / norms[:, None],
         stamps=stamps,
     )
+
+
+class Polyline:
+    """A translation path (P, 3) [m] with arc length, monotone progress and resampling.
+
+    ``quats`` (P, 4) (x, y, z, w) give the body attitude along the path (interpolated linearly and
+    renormalised, consecutive ones kept in the same hemisphere). Without them the attitude follows the
+    path heading with zero roll and pitch; the heading at each vertex is that of its neighbours' chord,
+    interpolated along the arc, so it turns smoothly. ``ignore_constant_quats`` treats quaternions that
+    are all equal as absent (path planners that leave orientations unset). Repeated points are dropped.
+    """
+
+    def __init__(self, positions: np.ndarray, quats: np.ndarray | None = None,
+                 ignore_constant_quats: bool = False) -> None:
+        positions = np.asarray(positions, dtype=float).reshape(-1, 3)
+        if positions.shape[0] == 0:
+            raise InputError("path has no waypoints")
+        keep = np.ones(positions.shape[0], dtype=bool)
+        keep[1:] = np.linalg.norm(np.diff(positions, axis=0), axis=1) > 1e-9
+        self.positions = positions[keep]
+        self.quats = None
+        if quats is not None:
+            q = np.asarray(quats, dtype=float).reshape(-1, 4)[keep].copy()
+            q /= np.linalg.norm(q, axis=1, keepdims=True)
+            if not (ignore_constant_quats and self.positions.shape[0] > 1 and np.allclose(q, q[:1], atol=1e-9)):
+                flip = np.cumprod(np.where(np.sum(q[1:] * q[:-1], axis=1) < 0, -1.0, 1.0))
+                q[1:] *= flip[:, None]
+                self.quats = q
+        self._seg = np.diff(self.positions, axis=0)
+        self._seg_len2 = np.maximum(np.sum(self._seg * self._seg, axis=1), 1e-18)
+        self.arc = np.concatenate([[0.0], np.cumsum(np.sqrt(np.sum(self._seg * self._seg, axis=1)))])
+        self.length = float(self.arc[-1])
+        self.yaw = self._vertex_yaw()
+
+    def _vertex_yaw(self) -> np.ndarray:
+        p = self.positions
+        if p.shape[0] < 2:
+            return np.zeros(p.shape[0])
+        tangent = np.empty_like(p)
+        tangent[0] = p[1] - p[0]
+        tangent[-1] = p[-1] - p[-2]
+        tangent[1:-1] = p[2:] - p[:-2]
+        return np.unwrap(np.arctan2(tangent[:, 1], tangent[:, 0]))
+
+    def locate(self, position: np.ndarray, previous: float | None = None, back: float = 1.0,
+               ahead: float = 5.0) -> tuple[float, float]:
+        """Arc length [m] of the point on the path nearest to ``position``, and its distance [m].
+
+        With ``previous`` progress only the stretch [previous − back, previous + ahead] is searched (so a
+        path that passes near itself cannot make progress jump) and the result never decreases.
+        """
+        p = np.asarray(position, float)
+        if self.positions.shape[0] == 1:
+            return 0.0, float(np.linalg.norm(p - self.positions[0]))
+        a = self.positions[:-1]
+        t = np.clip(np.einsum("ij,ij->i", p - a, self._seg) / self._seg_len2, 0.0, 1.0)
+        d = np.linalg.norm(a + t[:, None] * self._seg - p, axis=1)
+        s_foot = self.arc[:-1] + t * np.sqrt(self._seg_len2)
+        if previous is not None:
+            window = (self.arc[1:] >= previous - back) & (self.arc[:-1] <= previous + ahead)
+            if window.any():
+                d = np.where(window, d, np.inf)
+        i = int(np.argmin(d))
+        s_new = float(s_foot[i]) if previous is None else max(float(s_foot[i]), float(previous))
+        return min(s_new, self.length), float(d[i])
+
+    def sample(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions (K, 3) and body quaternions (K, 4) at arc lengths ``s`` (K,), clamped to the path."""
+        s = np.clip(np.atleast_1d(np.asarray(s, float)), 0.0, self.length)
+        if self.positions.shape[0] == 1:
+            q = self.quats[0] if self.quats is not None else np.array([0.0, 0.0, 0.0, 1.0])
+            return np.repeat(self.positions, s.shape[0], axis=0), np.tile(q, (s.shape[0], 1))
+        i = np.clip(np.searchsorted(self.arc, s, side="right") - 1, 0, self.positions.shape[0] - 2)
+        u = ((s - self.arc[i]) / np.maximum(self.arc[i + 1] - self.arc[i], 1e-12))[:, None]
+        pos = self.positions[i] + u * self._seg[i]
+        if self.quats is not None:
+            quats = normalize((1 - u) * self.quats[i] + u * self.quats[i + 1])
+        else:
+            quats = matrix_to_quat(yaw_to_matrix((1 - u[:, 0]) * self.yaw[i] + u[:, 0] * self.yaw[i + 1]))
+        return pos, quats
+
+    def direction(self, s: float) -> np.ndarray:
+        """Unit direction of travel (3,) at arc length ``s``."""
+        if self.positions.shape[0] == 1:
+            return np.zeros(3)
+        i = int(np.clip(np.searchsorted(self.arc, s, side="right") - 1, 0, self.positions.shape[0] - 2))
+        return self._seg[i] / np.sqrt(self._seg_len2[i])

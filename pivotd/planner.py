@@ -23,6 +23,7 @@ from pivotd.geometry import normalize, quat_to_matrix
 from pivotd.gimbal.kinematics import JointLimits, Mount, base_from_world
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapSnapshot
+from pivotd.paths import Polyline
 from pivotd.pivot.constraints import PanTiltConstraint
 from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
 
@@ -40,85 +41,6 @@ def slerp_directions(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
     wa = np.where(small, 1.0 - t, np.sin((1.0 - t) * omega) / safe)
     wb = np.where(small, t, np.sin(t * omega) / safe)
     return normalize(wa * a + wb * b)
-
-
-class PathTracker:
-    """A translation path (P, 3) with arc length, monotone progress and resampling.
-
-    ``quats`` (P, 4) (x, y, z, w) give the body attitude along the path; when None (or all equal,
-    as when a path planner leaves orientations unset), the attitude is predicted from the path
-    heading with zero roll and pitch.
-    """
-
-    def __init__(self, positions: np.ndarray, quats: np.ndarray | None = None) -> None:
-        positions = np.asarray(positions, dtype=float)
-        if positions.ndim != 2 or positions.shape[1] != 3 or positions.shape[0] == 0:
-            raise ValueError(f"path positions must be (P, 3) with P >= 1, got {positions.shape}")
-        keep = np.ones(positions.shape[0], bool)
-        keep[1:] = np.linalg.norm(np.diff(positions, axis=0), axis=1) > 1e-9  # drop repeated points
-        self.positions = positions[keep]
-        self.quats = None
-        if quats is not None:
-            q = np.asarray(quats, dtype=float)[keep]
-            if not np.allclose(q, q[:1], atol=1e-9) or self.positions.shape[0] == 1:
-                self.quats = normalize(q)
-        seg = np.diff(self.positions, axis=0)
-        self._seg = seg
-        self._seg_len2 = np.maximum(np.sum(seg * seg, axis=1), 1e-18)
-        self.s = np.concatenate([[0.0], np.cumsum(np.sqrt(np.sum(seg * seg, axis=1)))])
-
-    @property
-    def length(self) -> float:
-        """Total arc length [m]."""
-        return float(self.s[-1])
-
-    def locate(self, position: np.ndarray, previous: float | None = None, back: float = 1.0,
-               ahead: float = 5.0) -> tuple[float, float]:
-        """Progress [m] of the point on the path nearest to ``position`` and its distance [m].
-
-        With ``previous`` progress, only the stretch [previous - back, previous + ahead] is searched
-        (so an S-shaped path that passes near itself cannot make progress jump) and the result is
-        never less than ``previous`` (monotone).
-        """
-        p = np.asarray(position, float)
-        if self.positions.shape[0] == 1:
-            return 0.0, float(np.linalg.norm(p - self.positions[0]))
-        a = self.positions[:-1]
-        t = np.clip(np.einsum("ij,ij->i", p - a, self._seg) / self._seg_len2, 0.0, 1.0)
-        foot = a + t[:, None] * self._seg
-        d = np.linalg.norm(foot - p, axis=1)
-        s_foot = self.s[:-1] + t * np.sqrt(self._seg_len2)
-        if previous is not None:
-            lo, hi = previous - back, previous + ahead
-            window = (self.s[1:] >= lo) & (self.s[:-1] <= hi)
-            if window.any():
-                d = np.where(window, d, np.inf)
-        i = int(np.argmin(d))
-        s_new = float(s_foot[i])
-        if previous is not None:
-            s_new = max(s_new, float(previous))
-        return min(s_new, self.length), float(d[i])
-
-    def sample(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Positions (K, 3) and body quaternions (K, 4) at arc lengths ``s`` (K,) (clamped to the path)."""
-        s = np.clip(np.asarray(s, float), 0.0, self.length)
-        if self.positions.shape[0] == 1:
-            pos = np.repeat(self.positions, s.shape[0], axis=0)
-            q = self.quats if self.quats is not None else np.array([[0.0, 0.0, 0.0, 1.0]])
-            return pos, np.repeat(q, s.shape[0], axis=0)
-        i = np.clip(np.searchsorted(self.s, s, side="right") - 1, 0, self.positions.shape[0] - 2)
-        t = ((s - self.s[i]) / np.maximum(self.s[i + 1] - self.s[i], 1e-12))[:, None]
-        pos = self.positions[i] + t * self._seg[i]
-        if self.quats is not None:
-            qa, qb = self.quats[i], self.quats[i + 1]
-            qb = np.where(np.sum(qa * qb, axis=1, keepdims=True) < 0, -qb, qb)
-            quats = normalize((1 - t) * qa + t * qb)
-        else:
-            tangent = self._seg[i]
-            yaw = np.arctan2(tangent[:, 1], tangent[:, 0])
-            half = 0.5 * yaw
-            quats = np.column_stack([np.zeros_like(yaw), np.zeros_like(yaw), np.sin(half), np.cos(half)])
-        return pos, quats
 
 
 @dataclass(frozen=True)
@@ -211,7 +133,7 @@ class RecedingHorizonPlanner:
         self.settings = settings
         self.mount = mount
         self.limits = limits
-        self._tracker: PathTracker | None = None
+        self._tracker: Polyline | None = None
         self._path_version = -1
         self.progress: float | None = None
         self.last_plan: Plan | None = None
@@ -221,7 +143,8 @@ class RecedingHorizonPlanner:
         if version == self._path_version:
             return
         self._path_version = version
-        self._tracker = None if positions is None or len(positions) == 0 else PathTracker(positions, quats)
+        self._tracker = (None if positions is None or len(positions) == 0
+                         else Polyline(positions, quats, ignore_constant_quats=True))
         self.progress = None
 
     def _constraint(self, body_quats: np.ndarray) -> PanTiltConstraint:

@@ -10,8 +10,9 @@ from pivotd.gimbal.kinematics import JointLimits, Mount, world_directions_to_joi
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.formats import LandmarkCloud
 from pivotd.maps.store import MapStore
+from pivotd.paths import Polyline
 from pivotd.pivot.scenes import hallway
-from pivotd.planner import PathTracker, Plan, PlannerSettings, RecedingHorizonPlanner, slerp_directions
+from pivotd.planner import Plan, PlannerSettings, RecedingHorizonPlanner, slerp_directions
 
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 
@@ -25,7 +26,7 @@ def s_path():
 
 
 def test_progress_is_monotone_and_cannot_jump_to_a_nearby_leg():
-    tr = PathTracker(s_path())
+    tr = Polyline(s_path())
     s, d = tr.locate(np.array([2.0, 0.1, 0]))
     assert s == pytest.approx(2.0, abs=1e-9) and d == pytest.approx(0.1)
     # Standing between the legs, nearer the return leg: with progress known, we stay on the first leg.
@@ -40,13 +41,13 @@ def test_progress_is_monotone_and_cannot_jump_to_a_nearby_leg():
 
 
 def test_progress_is_robust_to_the_robot_being_off_the_path():
-    tr = PathTracker(s_path())
+    tr = Polyline(s_path())
     s, d = tr.locate(np.array([4.0, -3.0, 0.0]), previous=3.5)
     assert s == pytest.approx(4.0, abs=1e-9) and d == pytest.approx(3.0)
 
 
 def test_sampling_positions_and_heading_attitude():
-    tr = PathTracker(s_path())
+    tr = Polyline(s_path())
     pos, q = tr.sample(np.array([0.0, 5.0, 25.0, 1e9]))
     np.testing.assert_allclose(pos[:2], [[0, 0, 0], [5, 0, 0]], atol=1e-12)
     np.testing.assert_allclose(pos[3], s_path()[-1])
@@ -59,10 +60,10 @@ def test_path_quaternions_are_used_when_informative():
     pos = np.column_stack([np.arange(5.0), np.zeros(5), np.zeros(5)])
     yaw = np.linspace(0, np.pi / 2, 5)
     quats = np.column_stack([np.zeros(5), np.zeros(5), np.sin(yaw / 2), np.cos(yaw / 2)])
-    _, q = PathTracker(pos, quats).sample(np.array([2.0]))
+    _, q = Polyline(pos, quats).sample(np.array([2.0]))
     np.testing.assert_allclose(q[0], quats[2], atol=1e-12)
     # All-identical orientations (a planner that leaves them unset) fall back to the heading.
-    _, q2 = PathTracker(pos, np.tile(quats[4], (5, 1))).sample(np.array([2.0]))
+    _, q2 = Polyline(pos, np.tile(quats[4], (5, 1)), ignore_constant_quats=True).sample(np.array([2.0]))
     np.testing.assert_allclose(q2[0], IDENTITY, atol=1e-12)
 
 

@@ -47,8 +47,9 @@ def run(args: argparse.Namespace) -> int:
     from pivotd.maps.filters import RetainedFilter
     from pivotd.maps.formats import LandmarkCloud
     from pivotd.maps.store import MapStore
+    from pivotd.paths import Polyline
     from pivotd.pivot.scenes import hallway
-    from pivotd.planner import PathTracker, PlannerSettings, RecedingHorizonPlanner
+    from pivotd.planner import PlannerSettings, RecedingHorizonPlanner
 
     n_rich = round(args.landmarks * 0.95)
     sc = hallway(rich_side_points=n_rich, poor_side_points=args.landmarks - n_rich, spacing=0.5)
@@ -60,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
                                max_landmarks_per_waypoint=args.cap or None, retained_filter=flt)
     planner = RecedingHorizonPlanner(settings, Mount(), limits)
     planner.set_path(sc.path, None, 1)
-    track = PathTracker(sc.path)
+    track = Polyline(sc.path)
     snap = store.snapshot()
     replans = 100 if args.quick else args.replans
     horizon_len = 0.5 * (args.horizon - 1)
