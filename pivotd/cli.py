@@ -1,4 +1,4 @@
-"""``pivotd`` command line: run (default), check, plan, bench.
+"""pivotd, the PIVOT gimbal controller: run (the default command), check, plan, bench.
 
 Each command lives in its own module exposing ``configure(parser)`` and ``run(args) -> int``;
 this module only dispatches and turns :class:`~pivotd.errors.PivotdError` into exit code 2.

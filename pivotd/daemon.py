@@ -96,6 +96,7 @@ class Daemon:
         self._last_error = ""
         self._clear_attempts = 0
         self._last_clear = 0.0
+        self._last_link_error: str | None = None
         self._control_healthy = 0.0
         self._rl = RateLimitedLog(log)
         self._threads: list[threading.Thread] = []
@@ -247,6 +248,10 @@ class Daemon:
 
     def _supervise_gimbal(self) -> None:
         link = self.link
+        if link is not None and link.last_error != self._last_link_error:
+            self._last_link_error = link.last_error
+            if link.last_error and link.link_state != "up":
+                log.warning("gimbal link: %s (retrying with backoff)", link.last_error)
         if link is None or link.link_state != "up" or link.state is None:
             return
         st = link.state
@@ -284,6 +289,7 @@ class Daemon:
             "time": time.time(),
             "pose_age_s": None if pose is None else round(time.monotonic() - pose.rx_time, 3),
             "link": link.link_state if link is not None else "stopped",
+            "link_error": link.last_error if link is not None else None,
             "gimbal": None if st is None else {
                 "mode": MODE_NAMES.get(st.mode, str(st.mode)),
                 "faults": st.faults,
