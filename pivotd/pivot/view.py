@@ -131,21 +131,11 @@ def optimize_view(
     """
     opts = options or ViewOptions()
     alpha = half_angle(alpha)
-    B = finite_array("bearings", bearings)
-    w = feature_weights(weights, B.shape[0])
     init_v = None if init is None else unit_vector("init", init)
-    sq = np.square(B) @ np.ones(3)  # ‖k_j‖² (einsum is several times slower for (n, 3))
-    ok = sq > 0.25
-    if not ok.all():
-        B, w = B[ok], w[ok]
-        sq = sq[ok]
-    if np.any(np.abs(sq - 1.0) > 1e-6):
-        B = B / np.sqrt(sq)[:, None]
+    B, BT, w = _unit_bearings(bearings, weights)
     if B.shape[0] == 0:
         d = init_v if init_v is not None else np.array([1.0, 0.0, 0.0])
         return ViewResult(d, optical_frame_from_direction(d), 0, 0.0, 0)
-    # Every full pass below is a (K, 3) @ (3, n) product on this float32 copy (faster than (n, 3) @ (3, K)).
-    BT = np.ascontiguousarray(B.T, dtype=np.float32)
     B32 = BT.T
     w32 = w.astype(np.float32)
     C = _candidates(B, w, alpha, opts, init_v)
@@ -179,11 +169,20 @@ def optimize_view(
         c_best = polish_hard(c_best, B32, w32, alpha, min(rad(opts.polish_deg), 0.5 * alpha), tol, cos_best)
     c_best = c_best / np.sqrt(c_best @ c_best)
     ca = np.cos(alpha)
-    cb = B @ c_best  # float64: the reported count is exact
-    visible = int(np.count_nonzero(cb >= ca - 1e-12))
+    cos_f = c_best.astype(np.float32) @ BT
+    # hard count in float32, pairs within 2e-6 of cos α (float32 rounding) settled in float64
+    edge = np.flatnonzero(np.abs(cos_f - np.float32(ca)) <= np.float32(2e-6))
+    visible = int(np.count_nonzero(cos_f > np.float32(ca + 2e-6)))
+    visible += int(np.count_nonzero(B.take(edge, axis=0) @ c_best >= ca - 1e-12))
     ks = ks_from_width(alpha, _width(alpha, opts))
-    near = cb >= np.cos(min(np.pi, alpha + 10.0 / (ks * max(np.sin(alpha), 1e-9))))
-    f = float(smooth_visibility(cb[near], alpha, ks) @ w[near])
+    # v(θ) is within e⁻¹⁰ of 0 or 1 further than 10/(k_s sin α) (in cos θ) from cos α: only the band between
+    # needs tanh (in float64), the landmarks above it count with their full weight
+    reach = 10.0 / (ks * max(np.sin(alpha), 1e-9))
+    lo = np.float32(np.cos(min(np.pi, alpha + reach)))
+    hi = np.float32(np.cos(alpha - reach) if alpha > reach else 2.0)
+    band = np.flatnonzero((cos_f >= lo) & (cos_f < hi))
+    f = float(smooth_visibility(B.take(band, axis=0) @ c_best, alpha, ks) @ w.take(band))
+    f += float(w[cos_f >= hi].sum())
     return ViewResult(c_best, _frame(c_best), visible, f, iters)
 
 
@@ -220,6 +219,35 @@ def _widened(
     coarse = _ascent.Geometry(Bc, np.zeros((K, 3), np.float32), None, wc.astype(np.float32), exact)
     R, iters = _ascent.ascend(coarse, optical_frame_from_direction(C), np.full(K, total), settings, coarse=coarse)
     return R[:, :, 2].copy(), iters
+
+
+def _unit_bearings(bearings: np.ndarray, weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Validated unit bearings: float64 B (n, 3), its float32 transpose BT (3, n) and weights w (n,).
+
+    Rows shorter than 0.5 (a landmark at the sensor) are dropped, others normalised. One float64 pass
+    in the common case: norms and the finiteness check come from the float32 copy; only non-finite or
+    non-unit input goes through the float64 checks (which name the offending row).
+    """
+    B = np.asarray(bearings, dtype=float)
+    if B.ndim != 2 or B.shape[1] != 3:
+        finite_array("bearings", B)  # raises, naming the expected shape
+    w = feature_weights(weights, B.shape[0])
+    with np.errstate(over="ignore", invalid="ignore"):
+        BT = np.ascontiguousarray(B.T, dtype=np.float32)
+        sq = BT[0] * BT[0]
+        sq += BT[1] * BT[1]
+        sq += BT[2] * BT[2]
+    if not np.isfinite(sq).all():  # NaN/inf (raises) or beyond float32's range: rescale in float64
+        B = finite_array("bearings", B)
+        B = B / np.maximum(np.abs(B).max(axis=1, keepdims=True), 1e-300)
+        return _unit_bearings(B, w)
+    ok = sq > 0.25
+    if not ok.all():
+        B, w, BT, sq = B[ok], w[ok], np.ascontiguousarray(BT[:, ok]), sq[ok]
+    if sq.size and float(np.abs(sq - 1.0).max()) > 1e-6:
+        B = B / np.sqrt(np.square(B) @ np.ones(3))[:, None]
+        BT = np.ascontiguousarray(B.T, dtype=np.float32)
+    return B, BT, w
 
 
 def _frame(c: np.ndarray) -> np.ndarray:
@@ -321,7 +349,8 @@ def polish_hard(
     sel = np.flatnonzero((cos_c >= lo) & (cos_c <= hi))
     if sel.size == 0:
         return c
-    band, wb = B.take(sel, axis=0).astype(np.float32), w.take(sel).astype(np.float32)
+    bandT = np.ascontiguousarray(B.take(sel, axis=0).T, dtype=np.float32)  # (3, m)
+    wb = w.take(sel).astype(np.float32)
     cos_a = np.float32(np.cos(alpha) - 1e-7)
     radii = [radius]
     while radii[-1] * 0.5 >= tol:
@@ -331,14 +360,14 @@ def polish_hard(
     ca = np.tile(np.cos(ang), len(radii))[:, None]
     sa = np.tile(np.sin(ang), len(radii))[:, None]
     cos_r, sin_r = np.cos(r), np.sin(r)
-    best = float(wb @ (band @ c.astype(np.float32) >= cos_a))
+    best = float((c.astype(np.float32) @ bandT >= cos_a) @ wb)
     for _ in range(4):
         x, y, z = c
         t1 = np.array([y, -x, 0.0]) if abs(z) < 0.9 else np.array([0.0, z, -y])  # c × e_z or c × e_x
         t1 /= np.sqrt(t1 @ t1)
         t2 = np.array([y * t1[2] - z * t1[1], z * t1[0] - x * t1[2], x * t1[1] - y * t1[0]])
         cand = cos_r * c + sin_r * (ca * t1 + sa * t2)
-        vals = wb @ (band @ cand.T.astype(np.float32) >= cos_a)
+        vals = (cand.astype(np.float32) @ bandT >= cos_a) @ wb
         k = int(np.argmax(vals))
         if vals[k] <= best:
             break
