@@ -66,18 +66,32 @@ class PanTiltConstraint:
         return ok_tilt & (pole | self._pan_in_range(pan))
 
     def project(self, directions: np.ndarray) -> np.ndarray:
-        """Nearest reachable unit world direction (N, 3) for each waypoint (great-circle distance)."""
-        b = self._base(directions)
+        """Nearest reachable unit world direction (N, 3) for each waypoint (great-circle distance).
+
+        Directions already within the limits are returned normalised as they are; only the others
+        are moved (onto the tilt limit of their meridian, or onto a boundary meridian).
+        """
+        d = np.asarray(directions, dtype=float)
+        b = self._base(d)
         n = np.linalg.norm(b, axis=1, keepdims=True)
         b = b / np.where(n < 1e-300, 1.0, n)
         pan, tilt = direction_to_pan_tilt(b)
-        best = pan_tilt_to_direction(pan, np.clip(tilt, self.tilt_min, self.tilt_max))
+        inside = (tilt >= self.tilt_min) & (tilt <= self.tilt_max)
         if not self.continuous:
-            out = ~self._pan_in_range(pan)
-            if np.any(out):
-                best[out] = self._nearest_on_edges(b[out])
-        world = np.einsum("nji,nj->ni", self.base_from_world, best)  # base -> world (transpose)
-        return world / np.linalg.norm(world, axis=1, keepdims=True)
+            pan_ok = self._pan_in_range(pan)
+            inside &= pan_ok
+        out = d / np.where(n < 1e-300, 1.0, n)
+        fix = np.flatnonzero(~inside)
+        if fix.size == 0:
+            return out
+        best = pan_tilt_to_direction(pan[fix], np.clip(tilt[fix], self.tilt_min, self.tilt_max))
+        if not self.continuous:
+            off = ~pan_ok[fix]
+            if np.any(off):
+                best[off] = self._nearest_on_edges(b[fix[off]])
+        world = np.einsum("nji,nj->ni", self.base_from_world[fix], best)  # base -> world (transpose)
+        out[fix] = world / np.linalg.norm(world, axis=1, keepdims=True)
+        return out
 
     def _nearest_on_edges(self, b: np.ndarray) -> np.ndarray:
         """Nearest point of the two boundary meridians (tilt-limited) to unit base directions b (n, 3)."""
