@@ -17,6 +17,9 @@ from pivotd.pivot.visibility import ks_from_width
 
 Projector = Callable[[np.ndarray], np.ndarray]
 
+#: one float32 (x, y, z) row as a single 12-byte item, for fast gathers and scatters of whole rows
+_ROW3 = np.dtype((np.void, 12))
+
 
 @dataclass
 class Geometry:
@@ -142,10 +145,14 @@ def _active(
     if flat.size:
         dest = rows * L + pos
         cols = flat - rows * Lfull
-        p = geom.points[cols] if geom.shared else geom.points.reshape(-1, 3)[flat]
-        if geom.inv_dist is not None:
-            p = (p - geom.origins[rows]) * geom.inv_dist.reshape(-1)[flat][:, None]
-        B[dest] = p
+        if geom.inv_dist is None and not geom.shared and geom.points.flags.c_contiguous:
+            # unit bearings per row: move whole 12-byte rows (much faster than indexing (n, 3) arrays)
+            B.view(_ROW3).ravel()[dest] = geom.points.reshape(-1, 3).view(_ROW3).ravel().take(flat)
+        else:
+            p = geom.points[cols] if geom.shared else geom.points.reshape(-1, 3)[flat]
+            if geom.inv_dist is not None:
+                p = (p - geom.origins[rows]) * geom.inv_dist.reshape(-1)[flat][:, None]
+            B[dest] = p
         w = geom.weights[cols] if geom.weights.ndim == 1 else geom.weights.reshape(-1)[flat]
         Wa[dest] = w if scale is None else w * scale[rows]
     return B.reshape(K, L, 3), Wa.reshape(K, L)
@@ -317,14 +324,13 @@ def ascend(
             g = np.subtract(np.float32(1.0), t, out=t)
             g *= Wa  # ∝ s_j v (1 − v): the k_s/4 factor is applied to the (K, 3) sum
             S = np.matmul(g[:, None, :], B)[:, 0, :].astype(float)
-            J = _cross(C, S) * (float(quarter_ks) * inv_norm)[:, None]
-            if coupled:
-                nb = np.zeros_like(C)
-                nb[1:] += C[:-1]
-                nb[:-1] += C[1:]
+            S *= (float(quarter_ks) * inv_norm)[:, None]
+            if coupled:  # J = c × (S_vis / W + λ (c_prev + c_next)): one cross product for both terms
+                S[1:] += lam_q * C[:-1]
+                S[:-1] += lam_q * C[1:]
                 if anchor is not None:
-                    nb[0] += anchor
-                J += lam_q * _cross(C, nb)
+                    S[0] += lam_q * anchor
+            J = _cross(C, S)
             nJ = np.linalg.norm(J, axis=1)
             agree = np.sum(J * J_prev, axis=1)
             h = np.where(agree < 0, 0.5 * h, np.where(agree > 0, np.minimum(1.2 * h, settings.step_max), h))
