@@ -16,7 +16,7 @@ import numpy as np
 from pivotd.geometry import optical_frame_from_direction
 from pivotd.pivot import _ascent
 from pivotd.pivot._checks import feature_weights, finite_array, half_angle, unit_vector
-from pivotd.pivot.visibility import ks_from_width, smooth_visibility
+from pivotd.pivot.visibility import ks_from_width
 
 
 @dataclass
@@ -62,7 +62,7 @@ def _candidates(B: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, i
     n = B.shape[0]
     if n > opts.sample:
         idx = np.linspace(0, n - 1, opts.sample).astype(np.intp)
-        Bs, ws = B[idx], w[idx]
+        Bs, ws = B.take(idx, axis=0), w.take(idx)
     else:
         Bs, ws = B, w
     Bs, ws = Bs.astype(np.float32), ws.astype(np.float32)
@@ -176,13 +176,17 @@ def optimize_view(
     visible += int(np.count_nonzero(B.take(edge, axis=0) @ c_best >= ca - 1e-12))
     ks = ks_from_width(alpha, _width(alpha, opts))
     # v(θ) is within e⁻¹⁰ of 0 or 1 further than 10/(k_s sin α) (in cos θ) from cos α: only the band between
-    # needs tanh (in float64), the landmarks above it count with their full weight
+    # needs tanh, the landmarks above it count with their full weight
     reach = 10.0 / (ks * max(np.sin(alpha), 1e-9))
     lo = np.float32(np.cos(min(np.pi, alpha + reach)))
     hi = np.float32(np.cos(alpha - reach) if alpha > reach else 2.0)
     band = np.flatnonzero((cos_f >= lo) & (cos_f < hi))
-    f = float(smooth_visibility(B.take(band, axis=0) @ c_best, alpha, ks) @ w.take(band))
-    f += float(w[cos_f >= hi].sum())
+    x = cos_f.take(band)
+    x -= np.float32(ca)
+    x *= np.float32(0.5 * ks)
+    np.tanh(x, out=x)  # v = (1 + tanh) / 2, in float32 like the ascent
+    wb = w32.take(band)
+    f = 0.5 * float(wb.sum(dtype=np.float64) + x @ wb) + float(w32 @ (cos_f >= hi))
     return ViewResult(c_best, _frame(c_best), visible, f, iters)
 
 
