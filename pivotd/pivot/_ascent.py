@@ -127,11 +127,11 @@ def _active(
     if counts.size and counts.max() > cap:  # thin crowded rows with a column stride before extracting
         stride = np.maximum(1, counts // cap)
         crowded = np.flatnonzero(stride > 1)
-        for i in crowded:
-            st = int(stride[i])
-            thinned = np.zeros(Lfull, dtype=bool)
-            thinned[::st] = mask[i, ::st]
-            mask[i] = thinned
+        for st in np.unique(stride[crowded]):  # rows sharing a stride are thinned together
+            rows_st = crowded[stride[crowded] == st]
+            keep = np.zeros(Lfull, dtype=bool)
+            keep[:: int(st)] = True
+            mask[rows_st] &= keep
         kept = np.count_nonzero(mask, axis=1)
         scale = (counts / np.maximum(kept, 1)).astype(np.float32)
         counts = kept
@@ -149,11 +149,12 @@ def _active(
             # unit bearings per row: move whole 12-byte rows (much faster than indexing (n, 3) arrays)
             B.view(_ROW3).ravel()[dest] = geom.points.reshape(-1, 3).view(_ROW3).ravel().take(flat)
         else:
-            p = geom.points[cols] if geom.shared else geom.points.reshape(-1, 3)[flat]
+            p = geom.points.take(cols, axis=0) if geom.shared else geom.points.reshape(-1, 3).take(flat, axis=0)
             if geom.inv_dist is not None:
-                p = (p - geom.origins[rows]) * geom.inv_dist.reshape(-1)[flat][:, None]
-            B[dest] = p
-        w = geom.weights[cols] if geom.weights.ndim == 1 else geom.weights.reshape(-1)[flat]
+                p -= geom.origins.take(rows, axis=0)
+                p *= geom.inv_dist.reshape(-1).take(flat)[:, None]
+            B.view(_ROW3).ravel()[dest] = np.ascontiguousarray(p, dtype=np.float32).view(_ROW3).ravel()
+        w = geom.weights.take(cols) if geom.weights.ndim == 1 else geom.weights.reshape(-1).take(flat)
         Wa[dest] = w if scale is None else w * scale[rows]
     return B.reshape(K, L, 3), Wa.reshape(K, L)
 
@@ -331,8 +332,8 @@ def ascend(
                 if anchor is not None:
                     S[0] += lam_q * anchor
             J = _cross(C, S)
-            nJ = np.linalg.norm(J, axis=1)
-            agree = np.sum(J * J_prev, axis=1)
+            nJ = np.sqrt(np.einsum("ij,ij->i", J, J))
+            agree = np.einsum("ij,ij->i", J, J_prev)
             h = np.where(agree < 0, 0.5 * h, np.where(agree > 0, np.minimum(1.2 * h, settings.step_max), h))
             J_prev = np.where((agree < 0)[:, None], 0.0, J)  # after a reversal the next step neither grows nor shrinks
             live = nJ > 1e-12
@@ -341,11 +342,12 @@ def ascend(
             hs = np.where(live, h, 0.0)
             u = J / np.where(live, nJ, 1.0)[:, None]
             C = C * np.cos(hs)[:, None] + _cross(u, C) * np.sin(hs)[:, None]
-            C /= np.sqrt(np.einsum("ij,ij->i", C, C))[:, None]
             if project is not None:
-                C = project(C)
+                C = project(C)  # returns unit rows
+            else:
+                C /= np.sqrt(np.einsum("ij,ij->i", C, C))[:, None]
             if cos_lo > -1.0:
-                moved = np.flatnonzero(np.sum(C * C_ref, axis=1) < cos_drift)
+                moved = np.flatnonzero(np.einsum("ij,ij->i", C, C_ref) < cos_drift)
                 if moved.size:
                     B, Wa = _refresh_rows(g_stage, C, moved, B, Wa, cos_lo, cos_hi, cap)
                     C_ref[moved] = C[moved]
