@@ -95,13 +95,16 @@ class PanTiltConstraint:
 
     def _nearest_on_edges(self, b: np.ndarray) -> np.ndarray:
         """Nearest point of the two boundary meridians (tilt-limited) to unit base directions b (n, 3)."""
-        cands = []
+        n = len(b)
+        pans, tilts = [], []
         for p in (self.pan_min, self.pan_max):
             g = b[:, 0] * np.cos(p) + b[:, 1] * np.sin(p)
             t_star = np.arctan2(-b[:, 2], g)  # maximiser of d·dir(p, t) over the full circle
-            for t in (np.clip(t_star, self.tilt_min, self.tilt_max), np.full(len(b), self.tilt_min),
-                      np.full(len(b), self.tilt_max)):
-                cands.append(pan_tilt_to_direction(np.full(len(b), p), t))
-        stack = np.stack(cands, axis=1)  # (n, 6, 3)
+            for t in (np.clip(t_star, self.tilt_min, self.tilt_max), np.full(n, self.tilt_min),
+                      np.full(n, self.tilt_max)):
+                pans.append(np.full(n, p))
+                tilts.append(t)
+        # one conversion for all six candidates per row: (n, 6, 3)
+        stack = pan_tilt_to_direction(np.stack(pans, axis=1).ravel(), np.stack(tilts, axis=1).ravel()).reshape(n, 6, 3)
         best = np.argmax(np.einsum("nkj,nj->nk", stack, b), axis=1)
-        return stack[np.arange(len(b)), best]
+        return stack[np.arange(n), best]
