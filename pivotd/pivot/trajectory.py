@@ -199,15 +199,15 @@ def _weights(d: np.ndarray, valid: np.ndarray | None, fw: np.ndarray, dist_w: bo
         return s
     if not dist_w:
         return np.where(valid, fw, np.float32(0.0))
-    dmin = np.where(valid, d, np.float32(np.inf)).min(axis=1, keepdims=True)
-    dmax = np.where(valid, d, np.float32(-np.inf)).max(axis=1, keepdims=True)
+    dmin = d.min(axis=1, keepdims=True, where=valid, initial=np.float32(np.inf))
+    dmax = d.max(axis=1, keepdims=True, where=valid, initial=np.float32(-np.inf))
     empty = ~np.isfinite(dmin)
     dmin[empty], dmax[empty] = 0.0, 1.0
     s = d - dmin
     s *= (np.float32(-1.0) / np.maximum(np.float32(1e-6), dmax - dmin)).astype(np.float32)
     s += np.float32(1.0)
     s *= fw
-    s[~valid] = 0.0
+    s *= valid  # 0 where invalid
     return s.astype(np.float32, copy=False)
 
 
