@@ -72,23 +72,26 @@ class PanTiltConstraint:
         are moved (onto the tilt limit of their meridian, or onto a boundary meridian).
         """
         d = np.asarray(directions, dtype=float)
-        b = self._base(d)
-        n = np.linalg.norm(b, axis=1, keepdims=True)
-        b = b / np.where(n < 1e-300, 1.0, n)
-        pan, tilt = direction_to_pan_tilt(b)
-        inside = (tilt >= self.tilt_min) & (tilt <= self.tilt_max)
+        if d.shape != (len(self), 3):
+            raise ValueError(f"directions must have shape ({len(self)}, 3), got {d.shape}")
+        b = np.matmul(self.base_from_world, d[:, :, None])[..., 0]
+        n = np.sqrt(np.einsum("ij,ij->i", b, b))
+        n[n < 1e-300] = 1.0
+        down = -b[:, 2] / n  # sin(tilt): tilt ∈ [−π/2, π/2], so the limits compare as sines
+        inside = (down >= np.sin(self.tilt_min)) & (down <= np.sin(self.tilt_max))
         if not self.continuous:
-            pan_ok = self._pan_in_range(pan)
-            inside &= pan_ok
-        out = d / np.where(n < 1e-300, 1.0, n)
+            inside &= self._pan_in_range(np.arctan2(b[:, 1], b[:, 0]))
+        out = d / n[:, None]
         fix = np.flatnonzero(~inside)
         if fix.size == 0:
             return out
-        best = pan_tilt_to_direction(pan[fix], np.clip(tilt[fix], self.tilt_min, self.tilt_max))
+        bf = b[fix] / n[fix, None]
+        pan, tilt = direction_to_pan_tilt(bf)
+        best = pan_tilt_to_direction(pan, np.clip(tilt, self.tilt_min, self.tilt_max))
         if not self.continuous:
-            off = ~pan_ok[fix]
+            off = ~self._pan_in_range(pan)
             if np.any(off):
-                best[off] = self._nearest_on_edges(b[fix[off]])
+                best[off] = self._nearest_on_edges(bf[off])
         world = np.einsum("nji,nj->ni", self.base_from_world[fix], best)  # base -> world (transpose)
         out[fix] = world / np.linalg.norm(world, axis=1, keepdims=True)
         return out
