@@ -110,13 +110,21 @@ class PlannerSettings:
 
 
 def _cap_retained(retained: Sequence[np.ndarray], cap: int | None) -> list[np.ndarray]:
-    """Evenly subsample any waypoint's retained set larger than ``cap`` (deterministic)."""
+    """Evenly subsample any waypoint's retained set larger than ``cap`` (deterministic).
+
+    Keeps the elements at np.linspace(0, n - 1, cap).astype(int64), computed as k · (n − 1)/(cap − 1)
+    from one shared ramp (the same floating-point operations as linspace, without its per-call cost).
+    """
     if not cap:
         return list(retained)
+    ramp = np.arange(cap, dtype=float)
     out = []
     for idx in retained:
-        if idx.shape[0] > cap:
-            idx = idx[np.linspace(0, idx.shape[0] - 1, cap).astype(np.int64)]
+        n = idx.shape[0]
+        if n > cap:
+            pos = ramp * ((n - 1) / (cap - 1)) if cap > 1 else np.zeros(1)
+            pos[-1] = n - 1 if cap > 1 else 0
+            idx = idx.take(pos.astype(np.int64))
         out.append(idx)
     return out
 

@@ -154,3 +154,23 @@ def test_options_are_honoured():
     B = _clustered(rng)
     r = optimize_view(B, None, np.radians(20), options=ViewOptions(max_iterations=1, stages=1, refine=1))
     assert r.iterations <= 1
+
+
+def test_unnormalised_and_huge_bearings_give_the_unit_answer():
+    rng = np.random.default_rng(8)
+    B = _clustered(rng)
+    alpha = np.radians(20)
+    ref = optimize_view(B, None, alpha)
+    for scale in (3.0, 1e30, 1e300):  # beyond float32's range the bearings are rescaled in float64 first
+        r = optimize_view(B * scale, None, alpha)
+        assert r.visible == ref.visible
+        assert np.degrees(angle_between(r.direction, ref.direction)) < 1e-3
+
+
+def test_rotation_is_the_optical_frame_of_the_direction():
+    from pivotd.geometry import optical_frame_from_direction
+
+    for d in ([0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [0.3, -0.5, 0.8]):
+        B = normalize(np.array(d) + 0.01 * np.random.default_rng(9).normal(size=(30, 3)))
+        r = optimize_view(B, None, np.radians(10))
+        assert np.allclose(r.rotation, optical_frame_from_direction(r.direction), atol=1e-9)

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pivotd.bench._stats import best_of, median, percentile, timed
+from pivotd.bench._stats import best_of, median, percentile, steady_heap, timed
 
 log = logging.getLogger(__name__)
 
@@ -175,6 +175,8 @@ def replan_section(replans: int = 200, nearest: int | None = None) -> dict:
 def run(args: argparse.Namespace) -> int:
     from pivotd.errors import InputError
 
+    if not steady_heap():
+        log.warning("could not fix the allocator's thresholds (not glibc?): timings include page faults")
     if args.replan:
         out = []
         for nearest in (None, 5000):

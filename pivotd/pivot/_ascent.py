@@ -17,6 +17,9 @@ from pivotd.pivot.visibility import ks_from_width
 
 Projector = Callable[[np.ndarray], np.ndarray]
 
+#: one float32 (x, y, z) row as a single 12-byte item, for fast gathers and scatters of whole rows
+_ROW3 = np.dtype((np.void, 12))
+
 
 @dataclass
 class Geometry:
@@ -35,6 +38,7 @@ class Geometry:
     weights: np.ndarray
     exact: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
     valid_all: bool = False  # True when no landmark sits at a sensor (inv_dist > 0 wherever weights exist)
+    valid: np.ndarray | None = None  # (K, L) bool for per-row unit bearings (inv_dist None): False for padding
 
     @property
     def rows(self) -> int:
@@ -123,11 +127,11 @@ def _active(
     if counts.size and counts.max() > cap:  # thin crowded rows with a column stride before extracting
         stride = np.maximum(1, counts // cap)
         crowded = np.flatnonzero(stride > 1)
-        for i in crowded:
-            st = int(stride[i])
-            thinned = np.zeros(Lfull, dtype=bool)
-            thinned[::st] = mask[i, ::st]
-            mask[i] = thinned
+        for st in np.unique(stride[crowded]):  # rows sharing a stride are thinned together
+            rows_st = crowded[stride[crowded] == st]
+            keep = np.zeros(Lfull, dtype=bool)
+            keep[:: int(st)] = True
+            mask[rows_st] &= keep
         kept = np.count_nonzero(mask, axis=1)
         scale = (counts / np.maximum(kept, 1)).astype(np.float32)
         counts = kept
@@ -141,11 +145,16 @@ def _active(
     if flat.size:
         dest = rows * L + pos
         cols = flat - rows * Lfull
-        p = geom.points[cols] if geom.shared else geom.points.reshape(-1, 3)[flat]
-        if geom.inv_dist is not None:
-            p = (p - geom.origins[rows]) * geom.inv_dist.reshape(-1)[flat][:, None]
-        B[dest] = p
-        w = geom.weights[cols] if geom.weights.ndim == 1 else geom.weights.reshape(-1)[flat]
+        if geom.inv_dist is None and not geom.shared and geom.points.flags.c_contiguous:
+            # unit bearings per row: move whole 12-byte rows (much faster than indexing (n, 3) arrays)
+            B.view(_ROW3).ravel()[dest] = geom.points.reshape(-1, 3).view(_ROW3).ravel().take(flat)
+        else:
+            p = geom.points.take(cols, axis=0) if geom.shared else geom.points.reshape(-1, 3).take(flat, axis=0)
+            if geom.inv_dist is not None:
+                p -= geom.origins.take(rows, axis=0)
+                p *= geom.inv_dist.reshape(-1).take(flat)[:, None]
+            B.view(_ROW3).ravel()[dest] = np.ascontiguousarray(p, dtype=np.float32).view(_ROW3).ravel()
+        w = geom.weights.take(cols) if geom.weights.ndim == 1 else geom.weights.reshape(-1).take(flat)
         Wa[dest] = w if scale is None else w * scale[rows]
     return B.reshape(K, L, 3), Wa.reshape(K, L)
 
@@ -267,12 +276,17 @@ def ascend(
     ``project`` (optional) maps axes onto the reachable set after every step (projected gradient
     ascent). ``coarse`` (optional) is a subsample of ``geom`` with weights scaled to the same totals,
     used for the widened stages. Returns the rotations and the iteration count.
+
+    Only the axes are tracked: a step exp((h û)^) with û ⟂ c moves the axis to c cos h + (û × c) sin h,
+    and the roll about the axis does not enter the objective. The returned rotations are the inputs
+    turned by the smallest rotation onto the final axes.
     """
     R = np.array(R, dtype=float)
     K = R.shape[0]
-    inv_norm = (1.0 / np.maximum(norm, 1e-12)).astype(np.float32)
+    inv_norm = 1.0 / np.maximum(norm, 1e-12)
+    C = R[:, :, 2].copy()
     if project is not None:
-        R = _turn_to(R, project(R[:, :, 2]))
+        C = project(C)
     total = 0
     coupled = (lam > 0 and K > 1) or (lam > 0 and anchor is not None)
     last = len(settings.stages) - 1
@@ -297,43 +311,47 @@ def ascend(
             h0 = min(h0, 0.5 * settings.drift)
         h = np.full(K, h0)
         J_prev = np.zeros((K, 3))
-        C = R[:, :, 2].copy()
         g_stage = geom if final or coarse is None else coarse
         B, Wa = _active(g_stage, C, cos_lo, cos_hi, cap)
         C_ref = C.copy()
         cos_drift = np.cos(settings.drift)
         for _ in range(iters):
             total += 1
-            cosv = np.matmul(B, C.astype(np.float32)[:, :, None])[..., 0]
-            t = np.tanh(half_ks * (cosv - cos_a))
-            g = Wa * (quarter_ks * (1.0 - t * t))
+            t = np.matmul(B, C.astype(np.float32)[:, :, None])[..., 0]  # cos θ (K, L)
+            t -= cos_a
+            t *= half_ks
+            np.tanh(t, out=t)
+            t *= t
+            g = np.subtract(np.float32(1.0), t, out=t)
+            g *= Wa  # ∝ s_j v (1 − v): the k_s/4 factor is applied to the (K, 3) sum
             S = np.matmul(g[:, None, :], B)[:, 0, :].astype(float)
-            J = _cross(C, S) * inv_norm[:, None]
-            if coupled:
-                nb = np.zeros_like(C)
-                nb[1:] += C[:-1]
-                nb[:-1] += C[1:]
+            S *= (float(quarter_ks) * inv_norm)[:, None]
+            if coupled:  # J = c × (S_vis / W + λ (c_prev + c_next)): one cross product for both terms
+                S[1:] += lam_q * C[:-1]
+                S[:-1] += lam_q * C[1:]
                 if anchor is not None:
-                    nb[0] += anchor
-                J += lam_q * _cross(C, nb)
-            nJ = np.linalg.norm(J, axis=1)
-            agree = np.sum(J * J_prev, axis=1)
+                    S[0] += lam_q * anchor
+            J = _cross(C, S)
+            nJ = np.sqrt(np.einsum("ij,ij->i", J, J))
+            agree = np.einsum("ij,ij->i", J, J_prev)
             h = np.where(agree < 0, 0.5 * h, np.where(agree > 0, np.minimum(1.2 * h, settings.step_max), h))
             J_prev = np.where((agree < 0)[:, None], 0.0, J)  # after a reversal the next step neither grows nor shrinks
             live = nJ > 1e-12
             if np.count_nonzero(live & (h >= settings.tol)) <= settings.settle_frac * K:
                 break
-            step = np.where(live[:, None], J / np.where(live, nJ, 1.0)[:, None] * h[:, None], 0.0)
-            R = _exp(step) @ R
+            hs = np.where(live, h, 0.0)
+            u = J / np.where(live, nJ, 1.0)[:, None]
+            C = C * np.cos(hs)[:, None] + _cross(u, C) * np.sin(hs)[:, None]
             if project is not None:
-                R = _turn_to(R, project(R[:, :, 2]))
-            C = R[:, :, 2].copy()
+                C = project(C)  # returns unit rows
+            else:
+                C /= np.sqrt(np.einsum("ij,ij->i", C, C))[:, None]
             if cos_lo > -1.0:
-                moved = np.flatnonzero(np.sum(C * C_ref, axis=1) < cos_drift)
+                moved = np.flatnonzero(np.einsum("ij,ij->i", C, C_ref) < cos_drift)
                 if moved.size:
                     B, Wa = _refresh_rows(g_stage, C, moved, B, Wa, cos_lo, cos_hi, cap)
                     C_ref[moved] = C[moved]
-    return R, total
+    return _turn_to(R, C), total
 
 
 def evaluate(geom: Geometry, C: np.ndarray, alpha: float, width: float) -> tuple[np.ndarray, np.ndarray]:
@@ -348,9 +366,14 @@ def evaluate(geom: Geometry, C: np.ndarray, alpha: float, width: float) -> tuple
     inside = x >= 0
     if geom.inv_dist is not None and geom.weights.ndim == 2 and not geom.valid_all:
         inside &= geom.inv_dist > 0
+    elif geom.valid is not None:
+        inside &= geom.valid
     rows, cols = _nonzero2d(np.abs(x) < np.float32(2e-4))
     if rows.size:
-        ok = geom.inv_dist[rows, cols] > 0 if geom.inv_dist is not None else np.ones(rows.size, bool)
+        if geom.inv_dist is not None:
+            ok = geom.inv_dist[rows, cols] > 0
+        else:
+            ok = geom.valid[rows, cols] if geom.valid is not None else np.ones(rows.size, bool)
         inside[rows[ok], cols[ok]] = geom.exact(rows[ok], cols[ok], C) >= ca - 1e-12
     counts = np.count_nonzero(inside, axis=1)
     x *= np.float32(0.5 * ks_from_width(alpha, width))

@@ -66,28 +66,48 @@ class PanTiltConstraint:
         return ok_tilt & (pole | self._pan_in_range(pan))
 
     def project(self, directions: np.ndarray) -> np.ndarray:
-        """Nearest reachable unit world direction (N, 3) for each waypoint (great-circle distance)."""
-        b = self._base(directions)
-        n = np.linalg.norm(b, axis=1, keepdims=True)
-        b = b / np.where(n < 1e-300, 1.0, n)
-        pan, tilt = direction_to_pan_tilt(b)
+        """Nearest reachable unit world direction (N, 3) for each waypoint (great-circle distance).
+
+        Directions already within the limits are returned normalised as they are; only the others
+        are moved (onto the tilt limit of their meridian, or onto a boundary meridian).
+        """
+        d = np.asarray(directions, dtype=float)
+        if d.shape != (len(self), 3):
+            raise ValueError(f"directions must have shape ({len(self)}, 3), got {d.shape}")
+        b = np.matmul(self.base_from_world, d[:, :, None])[..., 0]
+        n = np.sqrt(np.einsum("ij,ij->i", b, b))
+        n[n < 1e-300] = 1.0
+        down = -b[:, 2] / n  # sin(tilt): tilt ∈ [−π/2, π/2], so the limits compare as sines
+        inside = (down >= np.sin(self.tilt_min)) & (down <= np.sin(self.tilt_max))
+        if not self.continuous:
+            inside &= self._pan_in_range(np.arctan2(b[:, 1], b[:, 0]))
+        out = d / n[:, None]
+        fix = np.flatnonzero(~inside)
+        if fix.size == 0:
+            return out
+        bf = b[fix] / n[fix, None]
+        pan, tilt = direction_to_pan_tilt(bf)
         best = pan_tilt_to_direction(pan, np.clip(tilt, self.tilt_min, self.tilt_max))
         if not self.continuous:
-            out = ~self._pan_in_range(pan)
-            if np.any(out):
-                best[out] = self._nearest_on_edges(b[out])
-        world = np.einsum("nji,nj->ni", self.base_from_world, best)  # base -> world (transpose)
-        return world / np.linalg.norm(world, axis=1, keepdims=True)
+            off = ~self._pan_in_range(pan)
+            if np.any(off):
+                best[off] = self._nearest_on_edges(bf[off])
+        world = np.einsum("nji,nj->ni", self.base_from_world[fix], best)  # base -> world (transpose)
+        out[fix] = world / np.linalg.norm(world, axis=1, keepdims=True)
+        return out
 
     def _nearest_on_edges(self, b: np.ndarray) -> np.ndarray:
         """Nearest point of the two boundary meridians (tilt-limited) to unit base directions b (n, 3)."""
-        cands = []
+        n = len(b)
+        pans, tilts = [], []
         for p in (self.pan_min, self.pan_max):
             g = b[:, 0] * np.cos(p) + b[:, 1] * np.sin(p)
             t_star = np.arctan2(-b[:, 2], g)  # maximiser of d·dir(p, t) over the full circle
-            for t in (np.clip(t_star, self.tilt_min, self.tilt_max), np.full(len(b), self.tilt_min),
-                      np.full(len(b), self.tilt_max)):
-                cands.append(pan_tilt_to_direction(np.full(len(b), p), t))
-        stack = np.stack(cands, axis=1)  # (n, 6, 3)
+            for t in (np.clip(t_star, self.tilt_min, self.tilt_max), np.full(n, self.tilt_min),
+                      np.full(n, self.tilt_max)):
+                pans.append(np.full(n, p))
+                tilts.append(t)
+        # one conversion for all six candidates per row: (n, 6, 3)
+        stack = pan_tilt_to_direction(np.stack(pans, axis=1).ravel(), np.stack(tilts, axis=1).ravel()).reshape(n, 6, 3)
         best = np.argmax(np.einsum("nkj,nj->nk", stack, b), axis=1)
-        return stack[np.arange(len(b)), best]
+        return stack[np.arange(n), best]

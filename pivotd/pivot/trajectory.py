@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pivotd.geometry import optical_frame_from_direction
-from pivotd.pivot import _ascent, chain
+from pivotd.pivot import _ascent, chain, polish
 from pivotd.pivot._checks import feature_weights, finite_array, half_angle, unit_vector
 from pivotd.pivot.constraints import PanTiltConstraint
 from pivotd.pivot.view import schedule
@@ -48,6 +48,11 @@ class TrajectoryOptions:
     chain_init: bool = True  # cold start: dynamic programming over a direction grid (pivotd.pivot.chain)
     chain_resolution_deg: float = 12.0
     chain_nodes: int = 64
+    polish_deg: float = 0.0  # hard-count polish (pivotd.pivot.polish): largest ring radius (0: off)
+    polish_tol_deg: float = 0.25  # ... smallest ring radius
+    polish_sweeps: int = 4  # ... at most this many red-black sweeps
+    polish_cap: int = 2048  # ... landmarks per waypoint in its band (strided beyond)
+    warm_polish: bool = False  # also polish warm starts (receding-horizon replans)
 
 
 @dataclass
@@ -124,41 +129,59 @@ def _dense_geometry(points: np.ndarray, waypoints: np.ndarray, fw: np.ndarray, d
 
 
 def _ragged_geometry(points, waypoints, fw, dist_w, retained: Sequence[np.ndarray]):
-    """Geometry from per-waypoint index arrays (padded to the longest); returns (geometry, W_i totals)."""
+    """Geometry from per-waypoint index arrays, padded to the longest; returns (geometry, W_i totals).
+
+    The retained pairs are few compared with M × N, so each pair's bearing is computed once in float64
+    (exact, no cancellation) and stored as a float32 unit vector: later passes are plain dot products.
+    """
     N = waypoints.shape[0]
     if len(retained) != N:
         raise ValueError(f"retained must have one index array per waypoint ({N}), got {len(retained)}")
-    lists = [np.asarray(r, dtype=np.intp).ravel() for r in retained]
+    lists = [np.asarray(r).ravel() for r in retained]
+    lens = np.array([r.size for r in lists], dtype=np.intp)
+    flat = np.concatenate(lists).astype(np.intp, copy=False) if lists else np.zeros(0, np.intp)
     M = points.shape[0]
-    for i, r in enumerate(lists):
-        if r.size and (r.min() < 0 or r.max() >= M):
-            raise ValueError(f"retained[{i}] indexes outside 0..{M - 1}")
-    L = max(max((r.size for r in lists), default=0), 1)
-    idx = np.zeros((N, L), dtype=np.intp)
-    pad = np.zeros((N, L), dtype=bool)
+    if flat.size and (flat.min() < 0 or flat.max() >= M):
+        bad = int(np.searchsorted(np.cumsum(lens), int(np.argmax((flat < 0) | (flat >= M))), side="right"))
+        raise ValueError(f"retained[{bad}] indexes outside 0..{M - 1}")
+    L = max(int(lens.max(initial=0)), 1)
+    idx = np.zeros((N, L), dtype=np.intp)  # padding points at landmark 0 and is masked out
     for i, r in enumerate(lists):
         idx[i, : r.size] = r
-        pad[i, : r.size] = True
+    pad = np.arange(L)[None, :] < lens[:, None]  # (N, L): real entries
+    # float32 around the waypoints' centroid, one plane per coordinate (3, N, L): element-wise work then
+    # runs along L instead of over a trailing axis of length 3 (several times faster); pairs closer than
+    # 1 % of the scene scale (where float32 rounding of the positions would show) are redone in float64
     centre = waypoints.mean(axis=0)
-    P = (points - centre).astype(np.float32)[idx]  # (N, L, 3), float32 around the waypoints' centroid
+    PT = np.empty((3, points.shape[0]), np.float32)
+    for k in range(3):
+        np.subtract(points[:, k], centre[k], out=PT[k], casting="same_kind")
     T = (waypoints - centre).astype(np.float32)
-    diff = P - T[:, None, :]
-    d = np.sqrt(np.einsum("nlk,nlk->nl", diff, diff))
-    scale = float(max(np.abs(points - centre).max(initial=0.0), np.abs(waypoints - centre).max(), 1.0))
-    close = d < 1e-2 * scale  # float32 rounding matters only for close pairs: recompute those in float64
-    rows, cols = _ascent._nonzero2d(close & pad)
+    D = PT.take(idx, axis=1)  # (3, N, L)
+    D -= T.T[:, :, None]
+    d = np.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
+    scale = float(max(np.abs(PT).max(initial=0.0), np.abs(T).max(), 1.0))
+    rows, cols = _ascent._nonzero2d((d < np.float32(1e-2 * scale)) & pad)
     if rows.size:
-        d[rows, cols] = np.linalg.norm(points[idx[rows, cols]] - waypoints[rows], axis=1)
-    valid = pad & (d > 1e-9 * scale)
+        exact = points[idx[rows, cols]] - waypoints[rows]
+        d[rows, cols] = np.sqrt(np.square(exact) @ np.ones(3))
+    valid = pad & (d > np.float32(1e-9 * scale))  # a landmark at the sensor has no bearing: weight 0, never counts
     inv = np.zeros_like(d)
     np.divide(np.float32(1.0), d, out=inv, where=valid)
-    W = _weights(d, valid, fw[idx], dist_w)
+    D *= inv[None]
+    if rows.size:
+        D[:, rows, cols] = (exact * inv[rows, cols, None]).T
+    U = np.empty((N, L, 3), np.float32)
+    for k in range(3):
+        U[:, :, k] = D[k]
+    W = _weights(d, valid, fw.astype(np.float32).take(idx), dist_w)
 
     def exact(r: np.ndarray, c: np.ndarray, C: np.ndarray) -> np.ndarray:
         v = points[idx[r, c]] - waypoints[r]
         return np.einsum("ij,ij->i", v, C[r]) / np.maximum(np.linalg.norm(v, axis=1), 1e-300)
 
-    return _ascent.Geometry(P, T, inv, W, exact), W.sum(axis=1, dtype=np.float64)
+    geom = _ascent.Geometry(U, np.zeros((N, 3), np.float32), None, W, exact, valid=valid)
+    return geom, W.sum(axis=1, dtype=np.float64)
 
 
 def _weights(d: np.ndarray, valid: np.ndarray | None, fw: np.ndarray, dist_w: bool) -> np.ndarray:
@@ -176,16 +199,49 @@ def _weights(d: np.ndarray, valid: np.ndarray | None, fw: np.ndarray, dist_w: bo
         return s
     if not dist_w:
         return np.where(valid, fw, np.float32(0.0))
-    dmin = np.where(valid, d, np.float32(np.inf)).min(axis=1, keepdims=True)
-    dmax = np.where(valid, d, np.float32(-np.inf)).max(axis=1, keepdims=True)
+    dmin = d.min(axis=1, keepdims=True, where=valid, initial=np.float32(np.inf))
+    dmax = d.max(axis=1, keepdims=True, where=valid, initial=np.float32(-np.inf))
     empty = ~np.isfinite(dmin)
     dmin[empty], dmax[empty] = 0.0, 1.0
     s = d - dmin
     s *= (np.float32(-1.0) / np.maximum(np.float32(1e-6), dmax - dmin)).astype(np.float32)
     s += np.float32(1.0)
     s *= fw
-    s[~valid] = 0.0
+    s *= valid  # 0 where invalid
     return s.astype(np.float32, copy=False)
+
+
+def _polish(
+    geom: _ascent.Geometry,
+    C: np.ndarray,
+    norm: np.ndarray,
+    alpha: float,
+    smooth: float,
+    anchor: np.ndarray | None,
+    constraint: PanTiltConstraint | None,
+    opts: TrajectoryOptions,
+) -> np.ndarray:
+    """Hard-count polish of the axes C (N, 3) on the landmarks that can change state within its reach."""
+    radius, tol = np.radians(opts.polish_deg), np.radians(opts.polish_tol_deg)
+    reach = (opts.polish_sweeps + 1) * radius
+    cos_lo = float(np.cos(min(np.pi, alpha + reach)))
+    cos_hi = float(np.cos(alpha - reach)) if alpha > reach else 2.0
+    B, Wa = _ascent._active(geom, C, cos_lo, cos_hi, opts.polish_cap)
+    reachable = None
+    if constraint is not None:
+
+        def reachable(rows: np.ndarray, d: np.ndarray) -> np.ndarray:
+            n, K, _ = d.shape
+            sub = PanTiltConstraint(
+                np.repeat(constraint.base_from_world[rows], K, axis=0),
+                constraint.pan_min, constraint.pan_max, constraint.tilt_min, constraint.tilt_max,
+            )
+            return sub.reachable(d.reshape(-1, 3)).reshape(n, K)
+
+    C_new, _ = polish.polish_trajectory(
+        B, Wa, C, norm, alpha, smooth, radius, tol, sweeps=opts.polish_sweeps, anchor=anchor, reachable=reachable
+    )
+    return C_new
 
 
 def optimize_trajectory(
@@ -293,6 +349,10 @@ def optimize_trajectory(
         settings.step_init = rad(opts.chain_resolution_deg) / 2
     R, iters = _ascent.ascend(geom_run, R0, norm, settings, lam=smooth, anchor=a_vec, project=project, coarse=coarse)
     C = R[:, :, 2].copy()
+    if geom is not None and opts.polish_deg > 0 and (opts.warm_polish or not warm):
+        C_new = _polish(geom, C, norm, alpha, smooth, a_vec, constraint, opts)
+        R = _ascent._turn_to(R, C_new)
+        C = R[:, :, 2].copy()
     if geom is None:
         visible = np.zeros(N, dtype=int)
         F = np.zeros(N)

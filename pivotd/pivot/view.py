@@ -16,7 +16,7 @@ import numpy as np
 from pivotd.geometry import optical_frame_from_direction
 from pivotd.pivot import _ascent
 from pivotd.pivot._checks import feature_weights, finite_array, half_angle, unit_vector
-from pivotd.pivot.visibility import ks_from_width, smooth_visibility
+from pivotd.pivot.visibility import ks_from_width
 
 
 @dataclass
@@ -62,7 +62,7 @@ def _candidates(B: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, i
     n = B.shape[0]
     if n > opts.sample:
         idx = np.linspace(0, n - 1, opts.sample).astype(np.intp)
-        Bs, ws = B[idx], w[idx]
+        Bs, ws = B.take(idx, axis=0), w.take(idx)
     else:
         Bs, ws = B, w
     Bs, ws = Bs.astype(np.float32), ws.astype(np.float32)
@@ -83,17 +83,21 @@ def _candidates(B: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, i
         seeds.append(Bs[np.linspace(0, Bs.shape[0] - 1, k).astype(np.intp)])
     C = np.concatenate(seeds).astype(np.float32)
     cos_a = np.float32(np.cos(alpha))
-    raw = C.copy()
+    BsT = np.ascontiguousarray(Bs.T)  # (3, s): (K, 3) @ (3, s) is the fast layout
+    uniform = float(ws.min()) == float(ws.max())
+    ones3 = np.ones(3, np.float32)
+    raw = C
     raw_score = None
     for _ in range(opts.mean_shift):  # mean shift with a flat conical kernel
-        inside = (Bs @ C.T >= cos_a) * ws[:, None]
+        inside = (C @ BsT) >= cos_a  # (K, s)
+        inside = inside.astype(np.float32) if uniform else inside * ws
         if raw_score is None:
-            raw_score = inside.sum(axis=0)
-        moved = inside.T @ Bs
-        nrm = np.linalg.norm(moved, axis=1)
+            raw_score = inside @ (ws if uniform else np.ones_like(ws))
+        moved = inside @ Bs
+        nrm = np.sqrt(np.square(moved) @ ones3)
         ok = nrm > 1e-12
-        C[ok] = moved[ok] / nrm[ok, None]
-    score = ws @ (Bs @ C.T >= cos_a)
+        C = np.where(ok[:, None], moved / np.where(ok, nrm, 1.0)[:, None], C)
+    score = ((C @ BsT) >= cos_a) @ ws
     if raw_score is not None:  # a seed can beat the mode it drifts to (wide cones): keep both
         C = np.concatenate([C, raw])
         score = np.concatenate([score, raw_score])
@@ -127,23 +131,71 @@ def optimize_view(
     """
     opts = options or ViewOptions()
     alpha = half_angle(alpha)
-    B = finite_array("bearings", bearings)
-    w = feature_weights(weights, B.shape[0])
     init_v = None if init is None else unit_vector("init", init)
-    sq = np.einsum("ij,ij->i", B, B)
-    ok = sq > 0.25
-    if not ok.all():
-        B, w = B[ok], w[ok]
-        sq = sq[ok]
-    if np.any(np.abs(sq - 1.0) > 1e-6):
-        B = B / np.sqrt(sq)[:, None]
+    B, BT, w = _unit_bearings(bearings, weights)
     if B.shape[0] == 0:
         d = init_v if init_v is not None else np.array([1.0, 0.0, 0.0])
         return ViewResult(d, optical_frame_from_direction(d), 0, 0.0, 0)
-    C0 = _candidates(B, w, alpha, opts, init_v)
+    B32 = BT.T
+    w32 = w.astype(np.float32)
+    C = _candidates(B, w, alpha, opts, init_v)
     rad = np.radians
     start = rad(opts.fov_start_deg) if opts.fov_start_deg is not None else min(np.pi / 2, alpha + rad(10.0))
     stages = schedule(alpha, start, opts.stages)
+    iters = 0
+    if len(stages) > 1:  # widened stages on a strided subsample with weights scaled to the same total
+        C, iters = _widened(B32, w, C, stages, alpha, opts)
+    cos_a32 = np.float32(np.cos(alpha))
+    cos_c = C.astype(np.float32) @ BT  # (K, n)
+    score = (cos_c >= cos_a32) @ w32
+    # refine only the candidates whose full hard visible weight is within 2 % of the best
+    keep = np.flatnonzero(score >= 0.98 * score.max())[: max(1, opts.final_candidates)]
+    dirs, cos_rows, scores, steps = [], [], [], 0
+    for k in keep:
+        c_r, n_it = _refine_one(BT, w32, C[k], cos_c[k], alpha, opts)
+        steps = max(steps, n_it)
+        dirs.append(c_r)
+    iters += steps
+    if dirs:
+        cos_r = np.stack(dirs).astype(np.float32) @ BT
+        s_r = (cos_r >= cos_a32) @ w32
+        dirs += [C[k] for k in keep]  # never worse than a starting candidate
+        cos_rows = [*cos_r, *cos_c[keep]]
+        scores = [*s_r, *score[keep]]
+    best = int(np.argmax(scores))
+    c_best, cos_best = dirs[best], cos_rows[best]
+    if opts.polish_deg > 0:
+        tol = min(rad(opts.tol_deg), 0.05 * alpha)
+        c_best = polish_hard(c_best, B32, w32, alpha, min(rad(opts.polish_deg), 0.5 * alpha), tol, cos_best)
+    c_best = c_best / np.sqrt(c_best @ c_best)
+    ca = np.cos(alpha)
+    cos_f = c_best.astype(np.float32) @ BT
+    # hard count in float32, pairs within 2e-6 of cos α (float32 rounding) settled in float64
+    edge = np.flatnonzero(np.abs(cos_f - np.float32(ca)) <= np.float32(2e-6))
+    visible = int(np.count_nonzero(cos_f > np.float32(ca + 2e-6)))
+    visible += int(np.count_nonzero(B.take(edge, axis=0) @ c_best >= ca - 1e-12))
+    ks = ks_from_width(alpha, _width(alpha, opts))
+    # v(θ) is within e⁻¹⁰ of 0 or 1 further than 10/(k_s sin α) (in cos θ) from cos α: only the band between
+    # needs tanh, the landmarks above it count with their full weight
+    reach = 10.0 / (ks * max(np.sin(alpha), 1e-9))
+    lo = np.float32(np.cos(min(np.pi, alpha + reach)))
+    hi = np.float32(np.cos(alpha - reach) if alpha > reach else 2.0)
+    band = np.flatnonzero((cos_f >= lo) & (cos_f < hi))
+    x = cos_f.take(band)
+    x -= np.float32(ca)
+    x *= np.float32(0.5 * ks)
+    np.tanh(x, out=x)  # v = (1 + tanh) / 2, in float32 like the ascent
+    wb = w32.take(band)
+    f = 0.5 * float(wb.sum(dtype=np.float64) + x @ wb) + float(w32 @ (cos_f >= hi))
+    return ViewResult(c_best, _frame(c_best), visible, f, iters)
+
+
+def _widened(
+    B32: np.ndarray, w: np.ndarray, C: np.ndarray, stages: list[float], alpha: float, opts: ViewOptions
+) -> tuple[np.ndarray, int]:
+    """The widened FoV stages (all but the last of ``stages``) for candidate axes C (K, 3) on a strided
+    subsample of float32 bearings B32 (n, 3); returns the moved axes (K, 3) and the iteration count."""
+    rad = np.radians
     settings = _ascent.AscentSettings(
         stages=stages[:-1],
         width=_width(alpha, opts),
@@ -158,47 +210,62 @@ def optimize_view(
         drift=rad(opts.drift_deg),
         narrow_last=False,
     )
-    B32 = B.astype(np.float32)
-    w32 = w.astype(np.float32)
     total = float(w.sum())
+    n = B32.shape[0]
+    idx = np.linspace(0, n - 1, opts.sample).astype(np.intp) if n > opts.sample else np.arange(n)
+    Bc = np.ascontiguousarray(B32[idx])
+    wc = w[idx] * (total / max(float(w[idx].sum()), 1e-300))
 
-    def exact(rows: np.ndarray, cols: np.ndarray, C: np.ndarray) -> np.ndarray:
-        return np.einsum("ij,ij->i", B[cols], C[rows])
+    def exact(rows: np.ndarray, cols: np.ndarray, Cx: np.ndarray) -> np.ndarray:
+        return np.einsum("ij,ij->i", Bc[cols].astype(float), Cx[rows])
 
-    R = optical_frame_from_direction(C0)
-    iters = 0
-    if len(stages) > 1:  # widened stages on a strided subsample with weights scaled to the same total
-        if B.shape[0] > opts.sample:
-            idx = np.linspace(0, B.shape[0] - 1, opts.sample).astype(np.intp)
-            Bc, wc = B32[idx], w[idx] * (total / max(float(w[idx].sum()), 1e-300))
-        else:
-            Bc, wc = B32, w
-        coarse = _ascent.Geometry(Bc, np.zeros((R.shape[0], 3), np.float32), None, wc.astype(np.float32), exact)
-        R, iters = _ascent.ascend(coarse, R, np.full(R.shape[0], total), settings, coarse=coarse)
-    cos_a32 = np.float32(np.cos(alpha))
-    if R.shape[0] > 1:  # refine only the candidates whose full hard visible weight is within 2 % of the best
-        score = w32 @ (B32 @ R[:, :, 2].T.astype(np.float32) >= cos_a32)
-        keep = np.flatnonzero(score >= 0.98 * score.max())[: opts.final_candidates]
-        R = R[keep]
-    refined = [_refine_one(B32, w32, R[k], alpha, opts) for k in range(R.shape[0])]
-    R = np.concatenate([np.stack([r for r, _ in refined]), R])  # never worse than a starting candidate
-    iters += max(n for _, n in refined)
-    best = int(np.argmax(w32 @ (B32 @ R[:, :, 2].T.astype(np.float32) >= cos_a32)))
-    c_best, R_best = R[best, :, 2].copy(), R[best].copy()
-    ca = np.cos(alpha)
-    cb = B @ c_best
-    if opts.polish_deg > 0:
-        tol = min(rad(opts.tol_deg), 0.05 * alpha)
-        c_new = polish_hard(c_best, B, w, alpha, min(rad(opts.polish_deg), 0.5 * alpha), tol, cb)
-        if not np.allclose(c_new, c_best):
-            R_best = _ascent._turn_to(R_best[None], c_new[None])[0]
-            c_best = R_best[:, 2].copy()
-            cb = B @ c_best
-    visible = int(np.count_nonzero(cb >= ca - 1e-12))
-    ks = ks_from_width(alpha, _width(alpha, opts))
-    near = cb >= np.cos(min(np.pi, alpha + 10.0 / (ks * max(np.sin(alpha), 1e-9))))
-    f = float(smooth_visibility(cb[near], alpha, ks) @ w[near])
-    return ViewResult(c_best, R_best, visible, f, iters)
+    K = C.shape[0]
+    coarse = _ascent.Geometry(Bc, np.zeros((K, 3), np.float32), None, wc.astype(np.float32), exact)
+    R, iters = _ascent.ascend(coarse, optical_frame_from_direction(C), np.full(K, total), settings, coarse=coarse)
+    return R[:, :, 2].copy(), iters
+
+
+def _unit_bearings(bearings: np.ndarray, weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Validated unit bearings: float64 B (n, 3), its float32 transpose BT (3, n) and weights w (n,).
+
+    Rows shorter than 0.5 (a landmark at the sensor) are dropped, others normalised. One float64 pass
+    in the common case: norms and the finiteness check come from the float32 copy; only non-finite or
+    non-unit input goes through the float64 checks (which name the offending row).
+    """
+    B = np.asarray(bearings, dtype=float)
+    if B.ndim != 2 or B.shape[1] != 3:
+        finite_array("bearings", B)  # raises, naming the expected shape
+    w = feature_weights(weights, B.shape[0])
+    with np.errstate(over="ignore", invalid="ignore"):
+        BT = np.ascontiguousarray(B.T, dtype=np.float32)
+        sq = BT[0] * BT[0]
+        sq += BT[1] * BT[1]
+        sq += BT[2] * BT[2]
+    if not np.isfinite(sq).all():  # NaN/inf (raises) or beyond float32's range: rescale in float64
+        B = finite_array("bearings", B)
+        B = B / np.maximum(np.abs(B).max(axis=1, keepdims=True), 1e-300)
+        return _unit_bearings(B, w)
+    ok = sq > 0.25
+    if not ok.all():
+        B, w, BT, sq = B[ok], w[ok], np.ascontiguousarray(BT[:, ok]), sq[ok]
+    if sq.size and float(np.abs(sq - 1.0).max()) > 1e-6:
+        B = B / np.sqrt(np.square(B) @ np.ones(3))[:, None]
+        BT = np.ascontiguousarray(B.T, dtype=np.float32)
+    return B, BT, w
+
+
+def _frame(c: np.ndarray) -> np.ndarray:
+    """The rotation of :func:`pivotd.geometry.optical_frame_from_direction` for one unit axis c (3,),
+    computed with scalars (the array version costs ~50 µs of call overhead for a single vector)."""
+    x, y, z = (float(v) for v in c)
+    rx, ry, rz = y, -x, 0.0  # right = c × up (up = +z)
+    n = np.sqrt(rx * rx + ry * ry)
+    if n < 1e-9:  # c parallel to up: c × (+x)
+        rx, ry, rz = 0.0, z, -y
+        n = np.sqrt(ry * ry + rz * rz)
+    rx, ry, rz = rx / n, ry / n, rz / n
+    dx, dy, dz = y * rz - z * ry, z * rx - x * rz, x * ry - y * rx  # down = c × right
+    return np.array([[rx, dx, x], [ry, dy, y], [rz, dz, z]])
 
 
 def _width(alpha: float, opts: ViewOptions) -> float:
@@ -206,12 +273,17 @@ def _width(alpha: float, opts: ViewOptions) -> float:
     return max(np.radians(opts.width_deg), opts.width_ratio * alpha)
 
 
-def _refine_one(B: np.ndarray, w: np.ndarray, R: np.ndarray, alpha: float, opts: ViewOptions) -> tuple[np.ndarray, int]:
-    """Gradient ascent at α for one rotation R (3, 3) over float32 bearings B (n, 3) / weights w (n,).
+def _refine_one(
+    BT: np.ndarray, w: np.ndarray, c: np.ndarray, cos_c: np.ndarray, alpha: float, opts: ViewOptions
+) -> tuple[np.ndarray, int]:
+    """Gradient ascent at α from the unit axis c (3,) over float32 bearings BT (3, n) / weights w (n,);
+    ``cos_c`` (n,) = c · k_j. Returns the final axis (3,) and the number of steps.
 
     Same step control as :func:`pivotd.pivot._ascent.ascend` (normalised direction, bound grows ×1.2,
     halves on reversal), on the landmarks within the transition band α ± (2·width + drift) of the axis;
     the band is re-selected when the axis drifts further than ``drift_deg`` from where it was selected.
+    The step exp((h Ĵ)^) R turns the axis about the unit tangent Ĵ ⟂ c: c ← cos h · c + sin h · (Ĵ × c),
+    so only the axis is tracked (the roll about it does not change the objective).
     """
     width = _width(alpha, opts)
     ks = ks_from_width(alpha, width)
@@ -226,35 +298,45 @@ def _refine_one(B: np.ndarray, w: np.ndarray, R: np.ndarray, alpha: float, opts:
     h_max = min(np.radians(opts.step_max_deg), alpha)
     h = min(np.radians(opts.step_init_deg), 0.5 * drift, 0.5 * alpha)
     cos_drift = np.cos(drift)
+    uniform = bool(w.size) and float(w.min()) == float(w.max())
 
-    def band(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        cs = B @ c.astype(np.float32)
-        sel = (cs >= lo) & (cs <= hi)
-        return B[sel], w[sel]
+    def band(cs: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        sel = np.flatnonzero((cs >= lo) & (cs <= hi))
+        return np.ascontiguousarray(BT.take(sel, axis=1).T), None if uniform else w.take(sel)
 
-    c = R[:, 2].copy()
-    Bb, wb = band(c)
-    c_ref = c.copy()
-    J_prev = np.zeros(3)
+    x, y, z = (float(v) for v in c)
+    Bb, wb = band(cos_c)
+    ref = (x, y, z)
+    jx = jy = jz = 0.0
     it = 0
     for it in range(1, opts.max_iterations + 1):  # noqa: B007
         if Bb.shape[0] == 0:
             break
-        t = np.tanh(half_ks * (Bb @ c.astype(np.float32) - cos_a))
-        S = ((1.0 - t * t) * wb) @ Bb
-        J = np.array([c[1] * S[2] - c[2] * S[1], c[2] * S[0] - c[0] * S[2], c[0] * S[1] - c[1] * S[0]])
-        nJ = float(np.sqrt(J @ J))
-        agree = J @ J_prev
+        t = Bb @ np.array([x, y, z], dtype=np.float32)
+        t -= cos_a
+        t *= half_ks
+        np.tanh(t, out=t)
+        t *= t
+        g = 1.0 - t  # ∝ v(1 − v); the constant factor does not matter after normalisation
+        if wb is not None:
+            g *= wb
+        sx, sy, sz = (float(v) for v in g @ Bb)
+        Jx, Jy, Jz = y * sz - z * sy, z * sx - x * sz, x * sy - y * sx  # c × S
+        nJ = np.sqrt(Jx * Jx + Jy * Jy + Jz * Jz)
+        agree = Jx * jx + Jy * jy + Jz * jz
         h = 0.5 * h if agree < 0 else (min(1.2 * h, h_max) if agree > 0 else h)
-        J_prev = J if agree >= 0 else np.zeros(3)
+        jx, jy, jz = (0.0, 0.0, 0.0) if agree < 0 else (Jx, Jy, Jz)
         if nJ < 1e-12 or h < tol:
             break
-        R = _ascent._exp((J * (h / nJ))[None])[0] @ R
-        c = R[:, 2].copy()
-        if c @ c_ref < cos_drift:
-            Bb, wb = band(c)
-            c_ref = c.copy()
-    return R, it
+        ux, uy, uz = Jx / nJ, Jy / nJ, Jz / nJ
+        ch, sh = np.cos(h), np.sin(h)
+        x, y, z = (ch * x + sh * (uy * z - uz * y), ch * y + sh * (uz * x - ux * z), ch * z + sh * (ux * y - uy * x))
+        nrm = np.sqrt(x * x + y * y + z * z)
+        x, y, z = x / nrm, y / nrm, z / nrm
+        if x * ref[0] + y * ref[1] + z * ref[2] < cos_drift:
+            Bb, wb = band(np.array([x, y, z], dtype=np.float32) @ BT)
+            ref = (x, y, z)
+    return np.array([x, y, z]), it
 
 
 def polish_hard(
@@ -268,10 +350,11 @@ def polish_hard(
     """
     reach = 4.5 * radius
     lo, hi = np.cos(min(np.pi, alpha + reach)), np.cos(max(0.0, alpha - reach))
-    sel = (cos_c >= lo) & (cos_c <= hi)
-    if not sel.any():
+    sel = np.flatnonzero((cos_c >= lo) & (cos_c <= hi))
+    if sel.size == 0:
         return c
-    band, wb = B[sel].astype(np.float32), w[sel].astype(np.float32)
+    bandT = np.ascontiguousarray(B.take(sel, axis=0).T, dtype=np.float32)  # (3, m)
+    wb = w.take(sel).astype(np.float32)
     cos_a = np.float32(np.cos(alpha) - 1e-7)
     radii = [radius]
     while radii[-1] * 0.5 >= tol:
@@ -281,14 +364,14 @@ def polish_hard(
     ca = np.tile(np.cos(ang), len(radii))[:, None]
     sa = np.tile(np.sin(ang), len(radii))[:, None]
     cos_r, sin_r = np.cos(r), np.sin(r)
-    best = float(wb @ (band @ c.astype(np.float32) >= cos_a))
+    best = float((c.astype(np.float32) @ bandT >= cos_a) @ wb)
     for _ in range(4):
         x, y, z = c
         t1 = np.array([y, -x, 0.0]) if abs(z) < 0.9 else np.array([0.0, z, -y])  # c × e_z or c × e_x
         t1 /= np.sqrt(t1 @ t1)
         t2 = np.array([y * t1[2] - z * t1[1], z * t1[0] - x * t1[2], x * t1[1] - y * t1[0]])
         cand = cos_r * c + sin_r * (ca * t1 + sa * t2)
-        vals = wb @ (band @ cand.T.astype(np.float32) >= cos_a)
+        vals = (cand.astype(np.float32) @ bandT >= cos_a) @ wb
         k = int(np.argmax(vals))
         if vals[k] <= best:
             break

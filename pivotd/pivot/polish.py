@@ -1,0 +1,107 @@
+"""Hard-count polish of a trajectory: pattern search on the discrete objective the plan is judged by.
+
+The gradient ascent maximises a smoothed visibility (sigmoid of width ~3°), whose optimum can sit a
+fraction of a degree off the optimum of the hard count, and where a turn between clusters has to be
+made, the smoothed objective blurs how many landmarks the turning views still hold. This pass
+maximises the exact per-waypoint objective
+
+    Φ_hard = Σ_i V_i(c_i) / W_i  +  λκ Σ_i c_{i+1}·c_i  (+ λκ a·c_0)
+
+(V_i: hard visible weight, W_i: the waypoint's total weight) by a red-black pattern search: all even
+waypoints try 8 directions on each ring of radius r, r/2, … ≥ tol around their axis at once, with
+their neighbours fixed, and move to the best strict improvement; then the odd ones. Every accepted
+move raises Φ_hard, so the polish never makes the plan worse by the measure it is judged by.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+Reachable = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def ring_offsets(radius: float, tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """cos r, sin r, cos φ, sin φ (each (K, 1)) for 8 directions φ on each ring r = radius, radius/2, … ≥ tol."""
+    radii = [radius]
+    while radii[-1] * 0.5 >= tol:
+        radii.append(radii[-1] * 0.5)
+    ang = np.arange(8) * (np.pi / 4)
+    r = np.repeat(radii, 8)[:, None]
+    return np.cos(r), np.sin(r), np.tile(np.cos(ang), len(radii))[:, None], np.tile(np.sin(ang), len(radii))[:, None]
+
+
+def _tangents(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangent vectors (n, 3) at each unit axis c (n, 3): c × e_z (or c × e_x near the poles), c × t1."""
+    t1 = np.zeros_like(c)
+    polar = np.abs(c[:, 2]) >= 0.9
+    t1[~polar, 0], t1[~polar, 1] = c[~polar, 1], -c[~polar, 0]
+    t1[polar, 1], t1[polar, 2] = c[polar, 2], -c[polar, 1]
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    return t1, np.cross(c, t1)
+
+
+def polish_trajectory(
+    B: np.ndarray,
+    Wa: np.ndarray,
+    C: np.ndarray,
+    norm: np.ndarray,
+    alpha: float,
+    smooth: float,
+    radius: float,
+    tol: float,
+    *,
+    sweeps: int = 4,
+    anchor: np.ndarray | None = None,
+    reachable: Reachable | None = None,
+) -> tuple[np.ndarray, int]:
+    """Red-black pattern search on Φ_hard (module docstring); returns the new axes (N, 3) and the moves made.
+
+    B (N, L, 3) float32 unit bearings of the landmarks that can change state within the search (the
+    band around each cone), Wa (N, L) their weights (0 for padding); C (N, 3) unit axes; norm (N,) the
+    totals W_i; smooth = λκ; radius / tol [rad]: the largest and smallest ring; at most ``sweeps``
+    red-black sweeps. ``reachable(rows, directions (n, K, 3)) -> (n, K) bool`` restricts the moves.
+    """
+    C = np.array(C, dtype=float)
+    N = C.shape[0]
+    if N == 0 or B.shape[1] == 0:
+        return C, 0
+    cos_r, sin_r, ca, sa = ring_offsets(radius, tol)
+    cos_a = np.float32(np.cos(alpha) - 1e-7)
+    inv = 1.0 / np.maximum(norm, 1e-12)
+    coupled = smooth > 0 and (N > 1 or anchor is not None)
+    moves = 0
+    for _ in range(sweeps):
+        moved = 0
+        for parity in (0, 1):
+            rows = np.arange(parity, N, 2)
+            if rows.size == 0:
+                continue
+            c = C[rows]
+            t1, t2 = _tangents(c)
+            ring = cos_r[None] * c[:, None, :] + sin_r[None] * (ca[None] * t1[:, None, :] + sa[None] * t2[:, None, :])
+            cand = np.concatenate([c[:, None, :], ring], axis=1)  # (n, K + 1, 3); column 0: stay
+            inside = np.matmul(cand.astype(np.float32), B[rows].transpose(0, 2, 1)) >= cos_a  # (n, K + 1, L)
+            val = np.matmul(inside.astype(np.float32), Wa[rows][:, :, None])[..., 0].astype(float) * inv[rows, None]
+            if coupled:
+                nb = np.zeros_like(c)
+                prev, nxt = rows - 1, rows + 1
+                has_prev, has_next = prev >= 0, nxt < N
+                nb[has_prev] += C[prev[has_prev]]
+                nb[has_next] += C[nxt[has_next]]
+                if anchor is not None and rows[0] == 0:
+                    nb[0] += anchor
+                val += smooth * np.einsum("nkj,nj->nk", cand, nb)
+            if reachable is not None:
+                val[:, 1:][~reachable(rows, cand[:, 1:])] = -np.inf
+            k = np.argmax(val, axis=1)
+            better = val[np.arange(rows.size), k] > val[:, 0] + 1e-12
+            if np.any(better):
+                new = cand[better, k[better]]
+                C[rows[better]] = new / np.linalg.norm(new, axis=1, keepdims=True)
+                moved += int(np.count_nonzero(better))
+        moves += moved
+        if moved == 0:
+            break
+    return C, moves
