@@ -13,6 +13,7 @@ Pure computation: no threads and no I/O here; the daemon owns the threads.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -145,6 +146,8 @@ class RecedingHorizonPlanner:
         self._path_version = -1
         self.progress: float | None = None
         self.last_plan: Plan | None = None
+        self._cache_key: tuple[int, int] | None = None
+        self._cache: dict[int, np.ndarray] = {}
 
     def set_path(self, positions: np.ndarray | None, quats: np.ndarray | None, version: int) -> None:
         """Install a new translation path (None clears it); progress restarts from the nearest point."""
@@ -154,6 +157,44 @@ class RecedingHorizonPlanner:
         self._tracker = (None if positions is None or len(positions) == 0
                          else Polyline(positions, quats, ignore_constant_quats=True))
         self.progress = None
+
+    def _horizon_arc(self, progress: float) -> np.ndarray:
+        """Arc lengths of the horizon: the robot's progress, then the path's fixed grid k · spacing ahead.
+
+        Waypoints after the first stay at the same places from one replan to the next (only one enters
+        the window each time the robot passes a grid point), so their retained sets are cached and the
+        warm start is exact for them.
+        """
+        st = self.settings
+        length = self._tracker.length
+        first = math.floor(progress / st.spacing + 1e-9) + 1
+        grid = (first + np.arange(st.horizon - 1)) * st.spacing
+        grid = grid[(grid < length - 1e-9) & (grid - progress > 0.05 * st.spacing)]
+        s = np.concatenate([[progress], grid])
+        if s[-1] < length - 1e-9 and s.shape[0] < st.horizon:
+            s = np.append(s, length)  # the end of the path closes the window
+        return s
+
+    def _retained(self, snapshot: MapSnapshot, cams: np.ndarray, s: np.ndarray) -> list[np.ndarray]:
+        """Capped retained sets per waypoint; grid waypoints (all but the first) come from a cache that is
+        valid for one path and map version."""
+        st = self.settings
+        if len(snapshot) == 0:
+            return [np.zeros(0, np.int64) for _ in range(cams.shape[0])]
+        key = (self._path_version, snapshot.version)
+        if self._cache_key != key:
+            self._cache_key, self._cache = key, {}
+        cached = {i: self._cache.get(round(float(s[i]) * 1e6)) for i in range(1, s.shape[0])}
+        todo = [0] + [i for i, r in cached.items() if r is None]
+        fresh = _cap_retained(snapshot.retained(cams[todo], st.retained_filter), st.max_landmarks_per_waypoint)
+        out: list[np.ndarray] = [np.zeros(0, np.int64)] * s.shape[0]
+        for i, r in zip(todo, fresh, strict=True):
+            out[i] = r
+        for i, r in cached.items():
+            if r is not None:
+                out[i] = r
+        self._cache = {round(float(s[i]) * 1e6): out[i] for i in range(1, s.shape[0])}
+        return out
 
     def _constraint(self, body_quats: np.ndarray) -> PanTiltConstraint:
         lim = self.limits
@@ -180,10 +221,7 @@ class RecedingHorizonPlanner:
         body_quat = normalize(np.asarray(body_quat, float))
         if self._tracker is not None:
             self.progress, _ = self._tracker.locate(body_position, self.progress, st.back_window, st.ahead_window)
-            s = self.progress + st.spacing * np.arange(st.horizon)
-            s = s[s <= self._tracker.length + 1e-9]
-            if s.shape[0] == 0:
-                s = np.array([self._tracker.length])
+            s = self._horizon_arc(self.progress)
             body_pos, quats = self._tracker.sample(s)
             # The first waypoint is where the robot is now, with its measured attitude.
             body_pos[0] = body_position
@@ -192,10 +230,7 @@ class RecedingHorizonPlanner:
             s = np.zeros(1)
             body_pos, quats = body_position[None, :], body_quat[None, :]
         cams = camera_positions(body_pos, quats, self.mount)
-        if len(snapshot) > 0:
-            retained = _cap_retained(snapshot.retained(cams, st.retained_filter), st.max_landmarks_per_waypoint)
-        else:
-            retained = [np.zeros(0, np.int64) for _ in range(cams.shape[0])]
+        retained = self._retained(snapshot, cams, s)
         init = self._warm_start(s, cams.shape[0])
         if init is None and anchor is not None:
             init = np.repeat(np.asarray(anchor, float)[None, :], cams.shape[0], axis=0)

@@ -159,3 +159,21 @@ def test_empty_map_gives_a_plan_without_error():
     plan = pl.replan(MapStore().snapshot(), np.zeros(3), IDENTITY, np.array([1.0, 0, 0]))
     assert plan.directions.shape == (1, 3) and plan.visible[0] == 0
     assert np.isfinite(plan.directions).all()
+
+
+def test_horizon_waypoints_sit_on_a_fixed_grid_and_the_cache_follows_the_map(scene_store):
+    sc, _ = scene_store
+    store = MapStore()
+    store.set_layer("base", LandmarkCloud(points=sc.points, weights=sc.weights))
+    pl = _planner()
+    pl.set_path(sc.path, None, 1)
+    p1 = pl.replan(store.snapshot(), sc.path[0] + np.array([0.12, 0, 0]), IDENTITY, None)
+    p2 = pl.replan(store.snapshot(), sc.path[0] + np.array([0.31, 0, 0]), IDENTITY, p1.directions[0])
+    assert p1.s[0] == pytest.approx(0.12, abs=1e-6) and p2.s[0] == pytest.approx(0.31, abs=1e-6)
+    np.testing.assert_allclose(p1.s[1:], 0.5 * np.arange(1, p1.s.shape[0]))
+    np.testing.assert_allclose(p2.s[1:], p1.s[1:])  # same grid: cached retained sets, exact warm start
+    np.testing.assert_allclose(p2.positions[1:], p1.positions[1:])
+    # A map update invalidates the cache: with the rich wall removed the plan sees far fewer landmarks.
+    store.set_layer("base", LandmarkCloud(points=sc.points[3000:], weights=sc.weights[3000:]))
+    p3 = pl.replan(store.snapshot(), sc.path[0] + np.array([0.35, 0, 0]), IDENTITY, p2.directions[0])
+    assert p3.landmarks < 0.2 * p2.landmarks
