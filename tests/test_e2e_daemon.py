@@ -280,10 +280,12 @@ def test_gimbal_fault_is_reported_cleared_and_never_moved_through(tmp_path):
     assert any(kind == "rx:CLEAR_FAULT" for kind, _, _ in dev.other)
     faulted = dev.st_mode == 3
     assert faulted.any()
-    # No motion while faulted: the axes stand still (after the state that reported the fault) ...
-    run = np.flatnonzero(faulted)[1:]
-    assert run.size > 0
-    assert np.abs(np.diff(dev.st_pos[run], axis=0)).max(initial=0.0) <= 1e-6
+    # No motion while faulted: the axes only brake (speed never grows) and then stand still ...
+    run = np.flatnonzero(faulted)
+    steps = np.abs(np.diff(dev.st_pos[run], axis=0)).max(axis=1)
+    assert run.size >= 2 and np.all(np.diff(steps) <= 2e-6), steps
+    if dev.st_time[run[-1]] - dev.st_time[run[0]] > 0.5:  # longer than any braking at these limits
+        assert steps[-1] <= 1e-6
     # ... and the host sends no setpoints once it has seen the fault (100 ms for frames in flight).
     onset = dev.st_time[np.flatnonzero(faulted)[0]]
     cleared = dev.st_time[np.flatnonzero(faulted)[-1]]
