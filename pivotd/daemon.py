@@ -28,7 +28,7 @@ from pivotd.bus.pivot_bus import PivotBus
 from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.bus.session import open_session
 from pivotd.config import Config, load_config
-from pivotd.control import ControlLoop, TickResult
+from pivotd.control import ControlLoop
 from pivotd.errors import PivotdError
 from pivotd.gimbal.link import GimbalLink
 from pivotd.maps.formats import LandmarkCloud, make_cloud
@@ -87,7 +87,6 @@ class Daemon:
         self.bus: PivotBus | None = None
         self.session = None
         self.control: ControlLoop | None = None
-        self._last_tick: TickResult | None = None
         self._jitter: deque = deque(maxlen=5000)
         self._solve: deque = deque(maxlen=500)
         self._plans = 0
@@ -97,7 +96,6 @@ class Daemon:
         self._clear_attempts = 0
         self._last_clear = 0.0
         self._last_link_error: str | None = None
-        self._control_healthy = 0.0
         self._rl = RateLimitedLog(log)
         self._threads: list[threading.Thread] = []
         self._recorder = None
@@ -150,6 +148,9 @@ class Daemon:
                 if not self._stop.is_set():
                     log.error("planner worker: %s; restarting it", exc)
                     self._restart_worker()
+            except PivotdError as exc:  # a refused request (e.g. a bad cloud): log it, keep planning
+                self._rl.warning("planner", f"planner: {exc}")
+                self._last_error = f"planner: {exc}"
             except Exception as exc:  # keep planning; never take the daemon down
                 self._rl.warning("planner", f"planner: replan failed: {exc!r}")
                 self._last_error = f"planner: {exc}"
@@ -226,13 +227,12 @@ class Daemon:
                 self._rl.warning("control", f"control: tick failed: {exc!r}")
                 self._last_error = f"control: {exc}"
                 continue
-            self._last_tick = tick
             self.state = tick.mode
-            if tick.mode not in ("link-down",):
-                self._control_healthy = now
-                if wd_period and now - last_wd >= wd_period:
-                    self.notifier.watchdog()
-                    last_wd = now
+            # The loop ticked without an exception: it is alive (link-down included, it reconnects by
+            # itself), so systemd's watchdog is fed; a stuck or crashing loop stops feeding it.
+            if wd_period and now - last_wd >= wd_period:
+                self.notifier.watchdog()
+                last_wd = now
             if k % js_every == 0 and self.bus is not None:
                 st = self.link.state
                 if st is not None and self.link.link_state == "up":

@@ -46,7 +46,11 @@ class MapInfo:
 
 
 class WorkerError(PivotdError):
-    """The planner worker failed (start-up, reload or a request); the message is one line."""
+    """The planner worker cannot serve (failed start-up, died, or stopped answering); one line."""
+
+
+class RequestError(PivotdError):
+    """The planner worker is alive but refused a request (bad map, bad config, optimizer error); one line."""
 
 
 def _map_info(store) -> MapInfo:
@@ -180,13 +184,13 @@ class PlannerWorker:
                timeout: float = 2.0) -> Plan:
         kind, payload = self._request(("replan", position, quat, anchor), timeout)
         if kind != "plan":
-            raise WorkerError(payload)
+            raise RequestError(payload)
         return payload
 
     def set_layer(self, name: str, cloud: LandmarkCloud, weight_multiplier: float, timeout: float = 60.0) -> MapInfo:
         kind, payload = self._request(("layer", name, cloud, weight_multiplier), timeout)
         if kind != "map":
-            raise WorkerError(payload)
+            raise RequestError(payload)
         self.map_info = payload
         return payload
 
@@ -194,7 +198,7 @@ class PlannerWorker:
         """Load ``cfg``'s map and planner settings; on error the worker keeps the running ones."""
         kind, payload = self._request(("reload", cfg), timeout)
         if kind != "map":
-            raise WorkerError(payload)
+            raise RequestError(payload)
         self._cfg = cfg
         self.map_info = payload
         return payload
