@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import signal
 import struct
 import threading
@@ -291,3 +292,25 @@ def test_gimbal_fault_is_reported_cleared_and_never_moved_through(tmp_path):
     cleared = dev.st_time[np.flatnonzero(faulted)[-1]]
     late = (dev.sp_rx_time > onset + 0.1) & (dev.sp_rx_time <= cleared)
     assert not late.any(), f"{late.sum()} setpoints sent to a faulted gimbal"
+
+
+def test_planner_process_crash_is_survived(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    config = write_config(tmp_path, endpoint, "mock://")
+    cfg = load_config(config)
+    with start_daemon(config) as daemon:
+        probe = BusProbe(endpoint, cfg)
+        try:
+            with start_sim(endpoint, "--speed", "1.0", "--duration", "12"):
+                assert wait_until(lambda: probe.status.get("state") == "tracking", 25), daemon.output()
+                pid = probe.status["planner"]["worker_pid"]
+                os.kill(pid, signal.SIGKILL)
+                assert wait_until(lambda: probe.status.get("planner", {}).get("worker_restarts", 0) >= 1, 15), \
+                    daemon.output()
+                plans = probe.status["planner"]["plans"]
+                assert probe.status["planner"]["worker_pid"] != pid
+                assert wait_until(lambda: probe.status["planner"]["plans"] > plans + 5, 10), daemon.output()
+                assert probe.status.get("state") == "tracking"
+            assert daemon.stop(signal.SIGTERM, timeout=20) == 0, daemon.output()
+        finally:
+            probe.close()
