@@ -123,8 +123,7 @@ def run(args: argparse.Namespace) -> int:
     results = {"quick": bool(args.quick), **codec_results(args.quick), **latency_results(args.quick)}
     for key, value in results.items():
         if key != "quick":
-            log.info("%-40s %12.1f", key, value)
-    print(json.dumps(results, indent=1))
+            print(f"{key:<40} {value:12.1f}")
     if args.json:
         with open(args.json, "w") as f:
             json.dump(results, f, indent=1)
