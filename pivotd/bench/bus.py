@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import queue
 import socket
 import statistics
@@ -21,7 +20,6 @@ from collections.abc import Callable
 
 import numpy as np
 
-log = logging.getLogger(__name__)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
