@@ -21,7 +21,6 @@ from collections.abc import Callable
 import numpy as np
 
 
-
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="fewer repeats and smaller clouds")
     parser.add_argument("--json", default=None, metavar="FILE", help="also write the results as JSON")
