@@ -11,6 +11,7 @@ sessions connected over TCP on 127.0.0.1 (scouting off):
 from __future__ import annotations
 
 import argparse
+import logging
 import json
 import queue
 import socket
