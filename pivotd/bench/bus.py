@@ -11,8 +11,8 @@ sessions connected over TCP on 127.0.0.1 (scouting off):
 from __future__ import annotations
 
 import argparse
-import logging
 import json
+import logging
 import queue
 import socket
 import statistics
