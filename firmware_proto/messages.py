@@ -32,6 +32,15 @@ FAULT_WATCHDOG = 1 << 4
 FAULT_CLAMPED = 1 << 5
 FAULT_CONFIG = 1 << 6
 FAULT_UNDERVOLTAGE = 1 << 7
+FAULT_NAMES = ("over-current", "over-temperature", "encoder", "driver", "watchdog", "setpoint-clamped",
+               "config-invalid", "under-voltage")  # by bit number
+
+
+def fault_names(bits: int) -> list[str]:
+    """Names of the fault bits set in ``bits`` (STATE ``faults``), lowest bit first."""
+    return [name for i, name in enumerate(FAULT_NAMES) if bits >> i & 1]
+
+
 #: faults that put the device into MODE_FAULT (hardware faults); the others are latched warnings
 FAULTS_SEVERE = FAULT_OVERCURRENT | FAULT_OVERTEMP | FAULT_ENCODER | FAULT_DRIVER | FAULT_UNDERVOLTAGE
 

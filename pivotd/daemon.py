@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_proto.messages import MODE_DISABLED, MODE_FAULT, MODE_NAMES, fault_names
 from pivotd.bus.messages import CloudMsg, PathMsg, PoseSample
 from pivotd.bus.pivot_bus import PivotBus
 from pivotd.bus.ratelimit import RateLimitedLog
@@ -39,10 +40,7 @@ from pivotd.systemd import Notifier, watchdog_interval
 
 log = logging.getLogger("pivotd.daemon")
 
-FAULT_NAMES = ("over-current", "over-temperature", "encoder", "driver", "watchdog", "setpoint-clamped",
-               "config-invalid", "under-voltage")
 SWITCH_INTERVAL_S = 0.0005
-MODE_NAMES = {0: "disabled", 1: "enabled", 2: "holding", 3: "fault"}
 
 
 @dataclass(frozen=True)
@@ -222,7 +220,7 @@ class Daemon:
             self._jitter.append(now - deadline)
             k += 1
             try:
-                tick = self.control.tick(now, self.pose, self.plan, faulted=self._gimbal_faulted())
+                tick = self.control.tick(now, self.pose, self.plan)
             except Exception as exc:
                 self._rl.warning("control", f"control: tick failed: {exc!r}")
                 self._last_error = f"control: {exc}"
@@ -242,10 +240,6 @@ class Daemon:
                         self._rl.warning("joint_states", f"joint_states: publish failed: {exc!r}")
 
     # ------------------------------------------------------------------ supervision (main thread)
-    def _gimbal_faulted(self) -> bool:
-        st = self.link.state if self.link is not None else None
-        return st is not None and st.mode == 3
-
     def _supervise_gimbal(self) -> None:
         link = self.link
         if link is not None and link.last_error != self._last_link_error:
@@ -256,19 +250,18 @@ class Daemon:
             return
         st = link.state
         now = time.monotonic()
-        if st.mode == 3 or st.faults:
+        if st.mode == MODE_FAULT or st.faults:
             if now - self._last_clear >= 1.0:
                 self._last_clear = now
                 self._clear_attempts += 1
-                names = [n for i, n in enumerate(FAULT_NAMES) if st.faults >> i & 1]
                 log.warning("gimbal fault bits 0x%04x (%s), mode %s: sending CLEAR_FAULT (attempt %d)",
-                            st.faults, ", ".join(names) or "none", MODE_NAMES.get(st.mode, st.mode),
+                            st.faults, ", ".join(fault_names(st.faults)) or "none", MODE_NAMES.get(st.mode, st.mode),
                             self._clear_attempts)
                 if link.clear_fault() and self.control is not None:
                     self.control.invalidate()
         else:
             self._clear_attempts = 0
-        if st.mode == 0 and not self._stop.is_set():
+        if st.mode == MODE_DISABLED and not self._stop.is_set():
             log.info("gimbal is disabled: sending ENABLE")
             if link.set_enabled(True) and self.control is not None:
                 self.control.invalidate()
@@ -280,7 +273,7 @@ class Daemon:
         st = link.state if link is not None else None
         plan = self.plan
         state = self.state
-        if st is not None and st.mode == 3:
+        if st is not None and st.mode == MODE_FAULT:
             state = "fault"
         ctl = self.control.stats if self.control is not None else None
         return {
@@ -293,7 +286,7 @@ class Daemon:
             "gimbal": None if st is None else {
                 "mode": MODE_NAMES.get(st.mode, str(st.mode)),
                 "faults": st.faults,
-                "fault_names": [n for i, n in enumerate(FAULT_NAMES) if st.faults >> i & 1],
+                "fault_names": fault_names(st.faults),
                 "pan_deg": round(float(np.degrees(st.pan)), 3),
                 "tilt_deg": round(float(np.degrees(st.tilt)), 3),
                 "age_s": round(time.monotonic() - st.rx_time, 3),

@@ -14,6 +14,7 @@ import json
 import logging
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -73,8 +74,7 @@ def derive_config(base: Path, out: Path, changes: dict[str, object]) -> Path:
 
 
 def free_port() -> int:
-    import socket
-
+    """A TCP port on 127.0.0.1 that was free a moment ago."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])

@@ -203,7 +203,7 @@ class RecedingHorizonPlanner:
 
     def _warm_start(self, s: np.ndarray, n: int) -> np.ndarray | None:
         prev = self.last_plan
-        if prev is None or prev.path_version != self._path_version or prev.s.shape[0] != prev.directions.shape[0]:
+        if prev is None or prev.path_version != self._path_version:
             return None
         if self._tracker is None:
             return np.repeat(prev.directions[-1:], n, axis=0)
@@ -234,14 +234,12 @@ class RecedingHorizonPlanner:
         init = self._warm_start(s, cams.shape[0])
         if init is None and anchor is not None:
             init = np.repeat(np.asarray(anchor, float)[None, :], cams.shape[0], axis=0)
-        points = snapshot.points if len(snapshot) > 0 else np.zeros((0, 3))
-        weights = snapshot.weights if len(snapshot) > 0 else np.zeros(0)
         result = optimize_trajectory(
-            points,
+            snapshot.points,
             cams,
             st.alpha,
             st.lam,
-            weights=weights,
+            weights=snapshot.weights,
             retained=retained,
             init_directions=init,
             anchor=anchor,

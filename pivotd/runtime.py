@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import dataclasses
 import math
 
 from pivotd.bus.pivot_bus import BusTopics
@@ -24,20 +25,7 @@ from pivotd.planner import PlannerSettings, RecedingHorizonPlanner
 
 def build_bus_topics(cfg: Config) -> BusTopics:
     """Bus topics and the status key ``pivot/<name>/status`` from ``cfg.topics`` / ``cfg.name``."""
-    t = cfg.topics
-    return BusTopics(
-        domain_id=t.domain_id,
-        pose=t.pose,
-        pose_type=t.pose_type,
-        path=t.path,
-        landmarks=t.landmarks,
-        targets=t.targets,
-        joint_states=t.joint_states,
-        view_plan=t.view_plan,
-        status_key=cfg.status_key,
-        frame_id=t.frame_id,
-        max_cloud_points=t.max_cloud_points,
-    )
+    return BusTopics(**dataclasses.asdict(cfg.topics), status_key=cfg.status_key)
 
 
 def build_retained_filter(cfg: Config) -> RetainedFilter:
@@ -127,6 +115,4 @@ def build_control_loop(cfg: Config, link) -> ControlLoop:
 
 def park_joints(cfg: Config) -> tuple[float, float]:
     """The park pose (pan, tilt) [rad], inside the joint limits."""
-    lim = cfg.gimbal.limits
-    pan = min(max(cfg.gimbal.park_pan, lim.pan_min), lim.pan_max) if not lim.continuous_pan else cfg.gimbal.park_pan
-    return pan, min(max(cfg.gimbal.park_tilt, lim.tilt_min), lim.tilt_max)
+    return cfg.gimbal.limits.clamp(cfg.gimbal.park_pan, cfg.gimbal.park_tilt)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -13,15 +12,10 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from pivotd.demo import free_port as free_tcp_port  # noqa: F401 - re-exported for the tests
+
 REPO = Path(__file__).resolve().parent.parent
 PYTHON = sys.executable
-
-
-def free_tcp_port() -> int:
-    """A TCP port on 127.0.0.1 that was free a moment ago."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def wait_until(predicate: Callable[[], object], timeout: float, interval: float = 0.05) -> bool:
