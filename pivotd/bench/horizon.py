@@ -22,14 +22,11 @@ import numpy as np
 
 def _visible_full(snap, plan, retained, alpha: float) -> int:
     """Hard visible count summed over the horizon, over the full retained sets."""
-    total = 0
-    cos_a = math.cos(alpha)
-    for i, idx in enumerate(retained):
-        rel = snap.points[idx] - plan.positions[i]
-        n = np.linalg.norm(rel, axis=1)
-        total += int(((rel @ plan.directions[i]) >= cos_a * n).sum())
-    return total
+    from pivotd.geometry import normalize
+    from pivotd.pivot.visibility import hard_count
 
+    return sum(hard_count(plan.directions[i], normalize(snap.points[idx] - plan.positions[i]), alpha)
+               for i, idx in enumerate(retained))
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--landmarks", type=int, default=20000)

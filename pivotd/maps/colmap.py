@@ -129,16 +129,21 @@ def _record_heads(buf: bytes, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return xyz, lengths
 
 
-def read_points3d_bin(path: Path, with_tracks: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """xyz (N, 3) float64, track lengths (N,) int64 and the image id of every observation (T,) int32
-    (grouped by point, in point order; None unless ``with_tracks``) of a ``points3D.bin``."""
+def _counted_file(path: Path, what: str) -> tuple[bytes, int]:
+    """Bytes of a COLMAP binary file and its leading uint64 record count; errors name the file."""
     try:
         buf = path.read_bytes()
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc})") from None
     if len(buf) < 8:
-        raise InputError(f"{path}: truncated at byte {len(buf)} (no point count)")
-    count = struct.unpack_from("<Q", buf, 0)[0]
+        raise InputError(f"{path}: truncated at byte {len(buf)} (no {what} count)")
+    return buf, struct.unpack_from("<Q", buf, 0)[0]
+
+
+def read_points3d_bin(path: Path, with_tracks: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """xyz (N, 3) float64, track lengths (N,) int64 and the image id of every observation (T,) int32
+    (grouped by point, in point order; None unless ``with_tracks``) of a ``points3D.bin``."""
+    buf, count = _counted_file(path, "point")
     if count > (len(buf) - 8) // _POINT_HEAD:
         raise InputError(
             f"{path}: header claims {count} points but the file holds at most {(len(buf) - 8) // _POINT_HEAD} "
@@ -211,13 +216,7 @@ def camera_centers(qwxyz: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 def read_images_bin(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Image ids (K,) and camera centres (K, 3) from ``images.bin``; errors name the byte offset."""
-    try:
-        buf = path.read_bytes()
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc})") from None
-    if len(buf) < 8:
-        raise InputError(f"{path}: truncated at byte {len(buf)} (no image count)")
-    count = struct.unpack_from("<Q", buf, 0)[0]
+    buf, count = _counted_file(path, "image")
     if count > (len(buf) - 8) // (_IMAGE_HEAD.size + 9):
         raise InputError(f"{path}: header claims {count} images, more than the file can hold (not an images.bin?)")
     ids = np.empty(count, dtype=np.int64)
