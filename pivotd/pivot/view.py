@@ -9,6 +9,7 @@ normalised, clipped, adaptively scaled steps (see :func:`pivotd.pivot._ascent.as
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,35 +58,51 @@ class ViewResult:
     iterations: int
 
 
-def _candidates(B: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, init: np.ndarray | None) -> np.ndarray:
-    """Multi-start directions (K, 3), best first, near-duplicates (closer than α) removed."""
+def _spread(n: int, k: int) -> np.ndarray:
+    """k indices (k,) spread evenly over range(n), first and last included: ⌊i (n − 1)/(k − 1)⌋ (exact integers)."""
+    if k <= 1:
+        return np.zeros(min(k, n), dtype=np.intp)
+    return np.arange(k, dtype=np.intp) * (n - 1) // (k - 1)
+
+
+_AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), (-1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, -1.0))
+
+
+def _candidates(
+    B: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, init: np.ndarray | None, uniform: bool
+) -> np.ndarray:
+    """Multi-start directions (K, 3), best first, near-duplicates (closer than α) removed.
+
+    ``uniform``: all weights ``w`` are equal (saves a weighted product per mean-shift step).
+    """
     n = B.shape[0]
     if n > opts.sample:
-        idx = np.linspace(0, n - 1, opts.sample).astype(np.intp)
-        Bs, ws = B.take(idx, axis=0), w.take(idx)
+        idx = _spread(n, opts.sample)
+        Bs, ws = B.take(idx, axis=0).astype(np.float32), w.take(idx).astype(np.float32)
     else:
-        Bs, ws = B, w
-    Bs, ws = Bs.astype(np.float32), ws.astype(np.float32)
-    seeds = [np.eye(3), -np.eye(3)]
+        Bs, ws = B.astype(np.float32), w.astype(np.float32)
+    seeds = list(_AXES)
     centroid = ws @ Bs
-    if np.linalg.norm(centroid) > 1e-9 * max(ws.sum(), 1e-12):
-        c0 = (centroid / np.sqrt(centroid @ centroid)).astype(float)
-        x, y, z = c0
-        t1 = np.array([y, -x, 0.0]) if abs(z) < 0.9 else np.array([0.0, z, -y])
-        t1 /= np.sqrt(t1 @ t1)
-        t2 = np.array([y * t1[2] - z * t1[1], z * t1[0] - x * t1[2], x * t1[1] - y * t1[0]])
-        ca, sa = np.cos(2 * alpha), np.sin(2 * alpha)
-        seeds.append(np.stack([c0, ca * c0 + sa * t1, ca * c0 - sa * t1, ca * c0 + sa * t2, ca * c0 - sa * t2]))
+    x, y, z = (float(v) for v in centroid)
+    nc = math.sqrt(x * x + y * y + z * z)
+    if nc > 1e-9 * max(float(ws.sum()), 1e-12):
+        x, y, z = x / nc, y / nc, z / nc
+        tx, ty, tz = (y, -x, 0.0) if abs(z) < 0.9 else (0.0, z, -y)  # c0 × e_z or c0 × e_x
+        nt = math.sqrt(tx * tx + ty * ty + tz * tz)
+        tx, ty, tz = tx / nt, ty / nt, tz / nt
+        ux, uy, uz = y * tz - z * ty, z * tx - x * tz, x * ty - y * tx
+        ca, sa = math.cos(2 * alpha), math.sin(2 * alpha)
+        seeds.append((x, y, z))
+        for px, py, pz in ((tx, ty, tz), (-tx, -ty, -tz), (ux, uy, uz), (-ux, -uy, -uz)):
+            seeds.append((ca * x + sa * px, ca * y + sa * py, ca * z + sa * pz))
     if init is not None:
-        seeds.append(init[None])
+        seeds.append(tuple(init))
+    C = np.array(seeds, dtype=np.float32)
     k = min(opts.seeds, Bs.shape[0])
     if k:
-        seeds.append(Bs[np.linspace(0, Bs.shape[0] - 1, k).astype(np.intp)])
-    C = np.concatenate(seeds).astype(np.float32)
+        C = np.concatenate([C, Bs.take(_spread(Bs.shape[0], k), axis=0)])
     cos_a = np.float32(np.cos(alpha))
     BsT = np.ascontiguousarray(Bs.T)  # (3, s): (K, 3) @ (3, s) is the fast layout
-    uniform = float(ws.min()) == float(ws.max())
-    ones3 = np.ones(3, np.float32)
     raw = C
     raw_score = None
     for _ in range(opts.mean_shift):  # mean shift with a flat conical kernel
@@ -94,7 +111,7 @@ def _candidates(B: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, i
         if raw_score is None:
             raw_score = inside @ (ws if uniform else np.ones_like(ws))
         moved = inside @ Bs
-        nrm = np.sqrt(np.square(moved) @ ones3)
+        nrm = np.sqrt(np.einsum("ij,ij->i", moved, moved))
         ok = nrm > 1e-12
         C = np.where(ok[:, None], moved / np.where(ok, nrm, 1.0)[:, None], C)
     score = ((C @ BsT) >= cos_a) @ ws
@@ -103,7 +120,8 @@ def _candidates(B: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, i
         score = np.concatenate([score, raw_score])
     order = np.argsort(-score, kind="stable")
     order = order[score[order] >= opts.keep_ratio * score[order[0]]]
-    near = (C[order] @ C[order].T) >= cos_a  # near-duplicates: closer than α
+    Co = C[order]
+    near = (Co @ Co.T) >= cos_a  # near-duplicates: closer than α
     remaining = np.ones(order.size, dtype=bool)
     kept = []  # positions in ``order``, best first
     for _ in range(max(1, opts.refine)):
@@ -112,7 +130,7 @@ def _candidates(B: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, i
             break
         kept.append(int(left[0]))
         remaining &= ~near[left[0]]
-    return C[order[kept]].astype(float)
+    return Co[kept].astype(float)
 
 
 def optimize_view(
@@ -136,15 +154,14 @@ def optimize_view(
     if B.shape[0] == 0:
         d = init_v if init_v is not None else np.array([1.0, 0.0, 0.0])
         return ViewResult(d, optical_frame_from_direction(d), 0, 0.0, 0)
-    B32 = BT.T
     w32 = w.astype(np.float32)
-    C = _candidates(B, w, alpha, opts, init_v)
+    C = _candidates(B, w, alpha, opts, init_v, weights is None)
     rad = np.radians
     start = rad(opts.fov_start_deg) if opts.fov_start_deg is not None else min(np.pi / 2, alpha + rad(10.0))
     stages = schedule(alpha, start, opts.stages)
     iters = 0
     if len(stages) > 1:  # widened stages on a strided subsample with weights scaled to the same total
-        C, iters = _widened(B32, w, C, stages, alpha, opts)
+        C, iters = _widened(BT.T, w, C, stages, alpha, opts)
     cos_a32 = np.float32(np.cos(alpha))
     cos_c = C.astype(np.float32) @ BT  # (K, n)
     score = (cos_c >= cos_a32) @ w32
@@ -166,7 +183,7 @@ def optimize_view(
     c_best, cos_best = dirs[best], cos_rows[best]
     if opts.polish_deg > 0:
         tol = min(rad(opts.tol_deg), 0.05 * alpha)
-        c_best = polish_hard(c_best, B32, w32, alpha, min(rad(opts.polish_deg), 0.5 * alpha), tol, cos_best)
+        c_best = polish_hard(c_best, BT, w32, alpha, min(rad(opts.polish_deg), 0.5 * alpha), tol, cos_best)
     c_best = c_best / np.sqrt(c_best @ c_best)
     ca = np.cos(alpha)
     cos_f = c_best.astype(np.float32) @ BT
@@ -241,7 +258,11 @@ def _unit_bearings(bearings: np.ndarray, weights: np.ndarray | None) -> tuple[np
         sq = BT[0] * BT[0]
         sq += BT[1] * BT[1]
         sq += BT[2] * BT[2]
-    if not np.isfinite(sq).all():  # NaN/inf (raises) or beyond float32's range: rescale in float64
+    # one reduction decides the common case: every row unit (to float32 rounding) and finite
+    dev = float(np.max(np.abs(sq - np.float32(1.0)), initial=0.0))
+    if dev <= 1e-6:
+        return B, BT, w
+    if not math.isfinite(dev):  # NaN/inf (raises) or beyond float32's range: rescale in float64
         B = finite_array("bearings", B)
         B = B / np.maximum(np.abs(B).max(axis=1, keepdims=True), 1e-300)
         return _unit_bearings(B, w)
@@ -322,16 +343,16 @@ def _refine_one(
             g *= wb
         sx, sy, sz = (float(v) for v in g @ Bb)
         Jx, Jy, Jz = y * sz - z * sy, z * sx - x * sz, x * sy - y * sx  # c × S
-        nJ = np.sqrt(Jx * Jx + Jy * Jy + Jz * Jz)
+        nJ = math.sqrt(Jx * Jx + Jy * Jy + Jz * Jz)
         agree = Jx * jx + Jy * jy + Jz * jz
         h = 0.5 * h if agree < 0 else (min(1.2 * h, h_max) if agree > 0 else h)
         jx, jy, jz = (0.0, 0.0, 0.0) if agree < 0 else (Jx, Jy, Jz)
         if nJ < 1e-12 or h < tol:
             break
         ux, uy, uz = Jx / nJ, Jy / nJ, Jz / nJ
-        ch, sh = np.cos(h), np.sin(h)
+        ch, sh = math.cos(h), math.sin(h)
         x, y, z = (ch * x + sh * (uy * z - uz * y), ch * y + sh * (uz * x - ux * z), ch * z + sh * (ux * y - uy * x))
-        nrm = np.sqrt(x * x + y * y + z * z)
+        nrm = math.sqrt(x * x + y * y + z * z)
         x, y, z = x / nrm, y / nrm, z / nrm
         if x * ref[0] + y * ref[1] + z * ref[2] < cos_drift:
             Bb, wb = band(np.array([x, y, z], dtype=np.float32) @ BT)
@@ -340,35 +361,35 @@ def _refine_one(
 
 
 def polish_hard(
-    c: np.ndarray, B: np.ndarray, w: np.ndarray, alpha: float, radius: float, tol: float, cos_c: np.ndarray
+    c: np.ndarray, BT: np.ndarray, w: np.ndarray, alpha: float, radius: float, tol: float, cos_c: np.ndarray
 ) -> np.ndarray:
     """Pattern search on the hard visible weight around ``c``: evaluate 8 directions on each of the rings
     radius, radius/2, …, ≥ tol [rad] at once, move to the best strict improvement, repeat (at most 4 moves).
 
-    The axis moves at most 4·radius, so only landmarks within α ± 4.5·radius of ``c`` (``cos_c`` = B @ c)
-    can change the count: the others are counted once. Float32 inside; the caller recounts exactly.
+    BT (3, n) float32 unit bearings, w (n,) weights. The axis moves at most 4·radius, so only landmarks
+    within α ± 4.5·radius of ``c`` (``cos_c`` = c · k_j) can change the count: the others are counted
+    once. Float32 inside; the caller recounts exactly.
     """
     reach = 4.5 * radius
     lo, hi = np.cos(min(np.pi, alpha + reach)), np.cos(max(0.0, alpha - reach))
     sel = np.flatnonzero((cos_c >= lo) & (cos_c <= hi))
     if sel.size == 0:
         return c
-    bandT = np.ascontiguousarray(B.take(sel, axis=0).T, dtype=np.float32)  # (3, m)
+    bandT = BT.take(sel, axis=1)  # (3, m)
     wb = w.take(sel).astype(np.float32)
     cos_a = np.float32(np.cos(alpha) - 1e-7)
     radii = [radius]
     while radii[-1] * 0.5 >= tol:
         radii.append(radii[-1] * 0.5)
-    ang = np.arange(8) * (np.pi / 4)
-    r = np.repeat(radii, 8)[:, None]
-    ca = np.tile(np.cos(ang), len(radii))[:, None]
-    sa = np.tile(np.sin(ang), len(radii))[:, None]
-    cos_r, sin_r = np.cos(r), np.sin(r)
+    ring = [(math.cos(r), math.sin(r), math.cos(k * math.pi / 4), math.sin(k * math.pi / 4))
+            for r in radii for k in range(8)]
+    cos_r, sin_r, ca, sa = np.array(ring).T[:, :, None]  # each (8·rings, 1)
     best = float((c.astype(np.float32) @ bandT >= cos_a) @ wb)
     for _ in range(4):
-        x, y, z = c
-        t1 = np.array([y, -x, 0.0]) if abs(z) < 0.9 else np.array([0.0, z, -y])  # c × e_z or c × e_x
-        t1 /= np.sqrt(t1 @ t1)
+        x, y, z = (float(v) for v in c)
+        tx, ty, tz = (y, -x, 0.0) if abs(z) < 0.9 else (0.0, z, -y)  # c × e_z or c × e_x
+        nt = math.sqrt(tx * tx + ty * ty + tz * tz)
+        t1 = np.array([tx / nt, ty / nt, tz / nt])
         t2 = np.array([y * t1[2] - z * t1[1], z * t1[0] - x * t1[2], x * t1[1] - y * t1[0]])
         cand = cos_r * c + sin_r * (ca * t1 + sa * t2)
         vals = (cand.astype(np.float32) @ bandT >= cos_a) @ wb
