@@ -14,12 +14,12 @@ import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from pivotd.bus.topics import POSE_TYPES, BusTopics, status_key_for
 from pivotd.config_reader import Section, read_yaml
 from pivotd.errors import ConfigError, InputError
 from pivotd.gimbal.kinematics import JointLimits, Mount
 from pivotd.gimbal.motion import AxisLimits
 
-POSE_TYPES = ("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped")
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
 ZENOH_MODES = ("peer", "client")
 CONTROL_RATE_RANGE_HZ = (100.0, 200.0)
@@ -40,22 +40,6 @@ class ZenohConfig:
     listen: tuple[str, ...] = ()
     config_file: Path | None = None  # a Zenoh JSON5 config (TLS, auth) applied before the keys above
     multicast_scouting: bool = False
-
-
-@dataclass(frozen=True)
-class TopicsConfig:
-    """ROS 2 topics (rmw_zenoh key expressions are built from these) and their limits."""
-
-    domain_id: int = 0
-    pose: str = "/odom"
-    pose_type: str = "nav_msgs/msg/Odometry"
-    path: str = "/plan"
-    landmarks: str = "/pivot/landmarks"
-    targets: str = "/pivot/targets"
-    joint_states: str = "/pivot/joint_states"
-    view_plan: str = "/pivot/view_plan"
-    frame_id: str = "map"
-    max_cloud_points: int = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -182,7 +166,7 @@ class Config:
 
     name: str = "pivotd"
     zenoh: ZenohConfig = field(default_factory=ZenohConfig)
-    topics: TopicsConfig = field(default_factory=TopicsConfig)
+    topics: BusTopics = field(default_factory=BusTopics)  # its status_key follows ``name``
     map: MapConfig = field(default_factory=MapConfig)
     pivot: PivotConfig = field(default_factory=PivotConfig)
     planner: PlannerConfig = field(default_factory=PlannerConfig)
@@ -193,10 +177,15 @@ class Config:
     sim: SimConfig | None = None
     source: Path | None = None  # the file this was loaded from
 
+    def __post_init__(self) -> None:
+        key = status_key_for(self.name)
+        if self.topics.status_key != key:
+            object.__setattr__(self, "topics", replace(self.topics, status_key=key))
+
     @property
     def status_key(self) -> str:
         """Plain Zenoh key of the JSON status: ``pivot/<name>/status``."""
-        return f"pivot/{self.name}/status"
+        return self.topics.status_key
 
     def with_overrides(
         self,
@@ -285,14 +274,14 @@ def _zenoh(s: Section) -> ZenohConfig:
     return ZenohConfig(mode, connect, listen, config_file, scouting)
 
 
-def _topics(s: Section) -> TopicsConfig:
-    d = TopicsConfig()
+def _topics(s: Section) -> BusTopics:
+    d = BusTopics()
     help_topic = "a ROS 2 topic name such as /pivot/landmarks"
 
     def topic(key: str) -> str:
         return s.string(key, getattr(d, key), pattern=_TOPIC_RE, pattern_help=help_topic)
 
-    out = TopicsConfig(
+    out = BusTopics(
         domain_id=s.number("domain_id", d.domain_id, min=0, max=232, integer=True),
         pose=topic("pose"),
         pose_type=s.string("pose_type", d.pose_type, choices=POSE_TYPES),

@@ -35,7 +35,7 @@ from pivotd.gimbal.link import GimbalLink
 from pivotd.maps.formats import LandmarkCloud, make_cloud
 from pivotd.planner import Plan
 from pivotd.planner_worker import PlannerWorker, WorkerError
-from pivotd.runtime import build_bus_topics, build_control_loop, build_link_config, park_joints
+from pivotd.runtime import build_control_loop, build_link_config, park_joints
 from pivotd.systemd import Notifier, watchdog_interval
 
 log = logging.getLogger("pivotd.daemon")
@@ -383,7 +383,7 @@ class Daemon:
             from pivotd.recorder import Recorder
 
             self._recorder = Recorder(self.overrides.record)
-        self.bus = PivotBus(self.session, build_bus_topics(cfg), node_name=cfg.name, on_pose=self._on_pose,
+        self.bus = PivotBus(self.session, cfg.topics, node_name=cfg.name, on_pose=self._on_pose,
                             on_path=self._on_path, on_cloud=self._on_cloud,
                             on_raw=self._recorder.write if self._recorder is not None else None)
         self.link = GimbalLink(cfg.gimbal.port, build_link_config(cfg), baudrate=cfg.gimbal.baud)

@@ -17,33 +17,20 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from pivotd.analysis import read_device_log, setpoint_dynamics, visible_counts
-from pivotd.bus.messages import JOINT_STATE, ODOMETRY, deserialize
-from pivotd.bus.ros import topic_key
-from pivotd.bus.session import open_session
+from pivotd.bus.probe import BusProbe, Observations
 from pivotd.config import Config, load_config
 from pivotd.gimbal.kinematics import camera_position, joints_to_world_direction
 from pivotd.maps.formats import load_landmarks
 
 log = logging.getLogger("pivotd.demo")
 REPO = Path(__file__).resolve().parent.parent
-
-
-@dataclass
-class Observations:
-    """What the demo saw on the bus: poses (rx time, position, quat), measured joints, latest status."""
-
-    poses: list[tuple[float, np.ndarray, np.ndarray]] = field(default_factory=list)
-    joints: list[tuple[float, float, float]] = field(default_factory=list)
-    status: dict = field(default_factory=dict)
-    lock: threading.Lock = field(default_factory=threading.Lock)
 
 
 def derive_config(base: Path, out: Path, changes: dict[str, object]) -> Path:
@@ -89,30 +76,6 @@ def spawn(args: list[str], log_path: Path) -> subprocess.Popen:
                             cwd=str(REPO), start_new_session=True)
 
 
-def _subscribe(session, cfg: Config, obs: Observations) -> list:
-    t = cfg.topics
-
-    def on_joint(sample) -> None:
-        msg = deserialize(sample.payload.to_bytes(), JOINT_STATE, t.joint_states)
-        with obs.lock:
-            obs.joints.append((time.monotonic(), float(msg.position[0]), float(msg.position[1])))
-
-    def on_odom(sample) -> None:
-        msg = deserialize(sample.payload.to_bytes(), ODOMETRY, t.pose)
-        p, q = msg.pose.pose.position, msg.pose.pose.orientation
-        with obs.lock:
-            obs.poses.append((time.monotonic(), np.array([p.x, p.y, p.z]), np.array([q.x, q.y, q.z, q.w])))
-
-    def on_status(sample) -> None:
-        obs.status = json.loads(sample.payload.to_bytes())
-
-    return [
-        session.declare_subscriber(topic_key(t.domain_id, t.joint_states, JOINT_STATE, "*"), on_joint),
-        session.declare_subscriber(topic_key(t.domain_id, t.pose, ODOMETRY, "*"), on_odom),
-        session.declare_subscriber(cfg.status_key, on_status),
-    ]
-
-
 def _status_line(elapsed: float, st: dict) -> str:
     g = st.get("gimbal") or {}
     pl = st.get("planner") or {}
@@ -140,9 +103,7 @@ class DemoSummary:
 def analyse(cfg: Config, obs: Observations, device_log: Path) -> tuple[dict, dict]:
     """Per-frame visibility (PIVOT vs forward-facing) and setpoint dynamics; returns (report, series)."""
     cloud = load_landmarks(cfg.map.file)
-    with obs.lock:
-        poses = list(obs.poses)
-        joints = list(obs.joints)
+    poses, joints = obs.poses, obs.joints
     if not poses or not joints:
         raise RuntimeError("no poses or joint states were received during the demo")
     pose_t = np.array([p[0] for p in poses])
@@ -238,14 +199,12 @@ def run_demo(config_path: Path, out_dir: Path, speed: float = 1.2, timeout: floa
     daemon = spawn([py, "-m", "pivotd.cli", "--config", str(config_path), "--listen", endpoint,
                      "--port", f"mock://?log={device_log}"], out_dir / "pivotd.log")
     sim = None
-    session = None
-    obs = Observations()
+    probe = None
     exit_code = None
     try:
-        session = open_session(connect=[endpoint])
-        subs = _subscribe(session, cfg, obs)
+        probe = BusProbe.connect(endpoint, cfg.topics)
         start = time.monotonic()
-        while not obs.status and time.monotonic() - start < 20:
+        while not probe.status and time.monotonic() - start < 20:
             if daemon.poll() is not None:
                 raise RuntimeError(f"pivotd exited with {daemon.returncode}; see {out_dir / 'pivotd.log'}")
             time.sleep(0.1)
@@ -258,8 +217,9 @@ def run_demo(config_path: Path, out_dir: Path, speed: float = 1.2, timeout: floa
             if daemon.poll() is not None:
                 raise RuntimeError(f"pivotd exited with {daemon.returncode}; see {out_dir / 'pivotd.log'}")
             now = time.monotonic()
-            if live and now - last_print >= 1.0 and obs.status:
-                print(_status_line(now - start, obs.status), flush=True)
+            status = probe.status
+            if live and now - last_print >= 1.0 and status:
+                print(_status_line(now - start, status), flush=True)
                 last_print = now
             time.sleep(0.05)
         time.sleep(0.5)
@@ -268,15 +228,14 @@ def run_demo(config_path: Path, out_dir: Path, speed: float = 1.2, timeout: floa
             exit_code = daemon.wait(timeout=15)
         except subprocess.TimeoutExpired:
             exit_code = None
-        for s in subs:
-            s.undeclare()
     finally:
         for proc in (sim, daemon):
             if proc is not None and proc.poll() is None:
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
-        if session is not None:
-            session.close()
+        if probe is not None:
+            probe.close()
+    obs = probe.observations()
     report, series = analyse(cfg, obs, device_log)
     report["daemon_exit_code"] = exit_code
     report["final_status"] = obs.status

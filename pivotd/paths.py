@@ -53,6 +53,31 @@ def load_path(path: str | Path) -> PathData:
     )
 
 
+def project_onto_polyline(positions: np.ndarray, arc: np.ndarray, point: np.ndarray,
+                          window: tuple[float, float] | None = None) -> tuple[float, float]:
+    """Nearest point to ``point`` (3,) [m] on the polyline through ``positions`` (P, 3) [m], P ≥ 1.
+
+    ``arc`` (P,) is a non-decreasing coordinate of the vertices (arc length [m], or any progress measure);
+    returns that coordinate interpolated linearly at the foot point, and the distance [m]. Repeated
+    vertices (zero-length segments) are fine. With ``window`` = (lo, hi) only segments whose coordinate
+    range overlaps [lo, hi] are searched (all of them when none does).
+    """
+    p = np.asarray(point, float)
+    if positions.shape[0] == 1:
+        return float(arc[0]), float(np.linalg.norm(p - positions[0]))
+    a = positions[:-1]
+    seg = np.diff(positions, axis=0)
+    len2 = np.maximum(np.sum(seg * seg, axis=1), 1e-18)
+    t = np.clip(np.einsum("ij,ij->i", p - a, seg) / len2, 0.0, 1.0)
+    d = np.linalg.norm(a + t[:, None] * seg - p, axis=1)
+    if window is not None:
+        inside = (arc[1:] >= window[0]) & (arc[:-1] <= window[1])
+        if inside.any():
+            d = np.where(inside, d, np.inf)
+    i = int(np.argmin(d))
+    return float(arc[i] + t[i] * (arc[i + 1] - arc[i])), float(d[i])
+
+
 class Polyline:
     """A translation path (P, 3) [m] with arc length, monotone progress and resampling.
 
@@ -102,20 +127,10 @@ class Polyline:
         With ``previous`` progress only the stretch [previous − back, previous + ahead] is searched (so a
         path that passes near itself cannot make progress jump) and the result never decreases.
         """
-        p = np.asarray(position, float)
-        if self.positions.shape[0] == 1:
-            return 0.0, float(np.linalg.norm(p - self.positions[0]))
-        a = self.positions[:-1]
-        t = np.clip(np.einsum("ij,ij->i", p - a, self._seg) / self._seg_len2, 0.0, 1.0)
-        d = np.linalg.norm(a + t[:, None] * self._seg - p, axis=1)
-        s_foot = self.arc[:-1] + t * np.sqrt(self._seg_len2)
-        if previous is not None:
-            window = (self.arc[1:] >= previous - back) & (self.arc[:-1] <= previous + ahead)
-            if window.any():
-                d = np.where(window, d, np.inf)
-        i = int(np.argmin(d))
-        s_new = float(s_foot[i]) if previous is None else max(float(s_foot[i]), float(previous))
-        return min(s_new, self.length), float(d[i])
+        window = None if previous is None else (previous - back, previous + ahead)
+        s_foot, d = project_onto_polyline(self.positions, self.arc, position, window)
+        s_new = s_foot if previous is None else max(s_foot, float(previous))
+        return min(s_new, self.length), d
 
     def sample(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Positions (K, 3) and body quaternions (K, 4) at arc lengths ``s`` (K,), clamped to the path."""

@@ -24,7 +24,7 @@ from pivotd.geometry import normalize, quat_to_matrix
 from pivotd.gimbal.kinematics import JointLimits, Mount, base_from_world
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapSnapshot
-from pivotd.paths import Polyline
+from pivotd.paths import Polyline, project_onto_polyline
 from pivotd.pivot.constraints import PanTiltConstraint
 from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
 
@@ -79,15 +79,7 @@ class Plan:
 
     def locate(self, position: np.ndarray) -> float:
         """Arc length [m] of the point of the plan's camera polyline nearest to ``position``."""
-        if self.positions.shape[0] == 1:
-            return float(self.s[0])
-        a = self.positions[:-1]
-        seg = np.diff(self.positions, axis=0)
-        len2 = np.maximum(np.sum(seg * seg, axis=1), 1e-18)
-        t = np.clip(np.einsum("ij,ij->i", np.asarray(position, float) - a, seg) / len2, 0.0, 1.0)
-        d = np.linalg.norm(a + t[:, None] * seg - position, axis=1)
-        i = int(np.argmin(d))
-        return float(self.s[i] + t[i] * (self.s[i + 1] - self.s[i]))
+        return project_onto_polyline(self.positions, self.s, position)[0]
 
 
 @dataclass(frozen=True)

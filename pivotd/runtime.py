@@ -8,10 +8,8 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import dataclasses
 import math
 
-from pivotd.bus.pivot_bus import BusTopics
 from pivotd.config import Config
 from pivotd.control import ControlLoop, ControlSettings
 from pivotd.errors import ConfigError
@@ -21,11 +19,6 @@ from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapStore, load_map_store
 from pivotd.pivot.trajectory import TrajectoryOptions
 from pivotd.planner import PlannerSettings, RecedingHorizonPlanner
-
-
-def build_bus_topics(cfg: Config) -> BusTopics:
-    """Bus topics and the status key ``pivot/<name>/status`` from ``cfg.topics`` / ``cfg.name``."""
-    return BusTopics(**dataclasses.asdict(cfg.topics), status_key=cfg.status_key)
 
 
 def build_retained_filter(cfg: Config) -> RetainedFilter:

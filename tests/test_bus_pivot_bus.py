@@ -11,7 +11,8 @@ from bus_support import drain, session_pair, wait_for
 
 from pivotd.bus import messages as m
 from pivotd.bus import ros
-from pivotd.bus.pivot_bus import BusTopics, PivotBus
+from pivotd.bus.pivot_bus import PivotBus
+from pivotd.bus.topics import BusTopics
 from pivotd.errors import ConfigError
 from pivotd.geometry import quat_to_matrix
 
@@ -266,18 +267,3 @@ def test_raw_hook_sees_accepted_inputs_and_outputs(sessions, remote):
         assert raw.empty()
     finally:
         bus.close()
-
-
-def test_topics_from_config_mapping():
-    t = BusTopics.from_mapping({"domain_id": 5, "pose": "/robot/odom", "pose_type": m.POSE_STAMPED,
-                                "frame_id": None, "max_cloud_points": 1000}, "bus")
-    assert (t.domain_id, t.pose, t.pose_type, t.frame_id, t.max_cloud_points) == (
-        5, "/robot/odom", m.POSE_STAMPED, None, 1000)
-    with pytest.raises(ConfigError, match=r"^bus\.posee: unknown key"):
-        BusTopics.from_mapping({"posee": "/odom"})
-    with pytest.raises(ConfigError, match=r"^bus\.domain_id: expected int"):
-        BusTopics.from_mapping({"domain_id": "0"})
-    with pytest.raises(ConfigError, match=r"^bus\.humble: expected bool"):
-        BusTopics.from_mapping({"humble": 1})
-    with pytest.raises(ConfigError, match=r"^bus: max_cloud_points"):
-        BusTopics.from_mapping({"max_cloud_points": 0})

@@ -3,11 +3,13 @@
 import math
 import re
 import textwrap
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from pivotd.bus.topics import BusTopics
 from pivotd.config import Config, load_config
 from pivotd.errors import ConfigError, InputError
 
@@ -59,7 +61,7 @@ def test_shipped_configs_load():
 
 def test_minimal_config_gets_defaults(tmp_path):
     cfg = load_config(write(tmp_path, MINIMAL, "ok.yaml"))
-    default = Config()
+    default = Config(name="test-node")
     assert cfg.name == "test-node"
     assert cfg.topics == default.topics
     assert cfg.pivot == default.pivot
@@ -110,6 +112,7 @@ def test_relative_paths_resolve_against_config_directory(tmp_path, monkeypatch):
         (MINIMAL + "pivot:\n  fov_deg: .nan\n", r":5: pivot\.fov_deg: must be finite"),
         (MINIMAL + "motion:\n  tilt:\n    max_jerk_deg_s3: 0\n", r":6: motion\.tilt\.max_jerk_deg_s3: must be > 0"),
         (MINIMAL + "topics:\n  pose_type: nav_msgs/msg/Path\n", r":5: topics\.pose_type: must be one of"),
+        (MINIMAL + "topics:\n  max_cloud_points: 0\n", r":5: topics\.max_cloud_points: must be ≥ 1, got 0"),
         (MINIMAL + "logging:\n  level: LOUD\n", r":5: logging\.level: must be one of DEBUG"),
         # cross-field rules
         (
@@ -187,3 +190,50 @@ def test_exponent_numbers_are_numbers(tmp_path):
     cfg = load_config(write(tmp_path, text, "ok.yaml"))
     assert cfg.motion.pan.max_jerk == pytest.approx(math.radians(1000.0))
     assert cfg.topics.max_cloud_points == 200000
+
+
+TOPICS = """\
+topics:
+  domain_id: 5
+  pose: /robot/pose
+  pose_type: geometry_msgs/msg/PoseStamped
+  path: /robot/plan
+  landmarks: /robot/landmarks
+  targets: /robot/targets
+  joint_states: /robot/joints
+  view_plan: /robot/view_plan
+  frame_id: world
+  max_cloud_points: 1000
+"""
+
+
+def test_topics_section_is_the_bus_settings(tmp_path):
+    cfg = load_config(write(tmp_path, MINIMAL + TOPICS, "ok.yaml"))
+    assert cfg.topics == BusTopics(domain_id=5, pose="/robot/pose", pose_type="geometry_msgs/msg/PoseStamped",
+                                   path="/robot/plan", landmarks="/robot/landmarks", targets="/robot/targets",
+                                   joint_states="/robot/joints", view_plan="/robot/view_plan", frame_id="world",
+                                   max_cloud_points=1000, status_key="pivot/test-node/status")
+    # Settings the file has no key for keep the bus's defaults.
+    assert (cfg.topics.accept_empty_frame, cfg.topics.namespace, cfg.topics.humble) == (True, "/", False)
+    # The status key follows the name, however the config is built or copied.
+    assert Config(name="robot7").topics.status_key == "pivot/robot7/status"
+    renamed = replace(cfg, name="other")
+    assert renamed.status_key == renamed.topics.status_key == "pivot/other/status"
+    assert renamed.topics.pose == "/robot/pose"
+
+
+@pytest.mark.parametrize(
+    ("section", "pattern"),
+    [
+        ("topics:\n  posee: /odom\n", r":5: topics\.posee: unknown key; did you mean pose\?"),
+        ("topics:\n  humble: true\n", r":5: topics\.humble: unknown key"),
+        ("topics:\n  domain_id: '0'\n", r":5: topics\.domain_id: must be an integer, got str '0'"),
+        ("topics:\n  domain_id: 233\n", r":5: topics\.domain_id: must be ≤ 232, got 233"),
+        ("topics:\n  max_cloud_points: 10.5\n", r":5: topics\.max_cloud_points: must be an integer"),
+        ("topics:\n  frame_id: [map]\n", r":5: topics\.frame_id: must be a string, got a list"),
+        ("topics:\n  landmarks: 12\n", r":5: topics\.landmarks: must be a string, got int 12"),
+    ],
+)
+def test_topics_section_errors_are_one_line_with_file_line_and_key(tmp_path, section, pattern):
+    message = load_error(tmp_path, MINIMAL + section)
+    assert re.search(r"bad\.yaml" + pattern, message), message

@@ -7,12 +7,10 @@ disconnects and faults.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import signal
 import struct
-import threading
 import time
 from pathlib import Path
 
@@ -22,10 +20,10 @@ from support import PYTHON, REPO, ManagedProcess, free_tcp_port, wait_until
 
 from pivotd.analysis import read_device_log, setpoint_dynamics
 from pivotd.bus import ros
-from pivotd.bus.messages import JOINT_STATE, ODOMETRY, PATH, MessageError, deserialize, encode_odometry
-from pivotd.bus.session import open_session
+from pivotd.bus.messages import JOINT_STATE, ODOMETRY, encode_odometry
+from pivotd.bus.probe import BusProbe
 from pivotd.config import load_config
-from pivotd.demo import Observations, analyse, derive_config
+from pivotd.demo import analyse, derive_config
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -35,69 +33,6 @@ DEMO = REPO / "config" / "demo.yaml"
 def write_config(tmp: Path, endpoint: str, port_url: str, **changes) -> Path:
     """config/demo.yaml with the given Zenoh endpoint, gimbal port and dotted-key changes."""
     return derive_config(DEMO, tmp / "pivotd.yaml", {"zenoh.listen": [endpoint], "gimbal.port": port_url, **changes})
-
-
-class BusProbe:
-    """A test Zenoh session that records what pivotd publishes."""
-
-    def __init__(self, endpoint: str, cfg) -> None:
-        self.session = open_session(connect=[endpoint])
-        self.cfg = cfg
-        self.joints: list[tuple[float, float, float, str, bytes | None]] = []
-        self.poses: list[tuple[float, np.ndarray, np.ndarray]] = []
-        self.plans: list[object] = []
-        self.statuses: list[dict] = []
-        self.lock = threading.Lock()
-        t = cfg.topics
-        self.subs = [
-            self.session.declare_subscriber(ros.topic_key(t.domain_id, t.joint_states, JOINT_STATE, "*"),
-                                            self._on_joint),
-            self.session.declare_subscriber(ros.topic_key(t.domain_id, t.pose, ODOMETRY, "*"), self._on_pose),
-            self.session.declare_subscriber(ros.topic_key(t.domain_id, t.view_plan, PATH, "*"), self._on_plan),
-            self.session.declare_subscriber(cfg.status_key, self._on_status),
-        ]
-
-    def _on_joint(self, sample) -> None:
-        msg = deserialize(sample.payload.to_bytes(), JOINT_STATE, "joint_states")
-        att = sample.attachment.to_bytes() if sample.attachment is not None else None
-        with self.lock:
-            self.joints.append((time.monotonic(), float(msg.position[0]), float(msg.position[1]),
-                                str(sample.key_expr), att))
-
-    def _on_pose(self, sample) -> None:
-        try:
-            msg = deserialize(sample.payload.to_bytes(), ODOMETRY, "odom")
-        except MessageError:
-            return  # the garbage this test publishes itself
-        if not np.isfinite(msg.pose.pose.position.x):
-            return
-        p, q = msg.pose.pose.position, msg.pose.pose.orientation
-        with self.lock:
-            self.poses.append((time.monotonic(), np.array([p.x, p.y, p.z]), np.array([q.x, q.y, q.z, q.w])))
-
-    def _on_plan(self, sample) -> None:
-        with self.lock:
-            self.plans.append(deserialize(sample.payload.to_bytes(), PATH, "view_plan"))
-
-    def _on_status(self, sample) -> None:
-        with self.lock:
-            self.statuses.append(json.loads(sample.payload.to_bytes()))
-
-    @property
-    def status(self) -> dict:
-        with self.lock:
-            return self.statuses[-1] if self.statuses else {}
-
-    def query_status(self) -> dict | None:
-        for reply in self.session.get(self.cfg.status_key, timeout=3.0):
-            if reply.ok is not None:
-                return json.loads(reply.ok.payload.to_bytes())
-        return None
-
-    def close(self) -> None:
-        for s in self.subs:
-            s.undeclare()
-        self.session.close()
 
 
 def start_mock_gimbal(tmp: Path, *extra: str) -> tuple[ManagedProcess, str, Path]:
@@ -129,7 +64,7 @@ def test_tracking_run_end_to_end(tmp_path):
             assert wait_until(lambda: daemon.returncode is not None or daemon.wait_stderr("ready", 0), 30), \
                 daemon.output()
             assert daemon.returncode is None, daemon.output()
-            probe = BusProbe(endpoint, cfg)
+            probe = BusProbe.connect(endpoint, cfg.topics)
             assert wait_until(lambda: probe.status.get("state") == "waiting", 15), daemon.output()
             # 1.2 m/s for 14 s (16.8 m of the hallway), poses stop for 2 s at t = 8 s.
             with start_sim(endpoint, "--speed", "1.2", "--duration", "14", "--gap", "8:2") as sim:
@@ -219,8 +154,7 @@ def test_tracking_run_end_to_end(tmp_path):
     assert seq > 0 and abs(ts * 1e-9 - time.time()) < 120 and gid_len == 16
     # Visibility from the measured gimbal direction beats a forward-facing camera on the same poses
     # (the demo's own analysis, fed with what this test received).
-    obs = Observations(poses=list(probe.poses), joints=[j[:3] for j in joints])
-    report, _ = analyse(cfg, obs, dev_log)
+    report, _ = analyse(cfg, probe.observations(), dev_log)
     assert report["frames"] > 100
     assert report["visible_ratio"] >= 1.3, report
     assert probe.plans, "no view plan was published"
@@ -232,7 +166,7 @@ def test_gimbal_unplug_and_replug_recovers(tmp_path):
     config = write_config(tmp_path, endpoint, url)
     cfg = load_config(config)
     with mock, start_daemon(config) as daemon:
-        probe = BusProbe(endpoint, cfg)
+        probe = BusProbe.connect(endpoint, cfg.topics)
         try:
             assert wait_until(lambda: probe.status.get("link") == "up", 20), daemon.output()
             assert wait_until(lambda: probe.status.get("link") not in ("up", None), 15), daemon.output()
@@ -252,7 +186,7 @@ def test_gimbal_fault_is_reported_cleared_and_never_moved_through(tmp_path):
     config = write_config(tmp_path, endpoint, url)
     cfg = load_config(config)
     with mock, start_daemon(config) as daemon:
-        probe = BusProbe(endpoint, cfg)
+        probe = BusProbe.connect(endpoint, cfg.topics)
         try:
             with start_sim(endpoint, "--speed", "1.0", "--duration", "10"):
                 assert wait_until(lambda: any(s.get("gimbal") and s["gimbal"]["faults"] & 1 for s in probe.statuses),
@@ -286,7 +220,7 @@ def test_planner_process_crash_is_survived(tmp_path):
     config = write_config(tmp_path, endpoint, "mock://")
     cfg = load_config(config)
     with start_daemon(config) as daemon:
-        probe = BusProbe(endpoint, cfg)
+        probe = BusProbe.connect(endpoint, cfg.topics)
         try:
             with start_sim(endpoint, "--speed", "1.0", "--duration", "12"):
                 assert wait_until(lambda: probe.status.get("state") == "tracking", 25), daemon.output()

@@ -79,6 +79,63 @@ def test_slerp_and_plan_interpolation():
     assert plan.locate(np.array([0.25, 0.3, 0])) == pytest.approx(3.25)
 
 
+def _plan_through(positions, s):
+    n = len(s)
+    return Plan(created=0.0, positions=np.asarray(positions, float), directions=np.tile([1.0, 0, 0], (n, 1)),
+                body_quats=np.tile(IDENTITY, (n, 1)), visible=np.zeros(n, int), s=np.asarray(s, float),
+                map_version=0, path_version=0, solve_s=0.0)
+
+
+def test_plan_locate_keeps_the_index_mapping_at_repeated_positions():
+    # The camera stood still between waypoints 1 and 2 (e.g. the horizon clamped at the path's end, or
+    # the mount offset cancelling the motion): the zero-length segment keeps its own arc interval.
+    plan = _plan_through([[0.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0], [1.0, 1.0, 0]], [3.0, 4.0, 4.5, 5.5])
+    assert plan.locate(np.array([1.2, 0.6, 0.0])) == pytest.approx(5.1)  # on the last segment
+    assert plan.locate(np.array([0.5, -0.2, 0.0])) == pytest.approx(3.5)  # on the first
+    assert plan.locate(np.array([1.5, -0.5, 0.0])) == pytest.approx(4.0)  # nearest to the repeated vertex
+    clamped = _plan_through([[0.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0]], [0.0, 1.0, 1.0, 1.0])
+    assert clamped.locate(np.array([3.0, 0.0, 0.0])) == pytest.approx(1.0)
+    assert clamped.locate(np.array([0.25, 1.0, 0.0])) == pytest.approx(0.25)
+
+
+def _brute_force_locate(positions, s, point):
+    """Closest point by bounded 1-D minimisation on every segment (no shared code with the planner)."""
+    from scipy.optimize import minimize_scalar
+
+    if len(positions) == 1:
+        return s[0], float(np.linalg.norm(point - positions[0]))
+    best = (math.inf, 0.0)
+    for i in range(len(positions) - 1):
+        a, b = positions[i], positions[i + 1]
+        res = minimize_scalar(lambda u, a=a, b=b: float(np.sum((a + u * (b - a) - point) ** 2)), bounds=(0.0, 1.0),
+                              method="bounded", options={"xatol": 1e-12})
+        for u in (0.0, 1.0, float(res.x)):
+            d = float(np.linalg.norm(a + u * (b - a) - point))
+            if d < best[0]:
+                best = (d, s[i] + u * (s[i + 1] - s[i]))
+    return best[1], best[0]
+
+
+def test_plan_and_path_locate_match_a_brute_force_projection():
+    rng = np.random.default_rng(7)
+    for _ in range(60):
+        n = int(rng.integers(1, 9))
+        positions = rng.normal(size=(n, 3)) * 2.0
+        if n > 2:
+            k = int(rng.integers(1, n))
+            positions[k] = positions[k - 1]  # one repeated point
+        s = 10.0 + np.cumsum(rng.uniform(0.1, 1.0, n))
+        point = rng.normal(size=3) * 3.0
+        s_ref, d_ref = _brute_force_locate(positions, s, point)
+        # Generic random data: the nearest point is unique, so the arc coordinates agree, not only distances.
+        assert _plan_through(positions, s).locate(point) == pytest.approx(s_ref, abs=1e-6)
+        path = Polyline(positions)
+        arc_ref, dist_ref = _brute_force_locate(path.positions, path.arc, point)
+        arc, dist = path.locate(point)
+        assert dist == pytest.approx(dist_ref, abs=1e-9) and dist == pytest.approx(d_ref, abs=1e-9)
+        assert arc == pytest.approx(arc_ref, abs=1e-6)
+
+
 def _planner(limits=None, horizon=20, lam=0.6):
     limits = limits or JointLimits(math.radians(-170), math.radians(170), math.radians(-45), math.radians(60), False)
     settings = PlannerSettings(fov=math.radians(60), lam=lam, spacing=0.5, horizon=horizon,

@@ -12,10 +12,11 @@ import pytest
 from bus_support import drain, free_port, wait_for
 
 from pivotd.bus import messages as m
-from pivotd.bus.pivot_bus import BusTopics, PivotBus
+from pivotd.bus.pivot_bus import PivotBus
 from pivotd.bus.route import Route, load_route
 from pivotd.bus.session import open_session
 from pivotd.bus.sim_pose import parse_gap
+from pivotd.bus.topics import BusTopics
 from pivotd.errors import InputError
 from pivotd.geometry import quat_to_matrix
 from pivotd.paths import load_path

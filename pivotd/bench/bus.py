@@ -67,9 +67,10 @@ def codec_results(quick: bool) -> dict[str, float]:
 
 def latency_results(quick: bool) -> dict[str, float]:
     from pivotd.bus import messages as m
-    from pivotd.bus.pivot_bus import BusTopics, PivotBus
+    from pivotd.bus.pivot_bus import PivotBus
     from pivotd.bus.ros import RosNode
     from pivotd.bus.session import open_session
+    from pivotd.bus.topics import BusTopics
 
     count = 200 if quick else 2000
     endpoint = f"tcp/127.0.0.1:{_free_port()}"

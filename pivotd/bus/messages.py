@@ -22,15 +22,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from pivotd.bus.ros import typestore
+from pivotd.bus.topics import ODOMETRY as ODOMETRY
+from pivotd.bus.topics import POSE_STAMPED as POSE_STAMPED
+from pivotd.bus.topics import POSE_TYPES as POSE_TYPES
 from pivotd.errors import PivotdError
 from pivotd.geometry import matrix_to_quat, optical_frame_from_direction
 
-ODOMETRY = "nav_msgs/msg/Odometry"
-POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 PATH = "nav_msgs/msg/Path"
 POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"
 JOINT_STATE = "sensor_msgs/msg/JointState"
-POSE_TYPES = (ODOMETRY, POSE_STAMPED)
 
 _FLOAT32, _FLOAT64 = 7, 8  # sensor_msgs/PointField datatypes
 _FIELD_DTYPES = {_FLOAT32: "f4", _FLOAT64: "f8"}

@@ -22,73 +22,12 @@ import zenoh
 
 from pivotd.bus import messages as m
 from pivotd.bus.ratelimit import RateLimitedLog
-from pivotd.bus.ros import QoS, RosNode, msgtype_of_key, normalize_topic
-from pivotd.errors import ConfigError
+from pivotd.bus.ros import QoS, RosNode, msgtype_of_key
+from pivotd.bus.topics import BusTopics, normalize_topic
 
 log = logging.getLogger(__name__)
 
 CLOUD_LAYERS = ("landmarks", "targets")
-
-
-@dataclass(frozen=True)
-class BusTopics:
-    """Topic names, types and validation settings of the bus (all configurable).
-
-    ``accept_empty_frame``: messages with an empty ``frame_id`` are taken as being in ``frame_id``.
-    ``frame_id`` None accepts any frame. ``namespace`` is the ROS namespace of pivotd's node.
-    ``humble``: publish with rmw_zenoh's Humble key form (no type hash) instead of RIHS01 hashes.
-    """
-
-    domain_id: int = 0
-    pose: str = "/odom"
-    pose_type: str = m.ODOMETRY
-    path: str = "/plan"
-    landmarks: str = "/pivot/landmarks"
-    targets: str = "/pivot/targets"
-    joint_states: str = "/pivot/joint_states"
-    view_plan: str = "/pivot/view_plan"
-    status_key: str = "pivot/pivotd/status"
-    frame_id: str | None = "map"
-    max_cloud_points: int = 2_000_000
-    accept_empty_frame: bool = True
-    namespace: str = "/"
-    humble: bool = False
-
-    @classmethod
-    def from_mapping(cls, values: dict[str, Any], where: str = "bus") -> BusTopics:
-        """Build from a config mapping; unknown keys or wrong value types raise ConfigError naming ``where.key``."""
-        if not isinstance(values, dict):
-            raise ConfigError(f"{where}: expected a mapping, got {type(values).__name__}")
-        fields = cls.__dataclass_fields__
-        kwargs: dict[str, Any] = {}
-        for key, value in values.items():
-            if key not in fields:
-                raise ConfigError(f"{where}.{key}: unknown key (known: {', '.join(sorted(fields))})")
-            default = fields[key].default
-            if key == "frame_id" and value is None:
-                kwargs[key] = None
-                continue
-            expected = type(default)
-            if (expected is int and isinstance(value, bool)) or not isinstance(value, expected):
-                raise ConfigError(f"{where}.{key}: expected {expected.__name__}, got {value!r}")
-            kwargs[key] = value
-        try:
-            return cls(**kwargs)
-        except ConfigError as exc:
-            raise ConfigError(f"{where}: {exc}") from exc
-
-    def __post_init__(self) -> None:
-        if self.pose_type not in m.POSE_TYPES:
-            raise ConfigError(f"pose_type {self.pose_type!r} must be one of {', '.join(m.POSE_TYPES)}")
-        if self.max_cloud_points < 1:
-            raise ConfigError(f"max_cloud_points must be >= 1, got {self.max_cloud_points}")
-        if not isinstance(self.domain_id, int) or not 0 <= self.domain_id <= 232:
-            raise ConfigError(f"domain_id must be an integer in 0..232, got {self.domain_id!r}")
-        for name in ("pose", "path", "landmarks", "targets", "joint_states", "view_plan"):
-            normalize_topic(getattr(self, name))
-        key = self.status_key
-        if not key or key.startswith("/") or key.endswith("/") or any(c in key for c in "*$?# "):
-            raise ConfigError(f"status_key {key!r} is not a plain Zenoh key such as pivot/pivotd/status")
 
 
 @dataclass

@@ -30,6 +30,7 @@ import zenoh
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
+from pivotd.bus.topics import normalize_topic
 from pivotd.errors import ConfigError
 
 log = logging.getLogger(__name__)
@@ -79,14 +80,6 @@ def ros_type_from_dds(dds_name: str) -> str | None:
     if len(parts) != 4 or parts[2] != "dds_" or not parts[3].endswith("_") or len(parts[3]) < 2:
         return None
     return f"{parts[0]}/{parts[1]}/{parts[3][:-1]}"
-
-
-def normalize_topic(topic: str) -> str:
-    """Fully qualified topic name with one leading slash and no trailing slash; rejects empty chunks."""
-    stripped = topic.strip().strip("/")
-    if not stripped or "//" in stripped or any(c in stripped for c in "*$?#@% "):
-        raise ConfigError(f"invalid ROS topic name {topic!r}")
-    return "/" + stripped
 
 
 def topic_key(domain_id: int, topic: str, msgtype: str | None, hash_part: str | None = None) -> str:

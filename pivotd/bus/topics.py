@@ -1,0 +1,71 @@
+"""The bus settings: topic names, pose type, frame and limits (the config file's ``topics`` section).
+
+:class:`BusTopics` is what :class:`~pivotd.bus.pivot_bus.PivotBus` takes and what
+:func:`pivotd.config.load_config` produces from the ``topics`` section (docs/CONFIG.md). It depends on
+nothing heavier than the standard library, so the config can be loaded without Zenoh or rosbags.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pivotd.errors import ConfigError
+
+ODOMETRY = "nav_msgs/msg/Odometry"
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+POSE_TYPES = (ODOMETRY, POSE_STAMPED)
+TOPIC_FIELDS = ("pose", "path", "landmarks", "targets", "joint_states", "view_plan")
+
+
+def status_key_for(name: str) -> str:
+    """Plain Zenoh key of the JSON status of node ``name``: ``pivot/<name>/status``."""
+    return f"pivot/{name}/status"
+
+
+def normalize_topic(topic: str) -> str:
+    """Fully qualified topic name with one leading slash and no trailing slash; rejects empty chunks."""
+    stripped = topic.strip().strip("/")
+    if not stripped or "//" in stripped or any(c in stripped for c in "*$?#@% "):
+        raise ConfigError(f"invalid ROS topic name {topic!r}")
+    return "/" + stripped
+
+
+@dataclass(frozen=True)
+class BusTopics:
+    """Topic names, types and validation settings of the bus.
+
+    The fields from ``domain_id`` to ``max_cloud_points`` are the keys of the config's ``topics`` section
+    (same names and defaults). ``status_key`` follows the config's ``name`` (:func:`status_key_for`).
+    The last three are settings for code that builds its own bus (tests, tools) and keep their defaults
+    in the daemon: ``accept_empty_frame``: messages with an empty ``frame_id`` are taken as being in
+    ``frame_id``; ``namespace``: ROS namespace of pivotd's node; ``humble``: publish with rmw_zenoh's
+    Humble key form (no type hash) instead of RIHS01 hashes. ``frame_id`` None accepts any frame.
+    """
+
+    domain_id: int = 0
+    pose: str = "/odom"
+    pose_type: str = ODOMETRY
+    path: str = "/plan"
+    landmarks: str = "/pivot/landmarks"
+    targets: str = "/pivot/targets"
+    joint_states: str = "/pivot/joint_states"
+    view_plan: str = "/pivot/view_plan"
+    frame_id: str | None = "map"
+    max_cloud_points: int = 1_000_000
+    status_key: str = status_key_for("pivotd")
+    accept_empty_frame: bool = True
+    namespace: str = "/"
+    humble: bool = False
+
+    def __post_init__(self) -> None:
+        if self.pose_type not in POSE_TYPES:
+            raise ConfigError(f"pose_type {self.pose_type!r} must be one of {', '.join(POSE_TYPES)}")
+        if self.max_cloud_points < 1:
+            raise ConfigError(f"max_cloud_points must be >= 1, got {self.max_cloud_points}")
+        if not isinstance(self.domain_id, int) or not 0 <= self.domain_id <= 232:
+            raise ConfigError(f"domain_id must be an integer in 0..232, got {self.domain_id!r}")
+        for name in TOPIC_FIELDS:
+            normalize_topic(getattr(self, name))
+        key = self.status_key
+        if not key or key.startswith("/") or key.endswith("/") or any(c in key for c in "*$?# "):
+            raise ConfigError(f"status_key {key!r} is not a plain Zenoh key such as pivot/pivotd/status")
