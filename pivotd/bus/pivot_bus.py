@@ -14,7 +14,6 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -28,11 +27,6 @@ from pivotd.bus.topics import BusTopics, normalize_topic
 log = logging.getLogger(__name__)
 
 CLOUD_LAYERS = ("landmarks", "targets")
-
-
-@dataclass
-class _TopicCounters:
-    counts: dict[str, int] = field(default_factory=lambda: {"received": 0, "accepted": 0})
 
 
 class PivotBus:
