@@ -66,12 +66,12 @@ def best_chain(
     for k in range(1, K):
         s = max(round(span[k]), 1)
         trans = cache.get(s)
-        if trans is None:
-            trans = ((s * smooth) * (np.cos(ang / s) - 1.0)).astype(np.float32)
+        if trans is None:  # indexed (to, from): the argmax runs along contiguous rows
+            trans = np.ascontiguousarray(((s * smooth) * (np.cos(ang / s) - 1.0)).astype(np.float32).T)
             cache[s] = trans
-        total = value[:, None] + trans  # (from, to)
-        back[k] = np.argmax(total, axis=0)
-        value = total[back[k], cols] + scores[k] * np.float32(span[k])
+        total = trans + value[None, :]  # (to, from)
+        back[k] = np.argmax(total, axis=1)
+        value = total[cols, back[k]] + scores[k] * np.float32(span[k])
     path = np.empty(K, dtype=np.intp)
     path[-1] = int(np.argmax(value))
     for k in range(K - 1, 0, -1):
@@ -79,34 +79,41 @@ def best_chain(
     return path
 
 
+def _antipodal_segment(da: np.ndarray, db: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Directions (k, 3) from da to db = −da at fractions t (k,): through a perpendicular direction."""
+    perp = np.cross(da, [0.0, 0.0, 1.0])
+    if np.linalg.norm(perp) < 1e-6:
+        perp = np.cross(da, [1.0, 0.0, 0.0])
+    perp /= np.linalg.norm(perp)
+    omega = np.pi / 2
+    t = 2 * t
+    return np.where(
+        (t <= 1)[:, None],
+        (np.sin((1 - t) * omega)[:, None] * da + np.sin(t * omega)[:, None] * perp) / np.sin(omega),
+        (np.sin((2 - t) * omega)[:, None] * perp + np.sin((t - 1) * omega)[:, None] * db) / np.sin(omega),
+    )
+
+
 def slerp_fill(n: int, nodes: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     """Unit directions (n, 3) for every waypoint, spherically interpolated between node directions (K, 3)."""
     out = np.empty((n, 3))
     out[: nodes[0] + 1] = dirs[0]
     out[nodes[-1] :] = dirs[-1]
-    for a, b, da, db in zip(nodes[:-1], nodes[1:], dirs[:-1], dirs[1:], strict=True):
-        t = (np.arange(a, b + 1) - a) / max(b - a, 1)
-        cos_ab = float(np.clip(da @ db, -1.0, 1.0))
-        omega = np.arccos(cos_ab)
-        if omega < 1e-6:
-            seg = np.outer(1 - t, da) + np.outer(t, db)
-        else:
-            if np.pi - omega < 1e-6:  # antipodal: turn through any perpendicular direction
-                perp = np.cross(da, [0.0, 0.0, 1.0])
-                if np.linalg.norm(perp) < 1e-6:
-                    perp = np.cross(da, [1.0, 0.0, 0.0])
-                perp /= np.linalg.norm(perp)
-                db_eff, omega = perp, np.pi / 2
-                t = 2 * t
-                seg = np.where(
-                    (t <= 1)[:, None],
-                    (np.sin((1 - t) * omega)[:, None] * da + np.sin(t * omega)[:, None] * db_eff) / np.sin(omega),
-                    (np.sin((2 - t) * omega)[:, None] * db_eff + np.sin((t - 1) * omega)[:, None] * db)
-                    / np.sin(omega),
-                )
-            else:
-                seg = (np.sin((1 - t) * omega)[:, None] * da + np.sin(t * omega)[:, None] * db) / np.sin(omega)
-        out[a : b + 1] = seg
+    if nodes.size > 1:
+        idx = np.arange(nodes[0], nodes[-1] + 1)
+        seg = np.clip(np.searchsorted(nodes, idx, side="right") - 1, 0, nodes.size - 2)
+        a, b = nodes[seg], nodes[seg + 1]
+        t = (idx - a) / np.maximum(b - a, 1)
+        da, db = dirs[seg], dirs[seg + 1]
+        omega = np.arccos(np.clip(np.einsum("ij,ij->i", da, db), -1.0, 1.0))
+        small = omega < 1e-6
+        sin_o = np.where(small, 1.0, np.sin(omega))
+        wa = np.where(small, 1 - t, np.sin((1 - t) * omega) / sin_o)
+        wb = np.where(small, t, np.sin(t * omega) / sin_o)
+        out[idx] = wa[:, None] * da + wb[:, None] * db
+        for k in np.unique(seg[np.pi - omega < 1e-6]):  # antipodal neighbours (rare)
+            rows = np.flatnonzero(seg == k)
+            out[idx[rows]] = _antipodal_segment(dirs[k], dirs[k + 1], t[rows])
     return out / np.linalg.norm(out, axis=1, keepdims=True)
 
 
@@ -115,19 +122,20 @@ def initial_directions(
     weights: np.ndarray,
     alpha: float,
     smooth: float,
+    nodes: np.ndarray,
+    n: int,
     *,
     resolution_deg: float = 12.0,
-    max_nodes: int = 100,
     anchor: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Chain initialisation (N, 3) from per-waypoint unit ``bearings`` (N, L, 3) and ``weights`` (N, L).
+    """Chain initialisation (n, 3) from unit ``bearings`` (K, L, 3) and ``weights`` (K, L) of the node
+    waypoints ``nodes`` (K,) (increasing indices into the n waypoints, see :func:`node_indices`).
 
-    λ = 0 (``smooth`` 0) picks every waypoint's best grid direction independently (all waypoints are nodes).
+    λ = 0 (``smooth`` 0) picks each node's best grid direction independently (pass every waypoint as a node).
     """
-    N = bearings.shape[0]
     grid = sphere_grid(resolution_deg)
-    nodes = np.arange(N) if smooth <= 0 else node_indices(N, max_nodes)
-    scores = grid_scores(bearings[nodes], weights[nodes], grid, alpha)
+    nodes = np.asarray(nodes, dtype=np.intp)
+    scores = grid_scores(bearings, weights, grid, alpha)
     span = np.diff(nodes, prepend=nodes[0] - 1).astype(float) if nodes.size > 1 else np.ones(1)
     choice = best_chain(scores, grid, span, smooth, anchor)
-    return slerp_fill(N, nodes, grid[choice])
+    return slerp_fill(n, nodes, grid[choice])

@@ -338,15 +338,18 @@ def optimize_trajectory(
         lengths = (
             np.full(N, P.shape[0]) if retained is None else np.array([np.asarray(r).size for r in retained])
         )
-        coarse = _ascent.subsample(geom, lengths, opts.active_cap)
-    if coarse is not None and opts.chain_init and not warm:
-        C_init = chain.initial_directions(
-            coarse.points, coarse.weights, alpha, smooth,
-            resolution_deg=opts.chain_resolution_deg, max_nodes=opts.chain_nodes, anchor=a_vec,
-        )
-        R0 = optical_frame_from_direction(C_init)
-        settings.stages = [alpha]
-        settings.step_init = rad(opts.chain_resolution_deg) / 2
+        if opts.chain_init and not warm:  # the chain scores its node waypoints only
+            nodes = chain.node_indices(N, opts.chain_nodes) if smooth > 0 else np.arange(N)
+            sub = _ascent.subsample(geom.take_rows(nodes), lengths[nodes], opts.active_cap)
+            C_init = chain.initial_directions(
+                sub.points, sub.weights, alpha, smooth, nodes, N,
+                resolution_deg=opts.chain_resolution_deg, anchor=a_vec,
+            )
+            R0 = optical_frame_from_direction(C_init)
+            settings.stages = [alpha]
+            settings.step_init = rad(opts.chain_resolution_deg) / 2
+        else:
+            coarse = _ascent.subsample(geom, lengths, opts.active_cap)
     R, iters = _ascent.ascend(geom_run, R0, norm, settings, lam=smooth, anchor=a_vec, project=project, coarse=coarse)
     C = R[:, :, 2].copy()
     if geom is not None and opts.polish_deg > 0 and (opts.warm_polish or not warm):
