@@ -32,8 +32,8 @@ import numpy as np
 from pivotd.maps.grid_index import cell_keys, column_bounds
 
 _FRAC_BITS = 12  # fixed-point fraction bits of sample coordinates (voxel units)
-_CHUNK_RAYS = 2048
-_OWN_MARGIN = 0.01  # voxels  # rays per vectorised batch (sorted by sample count to limit padding)
+_CHUNK_RAYS = 2048  # rays per vectorised batch (sorted by sample count to limit padding)
+_OWN_MARGIN = 0.01  # voxels
 DENSE_LIMIT = 1 << 28  # voxels; above this the grid stores sorted occupied keys instead of a dense array
 
 
