@@ -10,6 +10,7 @@ import contextlib
 import ctypes
 import math
 
+from firmware_proto.messages import Config as ConfigMessage
 from pivotd.config import Config
 from pivotd.control import ControlLoop, ControlSettings
 from pivotd.errors import ConfigError
@@ -80,7 +81,7 @@ def build_planner(cfg: Config) -> RecedingHorizonPlanner:
 def build_link_config(cfg: Config) -> LinkConfig:
     """CONFIG limits for the device: joint limits, and the motion limits as the device's rate limits."""
     lim, mo = cfg.gimbal.limits, cfg.motion
-    return LinkConfig(
+    return LinkConfig(ConfigMessage(
         pan_min=lim.pan_min,
         pan_max=lim.pan_max,
         tilt_min=lim.tilt_min,
@@ -90,7 +91,7 @@ def build_link_config(cfg: Config) -> LinkConfig:
         amax_pan=mo.pan.max_acceleration,
         amax_tilt=mo.tilt.max_acceleration,
         watchdog_ms=cfg.gimbal.watchdog_ms,
-    )
+    ))
 
 
 def build_motion(cfg: Config) -> MotionGenerator:

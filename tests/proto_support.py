@@ -12,17 +12,20 @@ from pathlib import Path
 
 from support import REPO
 
+from firmware_proto.messages import Config
 from pivotd.gimbal.link import LinkConfig
 
 MOCK_GIMBAL = REPO / "tools" / "mock_gimbal"
 
 
 def link_config(**overrides: object) -> LinkConfig:
-    """A typical CONFIG: ±3 rad pan, [-1, 1] rad tilt, 2 rad/s, 10 rad/s²."""
-    base = dict(pan_min=-3.0, pan_max=3.0, tilt_min=-1.0, tilt_max=1.0, vmax_pan=2.0, vmax_tilt=2.0,
-                amax_pan=10.0, amax_tilt=10.0)
-    base.update(overrides)
-    return LinkConfig(**base)  # type: ignore[arg-type]
+    """A typical CONFIG (±3 rad pan, [-1, 1] rad tilt, 2 rad/s, 10 rad/s², 250 ms watchdog) and default link
+    timing; ``overrides`` may name CONFIG fields and LinkConfig timing fields alike."""
+    limits = dict(pan_min=-3.0, pan_max=3.0, tilt_min=-1.0, tilt_max=1.0, vmax_pan=2.0, vmax_tilt=2.0,
+                  amax_pan=10.0, amax_tilt=10.0, watchdog_ms=250)
+    timing = {k: v for k, v in overrides.items() if k not in limits}
+    limits.update({k: v for k, v in overrides.items() if k in limits})
+    return LinkConfig(Config(**limits), **timing)  # type: ignore[arg-type]
 
 
 class MockGimbal:

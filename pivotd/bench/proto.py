@@ -91,9 +91,10 @@ class _MockProcess:
 
 
 def _link_config():  # type: ignore[no-untyped-def]
+    from firmware_proto.messages import Config
     from pivotd.gimbal.link import LinkConfig
 
-    return LinkConfig(-3.0, 3.0, -1.0, 1.0, 2.0, 2.0, 10.0, 10.0, state_timeout_s=2.0)
+    return LinkConfig(Config(-3.0, 3.0, -1.0, 1.0, 2.0, 2.0, 10.0, 10.0, 250), state_timeout_s=2.0)
 
 
 def _percentile(values: list[float], q: float) -> float:

@@ -51,26 +51,14 @@ _TX_QUEUE = 64  # frames waiting for the writer; setpoints beyond this are dropp
 
 @dataclass(frozen=True)
 class LinkConfig:
-    """Joint limits [rad], rate limits [rad/s], acceleration limits [rad/s²] sent as CONFIG, and link timing."""
+    """The CONFIG message sent at every handshake (joint limits [rad], rate limits [rad/s], acceleration
+    limits [rad/s²], device watchdog [ms]) and the link's timing."""
 
-    pan_min: float
-    pan_max: float
-    tilt_min: float
-    tilt_max: float
-    vmax_pan: float
-    vmax_tilt: float
-    amax_pan: float
-    amax_tilt: float
-    watchdog_ms: int = 250
+    limits: Config
     state_timeout_s: float = 0.5  # no STATE for this long -> link down, reconnect
     ack_timeout_s: float = 0.2  # per attempt
     ack_retries: int = 5  # extra attempts after the first
     reconnect_backoff_s: tuple = (0.1, 2.0)  # (first, max) delay between connection attempts
-
-    def config_message(self) -> Config:
-        """The CONFIG message carrying these limits."""
-        return Config(self.pan_min, self.pan_max, self.tilt_min, self.tilt_max, self.vmax_pan, self.vmax_tilt,
-                      self.amax_pan, self.amax_tilt, self.watchdog_ms)
 
 
 @dataclass(frozen=True)
@@ -119,7 +107,7 @@ class GimbalLink:
         self.url = url
         self.config = config
         self.baudrate = baudrate
-        self._cfg_msg = config.config_message()
+        self._cfg_msg = config.limits
         self._cfg_msg.pack()  # fail early on limits that do not fit the wire format
         self._lock = threading.Lock()
         self._changed = threading.Condition(self._lock)
