@@ -18,12 +18,12 @@ import numpy as np
 import pytest
 from support import PYTHON, REPO, ManagedProcess, free_tcp_port, wait_until
 
-from pivotd.analysis import read_device_log, setpoint_dynamics
 from pivotd.bus import ros
 from pivotd.bus.messages import JOINT_STATE, ODOMETRY, encode_odometry
 from pivotd.bus.probe import BusProbe
 from pivotd.config import load_config
-from pivotd.demo import analyse, derive_config
+from pivotd.sim.analysis import read_device_log, setpoint_dynamics
+from pivotd.sim.demo import analyse, derive_config
 
 pytestmark = pytest.mark.timeout(180)
 

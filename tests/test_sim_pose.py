@@ -13,14 +13,14 @@ from bus_support import drain, free_port, wait_for
 
 from pivotd.bus import messages as m
 from pivotd.bus.pivot_bus import PivotBus
-from pivotd.bus.route import Route, load_route
 from pivotd.bus.session import open_session
-from pivotd.bus.sim_pose import parse_gap
 from pivotd.bus.topics import BusTopics
 from pivotd.errors import InputError
 from pivotd.geometry import quat_to_matrix
-from pivotd.paths import load_path
 from pivotd.pivot.scenes import hallway
+from pivotd.robot_path import load_path
+from pivotd.sim.routes import Route, load_route
+from pivotd.sim.sim_pose import parse_gap
 
 REPO = Path(__file__).resolve().parent.parent
 TOOL = REPO / "tools" / "sim_pose"
@@ -205,7 +205,7 @@ def test_sim_pose_stops_on_sigint(listener):
 def test_pose_noise_in_process(listener):
     import threading
 
-    from pivotd.bus.sim_pose import build_parser, run
+    from pivotd.sim.sim_pose import build_parser, run
 
     session, endpoint = listener
     events = queue.Queue()

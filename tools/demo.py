@@ -3,7 +3,7 @@
 
 import sys
 
-from pivotd.demo import main
+from pivotd.sim.demo import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -101,8 +101,8 @@ def _print_row(r: dict) -> None:
 def fif_section(repeats: int = 5) -> dict | None:
     """Whole-trajectory plan on the FIF y-corridor: time (median of ``repeats``), max step, visible vs λ = 0."""
     from pivotd.maps.formats import load_landmarks
-    from pivotd.paths import load_path
     from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
+    from pivotd.robot_path import load_path
 
     map_file, path_file = FIF_DIR / "ycorridor_6x20_points_w.txt", FIF_DIR / "ycorridor_6x20.csv"
     if not (map_file.exists() and path_file.exists()):

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from pivotd.bus.topics import POSE_TYPES, BusTopics, status_key_for
-from pivotd.config_reader import Section, read_yaml
+from pivotd.config.yaml_reader import Section, read_yaml
 from pivotd.errors import ConfigError, InputError
 from pivotd.gimbal.kinematics import JointLimits, Mount
 from pivotd.gimbal.motion import AxisLimits

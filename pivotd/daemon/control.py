@@ -17,10 +17,10 @@ import numpy as np
 
 from firmware_proto.messages import MODE_FAULT
 from pivotd.bus.messages import PoseSample
+from pivotd.daemon.planner import Plan, camera_positions
 from pivotd.gimbal.kinematics import JointLimits, Mount, joints_to_world_direction, world_direction_to_joints
 from pivotd.gimbal.link import GimbalState
 from pivotd.gimbal.motion import MotionGenerator
-from pivotd.planner import Plan, camera_positions
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 Threads: the main thread (signals, status, supervision: reload, fault clearing, parking), the
 planner thread (receding-horizon PIVOT at ``planner.replan_hz``, computed by the planner process of
-:mod:`pivotd.planner_worker`, which owns the map), the control thread (absolute deadlines at
+:mod:`pivotd.daemon.worker`, which owns the map), the control thread (absolute deadlines at
 ``control.rate_hz``: plan -> pan/tilt -> Ruckig -> SETPOINT, systemd watchdog), the serial link's
 reader thread and Zenoh's callback threads. Threads share only immutable objects (pose, path,
 plan) swapped by reference assignment.
@@ -29,14 +29,14 @@ from pivotd.bus.pivot_bus import PivotBus
 from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.bus.session import open_session
 from pivotd.config import Config, load_config
-from pivotd.control import ControlLoop
+from pivotd.daemon.control import ControlLoop
+from pivotd.daemon.planner import Plan
+from pivotd.daemon.systemd import Notifier, watchdog_interval
+from pivotd.daemon.wiring import build_control_loop, build_link_config, park_joints
+from pivotd.daemon.worker import PlannerWorker, WorkerError
 from pivotd.errors import PivotdError
 from pivotd.gimbal.link import GimbalLink
 from pivotd.maps.formats import LandmarkCloud, make_cloud
-from pivotd.planner import Plan
-from pivotd.planner_worker import PlannerWorker, WorkerError
-from pivotd.runtime import build_control_loop, build_link_config, park_joints
-from pivotd.systemd import Notifier, watchdog_interval
 
 log = logging.getLogger("pivotd.daemon")
 
@@ -380,7 +380,7 @@ class Daemon:
         self.session = open_session(mode=z.mode, connect=z.connect, listen=z.listen, config_file=z.config_file,
                                     multicast_scouting=z.multicast_scouting)
         if self.overrides.record is not None:
-            from pivotd.recorder import Recorder
+            from pivotd.daemon.recorder import Recorder
 
             self._recorder = Recorder(self.overrides.record)
         self.bus = PivotBus(self.session, cfg.topics, node_name=cfg.name, on_pose=self._on_pose,

@@ -2,7 +2,7 @@
 
 The optimizer is numpy code that holds the interpreter lock for stretches of a millisecond or more;
 in the daemon's process that shows up directly as control-period jitter. The worker process owns
-the landmark map and the :class:`~pivotd.planner.RecedingHorizonPlanner`; the daemon's planner
+the landmark map and the :class:`~pivotd.daemon.planner.RecedingHorizonPlanner`; the daemon's planner
 thread sends it requests and blocks on the pipe (which releases the lock), so the control thread
 only ever competes with light work. A crash or hang in the optimizer cannot take the control loop
 with it: the daemon restarts the worker.
@@ -26,9 +26,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from pivotd.config import Config
+from pivotd.daemon.planner import Plan
 from pivotd.errors import PivotdError
 from pivotd.maps.formats import LandmarkCloud
-from pivotd.planner import Plan
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +66,7 @@ def _worker_main(conn, cfg: Config, log_level: int) -> None:  # pragma: no cover
     # Planning is background work: when the CPU is contended the control thread must win.
     os.nice(WORKER_NICE)
     logging.basicConfig(level=log_level, format="%(asctime)s %(levelname)s %(name)s[worker]: %(message)s")
-    from pivotd.runtime import build_map_store, build_planner, release_free_memory
+    from pivotd.daemon.wiring import build_map_store, build_planner, release_free_memory
 
     try:
         store = build_map_store(cfg)

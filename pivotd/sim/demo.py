@@ -23,14 +23,14 @@ from pathlib import Path
 
 import numpy as np
 
-from pivotd.analysis import read_device_log, setpoint_dynamics, visible_counts
 from pivotd.bus.probe import BusProbe, Observations
 from pivotd.config import Config, load_config
 from pivotd.gimbal.kinematics import camera_position, joints_to_world_direction
 from pivotd.maps.formats import load_landmarks
+from pivotd.sim.analysis import read_device_log, setpoint_dynamics, visible_counts
 
 log = logging.getLogger("pivotd.demo")
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 
 
 def derive_config(base: Path, out: Path, changes: dict[str, object]) -> Path:

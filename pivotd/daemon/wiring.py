@@ -12,14 +12,14 @@ import math
 
 from firmware_proto.messages import Config as ConfigMessage
 from pivotd.config import Config
-from pivotd.control import ControlLoop, ControlSettings
+from pivotd.daemon.control import ControlLoop, ControlSettings
+from pivotd.daemon.planner import PlannerSettings, RecedingHorizonPlanner
 from pivotd.errors import ConfigError
 from pivotd.gimbal.link import LinkConfig
 from pivotd.gimbal.motion import MotionGenerator
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapStore, load_map_store
 from pivotd.pivot.trajectory import TrajectoryOptions
-from pivotd.planner import PlannerSettings, RecedingHorizonPlanner
 
 
 def build_retained_filter(cfg: Config) -> RetainedFilter:
