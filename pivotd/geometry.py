@@ -9,6 +9,7 @@ axis is the base +x. All functions broadcast over leading dimensions.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 _EPS = 1e-12
 
@@ -93,22 +94,15 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
 
 
 def matrix_to_quat(R: np.ndarray) -> np.ndarray:
-    """Quaternions (..., 4) ordered (x, y, z, w) with w ≥ 0 from rotation matrices (..., 3, 3)."""
+    """Quaternions (..., 4) ordered (x, y, z, w) with w ≥ 0 from rotation matrices (..., 3, 3).
+
+    scipy's ``Rotation.from_matrix`` picks the best-conditioned branch per matrix, so rotations by
+    180° (where w = 0 and the sign of the vector part cannot come from the off-diagonal differences)
+    convert correctly.
+    """
     R = np.asarray(R, dtype=float)
-    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
-    q = np.stack(
-        [
-            np.sqrt(np.maximum(0.0, 1 + m00 - m11 - m22)) / 2,
-            np.sqrt(np.maximum(0.0, 1 - m00 + m11 - m22)) / 2,
-            np.sqrt(np.maximum(0.0, 1 - m00 - m11 + m22)) / 2,
-            np.sqrt(np.maximum(0.0, 1 + m00 + m11 + m22)) / 2,
-        ],
-        axis=-1,
-    )
-    q[..., 0] = np.copysign(q[..., 0], R[..., 2, 1] - R[..., 1, 2])
-    q[..., 1] = np.copysign(q[..., 1], R[..., 0, 2] - R[..., 2, 0])
-    q[..., 2] = np.copysign(q[..., 2], R[..., 1, 0] - R[..., 0, 1])
-    return normalize(q)
+    q = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat(canonical=True)
+    return q.reshape(*R.shape[:-2], 4)
 
 
 def yaw_to_matrix(yaw: np.ndarray) -> np.ndarray:
