@@ -9,7 +9,6 @@ axis is the base +x. All functions broadcast over leading dimensions.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 _EPS = 1e-12
 
@@ -94,15 +93,34 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
 
 
 def matrix_to_quat(R: np.ndarray) -> np.ndarray:
-    """Quaternions (..., 4) ordered (x, y, z, w) with w ≥ 0 from rotation matrices (..., 3, 3).
+    """Quaternions (..., 4) ordered (x, y, z, w) from rotation matrices (..., 3, 3), canonical: w > 0, or for
+    half-turns (w = 0) the first non-zero component positive (as scipy's ``as_quat(canonical=True)``).
 
-    scipy's ``Rotation.from_matrix`` picks the best-conditioned branch per matrix, so rotations by
-    180° (where w = 0 and the sign of the vector part cannot come from the off-diagonal differences)
-    convert correctly.
+    Shepperd's method: each matrix is converted on the branch of its largest of (trace, R00, R11, R22), so
+    the divisor is at least 1/2 and rotations by 180° (where the off-diagonal differences vanish and carry
+    no sign) come out right.
     """
     R = np.asarray(R, dtype=float)
-    q = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat(canonical=True)
-    return q.reshape(*R.shape[:-2], 4)
+    m = R.reshape(-1, 3, 3)
+    m00, m11, m22 = m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]
+    branch = np.argmax(np.stack([m00 + m11 + m22, m00, m11, m22], axis=1), axis=1)
+    d21, d02, d10 = m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]
+    s01, s02, s12 = m[:, 0, 1] + m[:, 1, 0], m[:, 0, 2] + m[:, 2, 0], m[:, 1, 2] + m[:, 2, 1]
+    # Four times the quaternion on each branch: (x, y, z, w) scaled by 4·(the branch's own component).
+    big = np.sqrt(np.maximum(1.0 + np.choose(branch, [m00 + m11 + m22, m00 - m11 - m22, m11 - m00 - m22,
+                                                      m22 - m00 - m11]), 0.0))
+    q = np.choose(branch[:, None], [
+        np.stack([d21, d02, d10, big * big], axis=1),
+        np.stack([big * big, s01, s02, d21], axis=1),
+        np.stack([s01, big * big, s12, d02], axis=1),
+        np.stack([s02, s12, big * big, d10], axis=1),
+    ])
+    q = q / (2.0 * big[:, None])
+    # Canonical sign: the first non-zero of (w, x, y, z) positive.
+    order = q[:, [3, 0, 1, 2]]
+    first = np.argmax(order != 0.0, axis=1)
+    q = np.where(order[np.arange(q.shape[0]), first][:, None] < 0, -q, q)
+    return normalize(q).reshape(*R.shape[:-2], 4)
 
 
 def yaw_to_matrix(yaw: np.ndarray) -> np.ndarray:

@@ -123,3 +123,14 @@ def test_matrix_to_quat_keeps_batch_shape():
     q = g.matrix_to_quat(R)
     assert q.shape == (2, 5, 4)
     np.testing.assert_allclose(q[..., 3], 1.0)
+
+
+def test_matrix_to_quat_matches_scipy_on_random_and_half_turn_rotations():
+    """scipy's Rotation is the reference (same (x, y, z, w) order and canonical sign)."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3)
+    axes = g.normalize(rng.normal(size=(400, 3)))
+    angles = np.concatenate([rng.uniform(0, np.pi, 200), np.full(100, np.pi), np.pi - rng.uniform(0, 1e-6, 100)])
+    R = g.so3_exp(axes * angles[:, None])
+    np.testing.assert_allclose(g.matrix_to_quat(R), Rotation.from_matrix(R).as_quat(canonical=True), atol=1e-9)
