@@ -22,8 +22,8 @@ from pivotd.bus import ros
 from pivotd.bus.messages import JOINT_STATE, ODOMETRY, encode_odometry
 from pivotd.bus.probe import BusProbe
 from pivotd.config import load_config
-from pivotd.sim.analysis import read_device_log, setpoint_dynamics
-from pivotd.sim.demo import analyse, derive_config
+from pivotd.sim.analysis import analyse_run, read_device_log, setpoint_dynamics
+from pivotd.sim.launch import derive_config
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -154,7 +154,7 @@ def test_tracking_run_end_to_end(tmp_path):
     assert seq > 0 and abs(ts * 1e-9 - time.time()) < 120 and gid_len == 16
     # Visibility from the measured gimbal direction beats a forward-facing camera on the same poses
     # (the demo's own analysis, fed with what this test received).
-    report, _ = analyse(cfg, probe.observations(), dev_log)
+    report, _ = analyse_run(cfg, probe.observations(), dev_log)
     assert report["frames"] > 100
     assert report["visible_ratio"] >= 1.3, report
     assert probe.plans, "no view plan was published"

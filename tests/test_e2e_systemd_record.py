@@ -11,7 +11,7 @@ from mcap.reader import make_reader
 from support import PYTHON, REPO, ManagedProcess, child_env, free_tcp_port, wait_until
 
 from pivotd.bus.messages import JOINT_STATE, ODOMETRY, PATH, deserialize
-from pivotd.sim.demo import derive_config
+from pivotd.sim.launch import derive_config
 
 pytestmark = pytest.mark.timeout(120)
 

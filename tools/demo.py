@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Main job on the embedded default: pivotd + simulated robot + mock gimbal (see pivotd/demo.py)."""
+"""Main job on the embedded default: pivotd + simulated robot + mock gimbal (see pivotd/sim/demo.py)."""
 
 import sys
 

@@ -432,9 +432,10 @@ class Daemon:
             while not self._stop.is_set():
                 self._stop.wait(status_period)
                 try:
-                    self._supervise_gimbal()
+                    # Publish first: a fault that supervision clears right away is still reported once.
                     if self.bus is not None:
                         self.bus.publish_status(self.status())
+                    self._supervise_gimbal()
                 except Exception as exc:
                     self._rl.exception("supervise", f"supervision failed: {exc!r}")
             self.notifier.stopping()
