@@ -14,6 +14,8 @@ from pivotd.daemon.wiring import build_control_loop, build_link_config
 from pivotd.gimbal.kinematics import world_direction_to_joints
 from pivotd.gimbal.link import GimbalLink
 
+pytestmark = pytest.mark.slow  # subprocesses / real time
+
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 
 

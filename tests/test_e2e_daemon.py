@@ -25,7 +25,7 @@ from pivotd.config import load_config
 from pivotd.sim.analysis import analyse_run, read_device_log, setpoint_dynamics
 from pivotd.sim.launch import derive_config
 
-pytestmark = pytest.mark.timeout(180)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 
 DEMO = REPO / "config" / "demo.yaml"
 
@@ -77,7 +77,6 @@ def test_tracking_run_end_to_end(tmp_path):
                 pub.put(encode_odometry(time.time(), "map", "base_link", np.array([np.nan, 0, 0]),
                                         np.array([0, 0, 0, 1.0])))
                 assert wait_until(lambda: probe.status.get("state") == "holding", 12), daemon.output()
-                holding_seen = time.monotonic()
                 assert wait_until(lambda: probe.status.get("state") == "tracking", 6), daemon.output()
                 # SIGHUP with a broken config keeps the running one.
                 good = config.read_text()
@@ -106,8 +105,6 @@ def test_tracking_run_end_to_end(tmp_path):
         finally:
             if probe is not None:
                 probe.close()
-    assert holding_seen > 0
-
     # --- what the gimbal saw
     dev = read_device_log(dev_log)
     assert dev.sp_pos.shape[0] > 500
@@ -171,7 +168,7 @@ def test_gimbal_unplug_and_replug_recovers(tmp_path):
             assert wait_until(lambda: probe.status.get("link") == "up", 20), daemon.output()
             assert wait_until(lambda: probe.status.get("link") not in ("up", None), 15), daemon.output()
             n_down = len(probe.joints)
-            assert probe.status.get("state") == "link-down" or probe.status.get("link") != "up"
+            assert wait_until(lambda: probe.status.get("state") == "link-down", 5), daemon.output()
             assert wait_until(lambda: probe.status.get("link") == "up", 20), daemon.output()
             assert wait_until(lambda: len(probe.joints) > n_down + 20, 10)
             assert probe.status["link_counters"].get("reconnects", 0) >= 1

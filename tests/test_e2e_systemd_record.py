@@ -13,7 +13,7 @@ from support import PYTHON, REPO, ManagedProcess, child_env, free_tcp_port, wait
 from pivotd.bus.messages import JOINT_STATE, ODOMETRY, PATH, deserialize
 from pivotd.sim.launch import derive_config
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(120)]
 
 
 def test_notify_watchdog_and_mcap_recording(tmp_path):

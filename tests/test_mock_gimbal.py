@@ -16,6 +16,8 @@ from proto_support import MOCK_GIMBAL, REPO, MockGimbal, read_log
 from firmware_proto import codec
 from firmware_proto.messages import FAULT_ENCODER, MODE_FAULT, Ack, Config, Enable, Hello, Identity, Setpoint, State
 
+pytestmark = pytest.mark.slow  # subprocesses / real time
+
 
 def exchange(port, msgs, wait: float = 0.3) -> list:
     """Send ``msgs`` (list of (msg, seq)) and return the frames received within ``wait`` seconds."""

@@ -59,6 +59,7 @@ def worker(cfg):
     w.close()
 
 
+@pytest.mark.slow
 def test_reloaded_mount_reaches_the_planner_and_the_control_loop(cfg, worker):
     clock = FakeClock()
     gimbal = FakeGimbal(clock)
@@ -83,6 +84,7 @@ def test_reloaded_mount_reaches_the_planner_and_the_control_loop(cfg, worker):
     assert control.mount == cfg.gimbal.mount
 
 
+@pytest.mark.slow
 def test_refused_reload_changes_neither_side(cfg, worker, tmp_path):
     control = build_control_loop(cfg, FakeGimbal(FakeClock()))
     bad_map = tmp_path / "bad.txt"
@@ -96,6 +98,7 @@ def test_refused_reload_changes_neither_side(cfg, worker, tmp_path):
                                                                   cfg.gimbal.mount), atol=1e-9)
 
 
+@pytest.mark.slow
 def test_a_late_reply_is_never_taken_for_the_next_request(worker):
     """A request that gave up waiting leaves its reply in the pipe; the next request must skip it."""
     stale_before = worker.stale_replies

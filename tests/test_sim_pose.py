@@ -89,6 +89,7 @@ def stop_tool(proc):
             proc.wait()
 
 
+@pytest.mark.slow
 def test_bad_option_exits_2_with_one_line():
     proc = run_tool("--rate", "0", "--quiet")
     try:
@@ -109,6 +110,7 @@ def listener():
         session.close()
 
 
+@pytest.mark.slow
 def test_sim_pose_publishes_odometry_and_path_and_honours_gap(listener):
     session, endpoint = listener
     events = queue.Queue()
@@ -152,6 +154,7 @@ def test_sim_pose_publishes_odometry_and_path_and_honours_gap(listener):
     assert bus.counters()["/odom"].get("dropped_wrong_type", 0) == 0
 
 
+@pytest.mark.slow
 def test_sim_pose_csv_route_as_pose_stamped(listener):
     session, endpoint = listener
     events = queue.Queue()
@@ -173,6 +176,7 @@ def test_sim_pose_csv_route_as_pose_stamped(listener):
     np.testing.assert_allclose(first[0].quat, data.quats[0], atol=1e-9)
 
 
+@pytest.mark.slow
 def test_sim_pose_ends_by_itself_at_the_end_of_the_route(tmp_path):
     route = tmp_path / "short.csv"
     route.write_text("# x,y,z\n0,0,0\n1,0,0\n1,1,0\n")
@@ -186,6 +190,7 @@ def test_sim_pose_ends_by_itself_at_the_end_of_the_route(tmp_path):
     assert len(lines) == 1 and lines[0].startswith("t=0.0s s=0.00m/2.00m poses=1")
 
 
+@pytest.mark.slow
 def test_sim_pose_stops_on_sigint(listener):
     session, endpoint = listener
     events = queue.Queue()

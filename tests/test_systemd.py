@@ -103,6 +103,7 @@ def test_dead_socket_is_reported_not_raised(monkeypatch):
     assert notifier.watchdog() is False
 
 
+@pytest.mark.slow
 def test_child_process_notifies_through_inherited_environment(abstract_socket):
     name, sock = abstract_socket
     env = dict(os.environ, NOTIFY_SOCKET=name, PYTHONPATH=str(REPO))
