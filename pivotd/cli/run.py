@@ -1,4 +1,4 @@
-"""``pivotd [run] --config FILE``: run the daemon (DESIGN.md §4)."""
+"""``pivotd [run] --config FILE``: run the daemon (docs/CLI.md)."""
 
 from __future__ import annotations
 

@@ -55,6 +55,15 @@ class RunOverrides:
     record: Path | None = None
 
 
+def status_line(status: dict) -> str:
+    """The one-line summary of a status document sent to systemd as STATUS= (``systemctl status``)."""
+    planner = status.get("planner") or {}
+    visible = planner.get("visible_now")
+    return (f"{status['state']}; gimbal link {status['link']}; "
+            f"{'no plan' if visible is None else f'{visible} landmarks in view'}; "
+            f"map {status['map']['landmarks']} landmarks; {planner.get('plans', 0)} plans")
+
+
 def _percentile_ms(values, q: float) -> float | None:
     return None if not values else round(float(np.percentile(np.asarray(values), q)) * 1e3, 3)
 
@@ -429,12 +438,18 @@ class Daemon:
         try:
             self._start()
             status_period = 1.0 / self.cfg.control.status_hz
+            last_line = ""
             while not self._stop.is_set():
                 self._stop.wait(status_period)
                 try:
                     # Publish first: a fault that supervision clears right away is still reported once.
+                    status = self.status()
                     if self.bus is not None:
-                        self.bus.publish_status(self.status())
+                        self.bus.publish_status(status)
+                    line = status_line(status)
+                    if line != last_line:
+                        self.notifier.status(line)
+                        last_line = line
                     self._supervise_gimbal()
                 except Exception as exc:
                     self._rl.exception("supervise", f"supervision failed: {exc!r}")
