@@ -84,6 +84,15 @@ def test_tracking_run_end_to_end(tmp_path):
                 daemon.send_signal(signal.SIGHUP)
                 assert wait_until(lambda: probe.status.get("reload_errors") == 1, 10), daemon.output()
                 assert daemon.returncode is None
+                # A good reload: λ applies now, the device watchdog waits for a restart (and says so).
+                assert "lambda: 0.6" in good and "watchdog_ms: 250" in good
+                config.write_text(good.replace("lambda: 0.6", "lambda: 0.3").replace("watchdog_ms: 250",
+                                                                                     "watchdog_ms: 300"))
+                daemon.send_signal(signal.SIGHUP)
+                assert wait_until(lambda: probe.status.get("reloads") == 1, 10), daemon.output()
+                assert probe.status["needs_restart"] == ["gimbal.watchdog_ms"]
+                assert wait_until(lambda: probe.status.get("state") == "tracking", 6), daemon.output()
+                assert daemon.wait_stderr("applied: pivot.lam", 5), daemon.output()
                 config.write_text(good)
                 assert wait_until(lambda: sim.returncode is not None, 30), sim.output()
             # rmw_zenoh liveliness: the node and its JointState publisher are announced.
@@ -98,7 +107,7 @@ def test_tracking_run_end_to_end(tmp_path):
             assert status is not None and status["name"] == "demo"
             odom = status["bus"]["/odom"]
             assert odom.get("dropped_malformed", 0) >= 1 and odom.get("dropped_nonfinite", 0) >= 1, odom
-            assert status["reloads"] == 0 and status["reload_errors"] == 1
+            assert status["reloads"] == 1 and status["reload_errors"] == 1
             time.sleep(1.0)
             code = daemon.stop(signal.SIGTERM, timeout=20)
             assert code == 0, daemon.output()

@@ -341,6 +341,7 @@ class Daemon:
         """Apply a changed config (planner thread): live settings to the planner process and the control loop
         together; restart-only settings keep their running values and are logged (see pivotd.daemon.reload)."""
         self.notifier.reloading()
+        running_plan = self.plan
         try:
             plan = plan_reload(self.cfg, self._load_config())
             self.plan = None  # the control loop holds until the first plan made with the new settings
@@ -350,7 +351,9 @@ class Daemon:
             self._last_error = f"reload: {exc}"
             log.error("reload failed, keeping the running config: %s; restarting the planner worker", exc)
             self._restart_worker()
-        except PivotdError as exc:
+            self.plan = running_plan
+        except PivotdError as exc:  # refused: neither the worker nor the control loop changed
+            self.plan = running_plan
             self._reload_errors += 1
             self._last_error = f"reload: {exc}"
             log.error("reload failed, keeping the running config and map: %s", exc)

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.config import Config
 from pivotd.daemon.planner import Plan
 from pivotd.errors import PivotdError
@@ -82,6 +83,7 @@ def _worker_main(conn, cfg: Config, log_level: int) -> None:  # pragma: no cover
         conn.send(("error", 0, f"start-up failed: {exc!r}"))
         return
     conn.send(("ready", 0, _map_info(store)))
+    rl = RateLimitedLog(log)  # a failing replan fails again at every request: one traceback per 5 s
     layers: dict[str, tuple[LandmarkCloud, float]] = {}
     path_args: tuple = (None, None, 0)
     while True:
@@ -120,7 +122,7 @@ def _worker_main(conn, cfg: Config, log_level: int) -> None:  # pragma: no cover
         except PivotdError as exc:
             conn.send(("error", req_id, str(exc)))
         except Exception as exc:  # keep serving: one bad request must not end the worker
-            log.exception("planner worker: %s request failed", kind)
+            rl.exception(kind, f"planner worker: {kind} request failed: {exc!r}")
             conn.send(("error", req_id, f"{kind}: {exc!r}"))
 
 
