@@ -89,7 +89,7 @@ class Daemon:
         self._pending_clouds: dict[str, CloudMsg] = {}
         self._bus_layers: dict[str, LandmarkCloud] = {}  # layers received over Zenoh, kept across reloads
         self.plan: Plan | None = None
-        # The map and the optimizer live in the planner process (see pivotd/planner_worker.py).
+        # The map and the optimizer live in the planner process (see pivotd/daemon/worker.py).
         self.worker = PlannerWorker(self.cfg, logging.getLogger().getEffectiveLevel())
         self._sent_path_version = -1
         self._worker_errors = 0
