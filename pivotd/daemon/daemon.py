@@ -34,7 +34,7 @@ from pivotd.daemon.planner import Plan
 from pivotd.daemon.reload import apply_reload, plan_reload
 from pivotd.daemon.states import DaemonState
 from pivotd.daemon.systemd import Notifier, watchdog_interval
-from pivotd.daemon.wiring import build_control_loop, build_gimbal, park_joints
+from pivotd.daemon.wiring import build_control_loop, build_control_settings, build_gimbal, park_joints
 from pivotd.daemon.worker import PlannerWorker, WorkerError
 from pivotd.errors import PivotdError
 from pivotd.gimbal.interface import GimbalInterface, GimbalMode, LinkState
@@ -149,11 +149,10 @@ class Daemon:
     def _planner_loop(self) -> None:
         next_t = time.monotonic()
         while not self._stop.is_set():
-            if self._reload.is_set():
-                self._reload.clear()
-                self._do_reload()
-            period = 1.0 / self.cfg.planner.replan_hz
             try:
+                if self._reload.is_set():
+                    self._reload.clear()
+                    self._do_reload()
                 self._apply_pending_clouds()
                 self._replan_once()
             except WorkerError as exc:
@@ -168,7 +167,7 @@ class Daemon:
             except Exception as exc:  # keep planning; never take the daemon down
                 self._rl.exception("planner", f"planner: replan failed: {exc!r}")
                 self._last_error = f"planner: {exc}"
-            next_t += period
+            next_t += 1.0 / self.cfg.planner.replan_hz
             delay = next_t - time.monotonic()
             if delay < 0:
                 next_t = time.monotonic()
@@ -346,17 +345,22 @@ class Daemon:
             plan = plan_reload(self.cfg, self._load_config())
             self.plan = None  # the control loop holds until the first plan made with the new settings
             info = apply_reload(plan, self.worker, self.control)
-        except WorkerError as exc:  # no answer in time: the worker's state is unknown, start it afresh
+        except PivotdError as exc:
             self._reload_errors += 1
             self._last_error = f"reload: {exc}"
-            log.error("reload failed, keeping the running config: %s; restarting the planner worker", exc)
+            if isinstance(exc, WorkerError):  # no answer in time: the worker's state is unknown
+                log.error("reload failed, keeping the running config: %s; restarting the planner worker", exc)
+                self._restart_worker()
+            else:  # refused: neither the worker nor the control loop changed
+                log.error("reload failed, keeping the running config and map: %s", exc)
+            self.plan = running_plan
+        except Exception as exc:  # a bug: put both sides back on the running config
+            self._reload_errors += 1
+            self._last_error = f"reload: {exc!r}"
+            log.exception("reload failed, keeping the running config; restarting the planner worker")
             self._restart_worker()
-            self.plan = running_plan
-        except PivotdError as exc:  # refused: neither the worker nor the control loop changed
-            self.plan = running_plan
-            self._reload_errors += 1
-            self._last_error = f"reload: {exc}"
-            log.error("reload failed, keeping the running config and map: %s", exc)
+            if self.control is not None:
+                self.control.reconfigure(build_control_settings(self.cfg), self.cfg.gimbal.mount)
         else:
             self.cfg = plan.config
             self._needs_restart = plan.needs_restart
