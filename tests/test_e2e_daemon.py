@@ -192,6 +192,8 @@ def test_gimbal_fault_is_reported_cleared_and_never_moved_through(tmp_path):
     config = write_config(tmp_path, endpoint, url)
     cfg = load_config(config)
     with mock, start_daemon(config) as daemon:
+        # Connect once the daemon listens, so that no status document (the fault's included) is missed.
+        assert daemon.wait_stderr("ready", 30), daemon.output()
         probe = BusProbe.connect(endpoint, cfg.topics)
         try:
             with start_sim(endpoint, "--speed", "1.0", "--duration", "10"):
