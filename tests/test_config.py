@@ -237,3 +237,33 @@ def test_topics_section_is_the_bus_settings(tmp_path):
 def test_topics_section_errors_are_one_line_with_file_line_and_key(tmp_path, section, pattern):
     message = load_error(tmp_path, MINIMAL + section)
     assert re.search(r"bad\.yaml" + pattern, message), message
+
+
+# ---------------------------------------------------------------- gimbal.backend
+def _gimbal_doc(tmp_path, text: str):
+    path = tmp_path / "backend.yaml"
+    path.write_text("map:\n  allow_empty: true\ngimbal:\n" + text)
+    return path
+
+
+def test_backend_defaults_to_pivot_and_builds_the_serial_link(tmp_path):
+    from pivotd.daemon.wiring import build_gimbal
+    from pivotd.gimbal.link import GimbalLink
+
+    cfg = load_config(_gimbal_doc(tmp_path, "  backend: pivot\n"))
+    assert cfg.gimbal.backend == "pivot"
+    assert isinstance(build_gimbal(cfg), GimbalLink)
+
+
+@pytest.mark.parametrize(("text", "line", "needle"), [
+    ("  port: mock://\n  backend: canbus\n", 5, "gimbal.backend: must be one of pivot"),
+    ("  backend: dynamixel\n", 4, "gimbal.backend: 'dynamixel' is not available"),
+    ("  mavlink:\n    system_id: 0\n", 5, "gimbal.mavlink.system_id"),
+    ("  mavlink:\n    sysid: 3\n", 5, "gimbal.mavlink.sysid"),
+])
+def test_bad_backend_settings_are_one_line_errors_naming_file_line_and_key(tmp_path, text, line, needle):
+    path = _gimbal_doc(tmp_path, text)
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    msg = str(err.value)
+    assert "\n" not in msg and needle in msg and f"{path.name}:{line}:" in msg, msg

@@ -23,6 +23,12 @@ from pivotd.gimbal.motion import AxisLimits
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
 ZENOH_MODES = ("peer", "client")
 CONTROL_RATE_RANGE_HZ = (100.0, 200.0)
+#: ``gimbal.backend`` values this version drives (pivot: pivotd's own serial protocol).
+GIMBAL_BACKENDS = ("pivot",)
+#: Backends named in the docs that this version cannot drive yet (refused with a clear message).
+GIMBAL_BACKENDS_UNAVAILABLE = ("mavlink", "dynamixel")
+#: pymavlink connection strings the mavlink backend accepts (besides a serial device path).
+MAVLINK_URL_PREFIXES = ("udpin:", "udpout:", "udp:", "tcp:", "tcpin:")
 
 _NAME_RE = r"[A-Za-z0-9_][A-Za-z0-9_\-]*"
 _TOPIC_RE = r"/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*"
@@ -112,9 +118,22 @@ def _default_limits() -> JointLimits:
 
 
 @dataclass(frozen=True)
-class GimbalConfig:
-    """Serial link, mount, joint limits [rad], park pose [rad], device watchdog [ms], park timeout [s]."""
+class MavlinkConfig:
+    """MAVLink identities: ours (``system_id``, ``component_id``), the gimbal manager's (``target_system``,
+    ``target_component``; 0 = the first one heard) and the gimbal device it manages (0 = all / the only one)."""
 
+    system_id: int = 1
+    component_id: int = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
+    target_system: int = 0
+    target_component: int = 0
+    gimbal_device_id: int = 0
+
+
+@dataclass(frozen=True)
+class GimbalConfig:
+    """Backend and its port, mount, joint limits [rad], park pose [rad], device watchdog [ms], park timeout [s]."""
+
+    backend: str = "pivot"
     port: str = "mock://"
     baud: int = 115200
     mount: Mount = field(default_factory=Mount)
@@ -123,6 +142,7 @@ class GimbalConfig:
     park_tilt: float = 0.0
     watchdog_ms: int = 250
     park_timeout_s: float = 3.0
+    mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
 
 
 @dataclass(frozen=True)
@@ -203,6 +223,9 @@ class Config:
         if port is not None:
             if not port.strip():
                 raise _cli_error("--port", "must not be empty")
+            problem = port_problem(cfg.gimbal.backend, port)
+            if problem:
+                raise _cli_error("--port", problem)
             cfg = replace(cfg, gimbal=replace(cfg.gimbal, port=port))
         zenoh = cfg.zenoh
         for option, values in (("--connect", connect), ("--listen", listen)):
@@ -236,6 +259,16 @@ def endpoint_problem(endpoint: str, listen: bool = False) -> str | None:
         low = 0 if listen else 1
         if not low <= int(port) <= 65535:
             return f"port must be {low}..65535"
+    return None
+
+
+def port_problem(backend: str, port: str) -> str | None:
+    """Why ``port`` cannot reach a gimbal of ``backend`` (None when it can)."""
+    if backend == "mavlink":
+        if port.startswith(MAVLINK_URL_PREFIXES) or port.startswith("/") or port.upper().startswith("COM"):
+            return None
+        return (f"{port!r} is not a MAVLink connection; expected udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT "
+                "or a serial device such as /dev/ttyACM0")
     return None
 
 
@@ -369,9 +402,18 @@ def _planner(s: Section, control: ControlConfig) -> PlannerConfig:
 
 def _gimbal(s: Section, control: ControlConfig) -> GimbalConfig:
     d = GimbalConfig()
+    backend = s.string("backend", d.backend)
+    if backend in GIMBAL_BACKENDS_UNAVAILABLE:
+        raise s.error("backend", f"{backend!r} is not available in this version; use "
+                                 f"{' or '.join(GIMBAL_BACKENDS)}")
+    if backend not in GIMBAL_BACKENDS:
+        raise s.error("backend", f"must be one of {', '.join(GIMBAL_BACKENDS)}; got {backend!r}")
     port = s.string("port", d.port)
     if not port.strip():
         raise s.error("port", "must not be empty (a device such as /dev/ttyUSB0 or a pyserial URL)")
+    problem = port_problem(backend, port)
+    if problem:
+        raise s.error("port", problem)
     baud = s.number("baud", d.baud, min=1, integer=True)
 
     m = s.section("mount")
@@ -417,6 +459,7 @@ def _gimbal(s: Section, control: ControlConfig) -> GimbalConfig:
     if watchdog_ms < 3 * period_ms:
         raise s.error("watchdog_ms", f"must be ≥ 3 control periods ({3 * period_ms:g} ms at {control.rate_hz:g} Hz)")
     out = GimbalConfig(
+        backend=backend,
         port=port,
         baud=baud,
         mount=mount,
@@ -425,6 +468,24 @@ def _gimbal(s: Section, control: ControlConfig) -> GimbalConfig:
         park_tilt=math.radians(park_tilt),
         watchdog_ms=watchdog_ms,
         park_timeout_s=s.number("park_timeout_s", d.park_timeout_s, min=0.0, min_open=True),
+        mavlink=_mavlink(s.section("mavlink")),
+    )
+    s.finish()
+    return out
+
+
+def _mavlink(s: Section) -> MavlinkConfig:
+    d = MavlinkConfig()
+
+    def ident(key: str, low: int) -> int:
+        return s.number(key, getattr(d, key), min=low, max=255, integer=True)
+
+    out = MavlinkConfig(
+        system_id=ident("system_id", 1),
+        component_id=ident("component_id", 1),
+        target_system=ident("target_system", 0),
+        target_component=ident("target_component", 0),
+        gimbal_device_id=ident("gimbal_device_id", 0),
     )
     s.finish()
     return out

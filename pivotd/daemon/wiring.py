@@ -116,8 +116,11 @@ def build_control_settings(cfg: Config) -> ControlSettings:
 
 
 def build_gimbal(cfg: Config) -> GimbalInterface:
-    """The gimbal named by ``cfg.gimbal`` (pivotd's serial protocol on ``gimbal.port``), not yet started."""
-    return GimbalLink(cfg.gimbal.port, build_link_config(cfg), baudrate=cfg.gimbal.baud)
+    """The gimbal of ``cfg.gimbal.backend`` on ``gimbal.port``, not yet started."""
+    backend = cfg.gimbal.backend
+    if backend == "pivot":
+        return GimbalLink(cfg.gimbal.port, build_link_config(cfg), baudrate=cfg.gimbal.baud)
+    raise ConfigError(f"{cfg.source}: gimbal.backend: {backend!r} is not available in this version")
 
 
 def park_joints(cfg: Config) -> tuple[float, float]:
