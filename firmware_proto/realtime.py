@@ -78,6 +78,12 @@ class CsvMessageLog:
             self._csv.writerow(row)
             self._file.flush()
 
+    def note(self, direction: str, name: str, now: float, detail: str = "") -> None:
+        """A row for a message of another protocol that has no angles (e.g. a MAVLink command): type and detail."""
+        with self._lock:
+            self._csv.writerow((f"{now:.6f}", direction, name, "", "", "", "", "", "", "", "", "", detail))
+            self._file.flush()
+
     def close(self) -> None:
         with self._lock:
             self._file.close()

@@ -256,7 +256,7 @@ def test_backend_defaults_to_pivot_and_builds_the_serial_link(tmp_path):
 
 
 @pytest.mark.parametrize(("text", "line", "needle"), [
-    ("  port: mock://\n  backend: canbus\n", 5, "gimbal.backend: must be one of pivot"),
+    ("  port: mock://\n  backend: canbus\n", 5, "gimbal.backend: must be one of pivot, mavlink"),
     ("  backend: dynamixel\n", 4, "gimbal.backend: 'dynamixel' is not available"),
     ("  mavlink:\n    system_id: 0\n", 5, "gimbal.mavlink.system_id"),
     ("  mavlink:\n    sysid: 3\n", 5, "gimbal.mavlink.sysid"),
@@ -267,3 +267,20 @@ def test_bad_backend_settings_are_one_line_errors_naming_file_line_and_key(tmp_p
         load_config(path)
     msg = str(err.value)
     assert "\n" not in msg and needle in msg and f"{path.name}:{line}:" in msg, msg
+
+
+def test_the_mavlink_backend_needs_a_mavlink_connection_and_builds_its_gimbal(tmp_path):
+    from pivotd.daemon.wiring import build_gimbal
+    from pivotd.gimbal.mavlink_link import MavlinkGimbal
+
+    path = _gimbal_doc(tmp_path, "  backend: mavlink\n  port: mock://\n")
+    with pytest.raises(ConfigError, match=r"backend\.yaml:5: gimbal\.port: 'mock://' is not a MAVLink connection"):
+        load_config(path)
+    cfg = load_config(_gimbal_doc(tmp_path, "  backend: mavlink\n  port: udpin:0.0.0.0:14550\n"
+                                            "  mavlink: {system_id: 2, target_component: 1}\n"))
+    assert (cfg.gimbal.mavlink.system_id, cfg.gimbal.mavlink.component_id, cfg.gimbal.mavlink.target_component) == (
+        2, 191, 1)
+    g = build_gimbal(cfg)
+    assert isinstance(g, MavlinkGimbal) and g.settings.system_id == 2 and g.settings.limits == cfg.gimbal.limits
+    with pytest.raises(InputError, match="--port: 'socket://x:1' is not a MAVLink connection"):
+        cfg.with_overrides(port="socket://x:1")

@@ -1,4 +1,5 @@
-"""End to end: real `pivotd`, `tools/mock_gimbal` (TCP) and `tools/sim_pose` subprocesses, Zenoh on loopback.
+"""End to end: real `pivotd`, `tools/mock_gimbal` and `tools/sim_pose` subprocesses, Zenoh on loopback, for every
+gimbal backend: pivotd's serial protocol (the simulator on TCP) and MAVLink (a gimbal manager on UDP).
 
 One tracking run exercises the main behaviours in sequence (following the plan, visibility, limits,
 bad input, stale pose, SIGHUP with a broken config, SIGTERM parking); separate runs cover gimbal
@@ -28,20 +29,30 @@ from pivotd.sim.launch import derive_config
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 
 DEMO = REPO / "config" / "demo.yaml"
+BACKENDS = ["pivot", "mavlink"]
+#: per backend: the simulator's option that latches a severe fault 3 s after start, and the pivotd fault bit it
+#: shows up as (pivot: over-current; mavlink: GIMBAL_DEVICE_ERROR_FLAGS_MOTOR_ERROR → driver)
+FAULT_AT = {"pivot": ("3:0", 1 << 0), "mavlink": ("3:5", 1 << 3)}
+#: per backend: the simulator's log row that says the host disabled the gimbal / released control
+DISABLED_ROW = {"pivot": ("rx:ENABLE", "on=0"), "mavlink": ("rx:GIMBAL_MANAGER_CONFIGURE", "on=0")}
 
 
-def write_config(tmp: Path, endpoint: str, port_url: str, **changes) -> Path:
-    """config/demo.yaml with the given Zenoh endpoint, gimbal port and dotted-key changes."""
-    return derive_config(DEMO, tmp / "pivotd.yaml", {"zenoh.listen": [endpoint], "gimbal.port": port_url, **changes})
+def write_config(tmp: Path, endpoint: str, port_url: str, backend: str = "pivot", **changes) -> Path:
+    """config/demo.yaml with the given Zenoh endpoint, gimbal backend and port, and dotted-key changes."""
+    return derive_config(DEMO, tmp / "pivotd.yaml", {"zenoh.listen": [endpoint], "gimbal.backend": backend,
+                                                      "gimbal.port": port_url, **changes})
 
 
-def start_mock_gimbal(tmp: Path, *extra: str) -> tuple[ManagedProcess, str, Path]:
+def start_mock_gimbal(tmp: Path, *extra: str, backend: str = "pivot") -> tuple[ManagedProcess, str, Path]:
+    """The simulator of ``backend`` on loopback; returns it, the gimbal.port that reaches it, its CSV log."""
     log = tmp / "gimbal.csv"
-    mock = ManagedProcess([PYTHON, str(REPO / "tools" / "mock_gimbal"), "--tcp", "127.0.0.1:0", "--log", str(log),
-                           *extra], "mock_gimbal")
+    where = ["--tcp", "127.0.0.1:0"] if backend == "pivot" else ["--udp", "127.0.0.1:0"]
+    mock = ManagedProcess([PYTHON, str(REPO / "tools" / "mock_gimbal"), "--protocol", backend, *where, "--log",
+                           str(log), *extra], "mock_gimbal")
     line = mock.wait_stdout(lambda s: s.strip().isdigit(), 15)
     assert line, mock.output()
-    return mock, f"socket://127.0.0.1:{int(line)}", log
+    url = f"socket://127.0.0.1:{int(line)}" if backend == "pivot" else f"udpout:127.0.0.1:{int(line)}"
+    return mock, url, log
 
 
 def start_daemon(config: Path) -> ManagedProcess:
@@ -53,10 +64,11 @@ def start_sim(endpoint: str, *extra: str) -> ManagedProcess:
                            "--rate", "50", "--quiet", "--wait-subscribers", "15", *extra], "sim_pose")
 
 
-def test_tracking_run_end_to_end(tmp_path):
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_tracking_run_end_to_end(tmp_path, backend):
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    mock, url, dev_log = start_mock_gimbal(tmp_path)
-    config = write_config(tmp_path, endpoint, url)
+    mock, url, dev_log = start_mock_gimbal(tmp_path, backend=backend)
+    config = write_config(tmp_path, endpoint, url, backend)
     cfg = load_config(config)
     with mock, start_daemon(config) as daemon:
         probe = None
@@ -129,7 +141,8 @@ def test_tracking_run_end_to_end(tmp_path):
     assert abs(dev.st_pos[-1, 0] - cfg.gimbal.park_pan) < math.radians(1.0)
     assert abs(dev.st_pos[-1, 1] - cfg.gimbal.park_tilt) < math.radians(1.0)
     assert dev.st_mode[-1] == 0
-    assert any(kind == "rx:ENABLE" and "on=0" in detail for kind, _, detail in dev.other)
+    row, flag = DISABLED_ROW[backend]
+    assert any(kind == row and flag in detail for kind, _, detail in dev.other), dev.other
     # Stale pose: from pose_timeout + one period after the last pose, the setpoints decelerate
     # (jerk-limited) to zero rate and hold until poses resume.
     pose_rx = np.array([p[0] for p in probe.poses])
@@ -166,10 +179,11 @@ def test_tracking_run_end_to_end(tmp_path):
     assert probe.plans, "no view plan was published"
 
 
-def test_gimbal_unplug_and_replug_recovers(tmp_path):
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_gimbal_unplug_and_replug_recovers(tmp_path, backend):
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    mock, url, _ = start_mock_gimbal(tmp_path, "--disconnect-after", "4", "--reconnect-after", "2")
-    config = write_config(tmp_path, endpoint, url)
+    mock, url, _ = start_mock_gimbal(tmp_path, "--disconnect-after", "4", "--reconnect-after", "2", backend=backend)
+    config = write_config(tmp_path, endpoint, url, backend)
     cfg = load_config(config)
     with mock, start_daemon(config) as daemon:
         probe = BusProbe.connect(endpoint, cfg.topics)
@@ -186,10 +200,12 @@ def test_gimbal_unplug_and_replug_recovers(tmp_path):
             probe.close()
 
 
-def test_gimbal_fault_is_reported_cleared_and_never_moved_through(tmp_path):
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_gimbal_fault_is_reported_cleared_and_never_moved_through(tmp_path, backend):
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    mock, url, dev_log = start_mock_gimbal(tmp_path, "--fault-at", "3:0")
-    config = write_config(tmp_path, endpoint, url)
+    fault_at, bit = FAULT_AT[backend]
+    mock, url, dev_log = start_mock_gimbal(tmp_path, "--fault-at", fault_at, backend=backend)
+    config = write_config(tmp_path, endpoint, url, backend)
     cfg = load_config(config)
     with mock, start_daemon(config) as daemon:
         # Connect once the daemon listens, so that no status document (the fault's included) is missed.
@@ -197,17 +213,18 @@ def test_gimbal_fault_is_reported_cleared_and_never_moved_through(tmp_path):
         probe = BusProbe.connect(endpoint, cfg.topics)
         try:
             with start_sim(endpoint, "--speed", "1.0", "--duration", "10"):
-                assert wait_until(lambda: any(s.get("gimbal") and s["gimbal"]["faults"] & 1 for s in probe.statuses),
-                                  20), daemon.output()
+                assert wait_until(lambda: any(s.get("gimbal") and s["gimbal"]["faults"] & bit
+                                              for s in probe.statuses), 20), daemon.output()
                 assert wait_until(lambda: probe.status.get("clear_fault_attempts", 0) >= 1
                                   or any(s.get("clear_fault_attempts", 0) >= 1 for s in probe.statuses), 10)
                 assert wait_until(lambda: probe.status.get("gimbal", {}).get("mode") == "enabled"
-                                  and probe.status["gimbal"]["faults"] & 1 == 0, 15), daemon.output()
+                                  and probe.status["gimbal"]["faults"] & bit == 0, 15), daemon.output()
             assert daemon.stop(signal.SIGTERM, timeout=20) == 0, daemon.output()
         finally:
             probe.close()
     dev = read_device_log(dev_log)
-    assert any(kind == "rx:CLEAR_FAULT" for kind, _, _ in dev.other)
+    if backend == "pivot":  # MAVLink has no fault reset: the device clears its failure flags itself
+        assert any(kind == "rx:CLEAR_FAULT" for kind, _, _ in dev.other)
     faulted = dev.st_mode == 3
     assert faulted.any()
     # No motion while faulted: the axes only brake (speed never grows) and then stand still ...

@@ -23,10 +23,10 @@ from pivotd.gimbal.motion import AxisLimits
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
 ZENOH_MODES = ("peer", "client")
 CONTROL_RATE_RANGE_HZ = (100.0, 200.0)
-#: ``gimbal.backend`` values this version drives (pivot: pivotd's own serial protocol).
-GIMBAL_BACKENDS = ("pivot",)
+#: ``gimbal.backend`` values this version drives: pivotd's own serial protocol, MAVLink Gimbal Protocol v2.
+GIMBAL_BACKENDS = ("pivot", "mavlink")
 #: Backends named in the docs that this version cannot drive yet (refused with a clear message).
-GIMBAL_BACKENDS_UNAVAILABLE = ("mavlink", "dynamixel")
+GIMBAL_BACKENDS_UNAVAILABLE = ("dynamixel",)
 #: pymavlink connection strings the mavlink backend accepts (besides a serial device path).
 MAVLINK_URL_PREFIXES = ("udpin:", "udpout:", "udp:", "tcp:", "tcpin:")
 

@@ -19,6 +19,7 @@ from pivotd.daemon.planner import PlannerSettings, RecedingHorizonPlanner
 from pivotd.errors import ConfigError
 from pivotd.gimbal.interface import GimbalInterface
 from pivotd.gimbal.link import GimbalLink, LinkConfig
+from pivotd.gimbal.mavlink_link import MavlinkGimbal, MavlinkSettings
 from pivotd.gimbal.motion import MotionGenerator
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapStore, load_map_store
@@ -115,11 +116,21 @@ def build_control_settings(cfg: Config) -> ControlSettings:
                            plan_timeout=max(1.0, 10.0 / cfg.planner.replan_hz))
 
 
+def build_mavlink_settings(cfg: Config) -> MavlinkSettings:
+    """The mavlink backend's identities and the joint limits it enforces and checks against the device's."""
+    m = cfg.gimbal.mavlink
+    return MavlinkSettings(limits=cfg.gimbal.limits, system_id=m.system_id, component_id=m.component_id,
+                           target_system=m.target_system, target_component=m.target_component,
+                           gimbal_device_id=m.gimbal_device_id)
+
+
 def build_gimbal(cfg: Config) -> GimbalInterface:
     """The gimbal of ``cfg.gimbal.backend`` on ``gimbal.port``, not yet started."""
     backend = cfg.gimbal.backend
     if backend == "pivot":
         return GimbalLink(cfg.gimbal.port, build_link_config(cfg), baudrate=cfg.gimbal.baud)
+    if backend == "mavlink":
+        return MavlinkGimbal(cfg.gimbal.port, build_mavlink_settings(cfg), baudrate=cfg.gimbal.baud)
     raise ConfigError(f"{cfg.source}: gimbal.backend: {backend!r} is not available in this version")
 
 
