@@ -3,6 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+BACKEND ?= pivot
 
 .PHONY: demo test test-fast lint bench clean
 
@@ -12,8 +13,9 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e '.[test,plot,record,mavlink]'
 	touch $(STAMP)
 
+# `make demo BACKEND=mavlink`: the same run against the MAVLink gimbal manager simulator.
 demo: $(STAMP)
-	$(BIN)/python tools/demo.py
+	$(BIN)/python tools/demo.py --backend $(BACKEND)
 
 test: $(STAMP)
 	$(BIN)/ruff check .
