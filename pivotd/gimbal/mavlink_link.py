@@ -4,7 +4,8 @@
 serial device) on a background thread and, on every (re)connection: sends our HEARTBEAT (then once a second),
 asks the gimbal manager for GIMBAL_MANAGER_INFORMATION (MAV_CMD_REQUEST_MESSAGE) and checks the configured joint
 limits against the ones it reports (refusing to drive a gimbal whose range is smaller: ``incompatible``), then
-takes primary control with MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE. Setpoints go out as GIMBAL_MANAGER_SET_PITCHYAW
+takes primary control with MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE and asks for GIMBAL_DEVICE_ATTITUDE_STATUS at 50 Hz
+(MAV_CMD_SET_MESSAGE_INTERVAL, best effort). Setpoints go out as GIMBAL_MANAGER_SET_PITCHYAW
 (angles and rates, yaw in the vehicle frame). GIMBAL_DEVICE_ATTITUDE_STATUS is the measured state, its failure
 flags the faults; GIMBAL_MANAGER_STATUS tells whether we are still in control (``disabled`` when not). No
 attitude status for ``state_timeout_s`` → link down, reconnect with backoff. Disabling releases control
@@ -34,6 +35,9 @@ log = logging.getLogger(__name__)
 MSG_GIMBAL_MANAGER_INFORMATION = 280
 MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE = 1001
 MAV_CMD_REQUEST_MESSAGE = 512
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+MSG_GIMBAL_DEVICE_ATTITUDE_STATUS = 285
+ATTITUDE_INTERVAL_US = 20_000  # asked of the manager: 50 Hz attitude status (best effort, not required)
 MAV_RESULT_ACCEPTED = 0
 CONTROL_TAKE, CONTROL_RELEASE, CONTROL_UNCHANGED = None, -3.0, -1.0
 _TX_QUEUE = 64
@@ -349,6 +353,8 @@ class MavlinkGimbal:
             self._last_error = f"gimbal manager at {self.url} did not give us control (DO_GIMBAL_MANAGER_CONFIGURE)"
             return LinkState.DOWN
         self._in_control = self._want_enabled
+        self._enqueue(conn, self._command(conn, MAV_CMD_SET_MESSAGE_INTERVAL, self._manager,
+                                          MSG_GIMBAL_DEVICE_ATTITUDE_STATUS, ATTITUDE_INTERVAL_US))
         if self._wait_for("GIMBAL_DEVICE_ATTITUDE_STATUS", self._from_device, s.state_timeout_s) is None:
             self._last_error = f"gimbal at {self.url} sends no GIMBAL_DEVICE_ATTITUDE_STATUS"
             return LinkState.DOWN
