@@ -10,7 +10,7 @@ BACKEND ?= pivot
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test,plot,record,mavlink]'
+	$(BIN)/pip install --quiet -e '.[test,plot,record,mavlink,dynamixel]'
 	touch $(STAMP)
 
 # `make demo BACKEND=mavlink`: the same run against the MAVLink gimbal manager simulator.

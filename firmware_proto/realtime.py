@@ -84,6 +84,14 @@ class CsvMessageLog:
             self._csv.writerow((f"{now:.6f}", direction, name, "", "", "", "", "", "", "", "", "", detail))
             self._file.flush()
 
+    def angles(self, direction: str, name: str, now: float, pan: float, tilt: float, pan_rate: float,
+               tilt_rate: float, host_time_us: int | str = "") -> None:
+        """A row of angles [rad] and rates [rad/s] of another protocol (``nan``: not on that wire)."""
+        with self._lock:
+            self._csv.writerow((f"{now:.6f}", direction, name, "", f"{pan:.6f}", f"{tilt:.6f}", f"{pan_rate:.6f}",
+                                f"{tilt_rate:.6f}", "", "", "", host_time_us, ""))
+            self._file.flush()
+
     def close(self) -> None:
         with self._lock:
             self._file.close()

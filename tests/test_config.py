@@ -256,8 +256,8 @@ def test_backend_defaults_to_pivot_and_builds_the_serial_link(tmp_path):
 
 
 @pytest.mark.parametrize(("text", "line", "needle"), [
-    ("  port: mock://\n  backend: canbus\n", 5, "gimbal.backend: must be one of pivot, mavlink"),
-    ("  backend: dynamixel\n", 4, "gimbal.backend: 'dynamixel' is not available"),
+    ("  port: mock://\n  backend: canbus\n", 5, "gimbal.backend: must be one of pivot, mavlink, dynamixel"),
+    ("  backend: dynamixel\n  port: socket://h:1\n", 5, "gimbal.port: 'socket://h:1': the dynamixel backend opens"),
     ("  mavlink:\n    system_id: 0\n", 5, "gimbal.mavlink.system_id"),
     ("  mavlink:\n    sysid: 3\n", 5, "gimbal.mavlink.sysid"),
 ])

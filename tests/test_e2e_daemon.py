@@ -23,18 +23,22 @@ from pivotd.bus import ros
 from pivotd.bus.messages import JOINT_STATE, ODOMETRY, encode_odometry
 from pivotd.bus.probe import BusProbe
 from pivotd.config import load_config
+from pivotd.gimbal.dynamixel_table import POSITION_RESOLUTION
 from pivotd.sim.analysis import analyse_run, read_device_log, setpoint_dynamics
 from pivotd.sim.launch import derive_config
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 
 DEMO = REPO / "config" / "demo.yaml"
-BACKENDS = ["pivot", "mavlink"]
+BACKENDS = ["pivot", "mavlink", "dynamixel"]
 #: per backend: the simulator's option that latches a severe fault 3 s after start, and the pivotd fault bit it
 #: shows up as (pivot: over-current; mavlink: GIMBAL_DEVICE_ERROR_FLAGS_MOTOR_ERROR → driver)
-FAULT_AT = {"pivot": ("3:0", 1 << 0), "mavlink": ("3:5", 1 << 3)}
+FAULT_AT = {"pivot": ("3:0", 1 << 0), "mavlink": ("3:5", 1 << 3), "dynamixel": ("3:2", 1 << 1)}
 #: per backend: the simulator's log row that says the host disabled the gimbal / released control
-DISABLED_ROW = {"pivot": ("rx:ENABLE", "on=0"), "mavlink": ("rx:GIMBAL_MANAGER_CONFIGURE", "on=0")}
+DISABLED_ROW = {"pivot": ("rx:ENABLE", "on=0"), "mavlink": ("rx:GIMBAL_MANAGER_CONFIGURE", "on=0"),
+                "dynamixel": ("rx:TORQUE_ENABLE", "on=0")}
+#: per backend: the device's reset of a fault, as its log names it (MAVLink has none: the device clears itself)
+RESET_ROW = {"pivot": "rx:CLEAR_FAULT", "mavlink": None, "dynamixel": "rx:REBOOT"}
 
 
 def write_config(tmp: Path, endpoint: str, port_url: str, backend: str = "pivot", **changes) -> Path:
@@ -46,12 +50,14 @@ def write_config(tmp: Path, endpoint: str, port_url: str, backend: str = "pivot"
 def start_mock_gimbal(tmp: Path, *extra: str, backend: str = "pivot") -> tuple[ManagedProcess, str, Path]:
     """The simulator of ``backend`` on loopback; returns it, the gimbal.port that reaches it, its CSV log."""
     log = tmp / "gimbal.csv"
-    where = ["--tcp", "127.0.0.1:0"] if backend == "pivot" else ["--udp", "127.0.0.1:0"]
+    where = {"pivot": ["--tcp", "127.0.0.1:0"], "mavlink": ["--udp", "127.0.0.1:0"],
+             "dynamixel": ["--link", str(tmp / "servos")]}[backend]
     mock = ManagedProcess([PYTHON, str(REPO / "tools" / "mock_gimbal"), "--protocol", backend, *where, "--log",
                            str(log), *extra], "mock_gimbal")
-    line = mock.wait_stdout(lambda s: s.strip().isdigit(), 15)
+    line = mock.wait_stdout(lambda s: s.strip().isdigit() or s.startswith("/dev/"), 15)
     assert line, mock.output()
-    url = f"socket://127.0.0.1:{int(line)}" if backend == "pivot" else f"udpout:127.0.0.1:{int(line)}"
+    url = {"pivot": f"socket://127.0.0.1:{line.strip()}", "mavlink": f"udpout:127.0.0.1:{line.strip()}",
+           "dynamixel": str(tmp / "servos")}[backend]
     return mock, url, log
 
 
@@ -129,10 +135,15 @@ def test_tracking_run_end_to_end(tmp_path, backend):
     # --- what the gimbal saw
     dev = read_device_log(dev_log)
     assert dev.sp_pos.shape[0] > 500
-    dyn = setpoint_dynamics(dev.sp_pos, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt, rates=dev.sp_rate)
-    assert dyn.within_limits, dyn
-    # Positions alone (micro-radian resolution) tell the same story within their larger rounding bound.
-    assert setpoint_dynamics(dev.sp_pos, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt).within_limits
+    if backend == "dynamixel":  # goal positions only (no rates on that wire), in ticks of 2π/4096
+        dyn = setpoint_dynamics(dev.sp_pos, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt,
+                                resolution=POSITION_RESOLUTION)
+        assert dyn.within_limits, dyn
+    else:
+        dyn = setpoint_dynamics(dev.sp_pos, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt, rates=dev.sp_rate)
+        assert dyn.within_limits, dyn
+        # Positions alone (micro-radian resolution) tell the same story within their larger rounding bound.
+        assert setpoint_dynamics(dev.sp_pos, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt).within_limits
     lim = cfg.gimbal.limits
     assert lim.pan_min - 1e-6 <= dyn.position_min[0] and dyn.position_max[0] <= lim.pan_max + 1e-6
     assert lim.tilt_min - 1e-6 <= dyn.position_min[1] and dyn.position_max[1] <= lim.tilt_max + 1e-6
@@ -152,14 +163,18 @@ def test_tracking_run_end_to_end(tmp_path, backend):
     mask = (1 << 32) - 1
     rel = (((dev.sp_time * 1e6).round().astype(np.int64) - (int(t_last * 1e6) & mask) + (1 << 31)) & mask) - (1 << 31)
     rel = rel * 1e-6  # setpoint send time relative to the last pose before the gap [s]
-    speed = np.abs(dev.sp_rate).max(axis=1)
+    if backend == "dynamixel":  # speed from the goal positions (rates are not on that wire)
+        speed = np.r_[0.0, np.abs(np.diff(dev.sp_pos, axis=0)).max(axis=1) / cfg.control.dt]
+    else:
+        speed = np.abs(dev.sp_rate).max(axis=1)
     t_hold = cfg.control.pose_timeout_s + cfg.control.dt + 0.05
     # (allow a_max / j_max for an axis that was still accelerating to stop accelerating)
     settle = max(cfg.motion.pan.max_acceleration / cfg.motion.pan.max_jerk,
                  cfg.motion.tilt.max_acceleration / cfg.motion.tilt.max_jerk)
     braking = (rel > t_hold + settle) & (rel < t_resume - t_last - 0.1)
     assert braking.sum() > 50
-    assert np.all(np.diff(speed[braking]) <= 1e-6), "setpoint rate grew after the pose went stale"
+    if backend != "dynamixel":  # tick-quantised positions cannot show a monotonic deceleration
+        assert np.all(np.diff(speed[braking]) <= 1e-6), "setpoint rate grew after the pose went stale"
     assert speed[braking][-1] < 1e-6, "the gimbal was still moving at the end of the pose gap"
 
     # --- what the robot saw: measured JointState over Zenoh, rmw_zenoh format
@@ -182,7 +197,7 @@ def test_tracking_run_end_to_end(tmp_path, backend):
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_gimbal_unplug_and_replug_recovers(tmp_path, backend):
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    mock, url, _ = start_mock_gimbal(tmp_path, "--disconnect-after", "4", "--reconnect-after", "2", backend=backend)
+    mock, url, _ = start_mock_gimbal(tmp_path, "--disconnect-after", "6", "--reconnect-after", "2", backend=backend)
     config = write_config(tmp_path, endpoint, url, backend)
     cfg = load_config(config)
     with mock, start_daemon(config) as daemon:
@@ -223,8 +238,8 @@ def test_gimbal_fault_is_reported_cleared_and_never_moved_through(tmp_path, back
         finally:
             probe.close()
     dev = read_device_log(dev_log)
-    if backend == "pivot":  # MAVLink has no fault reset: the device clears its failure flags itself
-        assert any(kind == "rx:CLEAR_FAULT" for kind, _, _ in dev.other)
+    if RESET_ROW[backend] is not None:  # MAVLink has no fault reset: the device clears its failure flags itself
+        assert any(kind == RESET_ROW[backend] for kind, _, _ in dev.other)
     faulted = dev.st_mode == 3
     assert faulted.any()
     # No motion while faulted: the axes only brake (speed never grows) and then stand still ...

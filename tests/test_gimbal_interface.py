@@ -7,6 +7,7 @@ import inspect
 import pytest
 from gimbal_fakes import FakeGimbal
 
+from pivotd.gimbal.dynamixel_link import DynamixelGimbal
 from pivotd.gimbal.interface import GimbalInterface, LinkState
 from pivotd.gimbal.link import GimbalLink
 from pivotd.gimbal.mavlink_link import MavlinkGimbal
@@ -19,7 +20,7 @@ def test_the_interface_is_what_the_daemon_uses():
                             "set_enabled", "clear_fault", "counters"}
 
 
-@pytest.mark.parametrize("implementation", [GimbalLink, MavlinkGimbal, FakeGimbal])
+@pytest.mark.parametrize("implementation", [GimbalLink, MavlinkGimbal, DynamixelGimbal, FakeGimbal])
 def test_implementation_has_every_member_with_a_compatible_signature(implementation):
     for name in MEMBERS:
         spec = getattr(GimbalInterface, name)

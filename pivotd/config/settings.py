@@ -23,10 +23,10 @@ from pivotd.gimbal.motion import AxisLimits
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
 ZENOH_MODES = ("peer", "client")
 CONTROL_RATE_RANGE_HZ = (100.0, 200.0)
-#: ``gimbal.backend`` values this version drives: pivotd's own serial protocol, MAVLink Gimbal Protocol v2.
-GIMBAL_BACKENDS = ("pivot", "mavlink")
+#: ``gimbal.backend`` values: pivotd's own serial protocol, MAVLink Gimbal Protocol v2, two DYNAMIXEL servos.
+GIMBAL_BACKENDS = ("pivot", "mavlink", "dynamixel")
 #: Backends named in the docs that this version cannot drive yet (refused with a clear message).
-GIMBAL_BACKENDS_UNAVAILABLE = ("dynamixel",)
+GIMBAL_BACKENDS_UNAVAILABLE: tuple[str, ...] = ()
 #: pymavlink connection strings the mavlink backend accepts (besides a serial device path).
 MAVLINK_URL_PREFIXES = ("udpin:", "udpout:", "udp:", "tcp:", "tcpin:")
 
@@ -130,6 +130,17 @@ class MavlinkConfig:
 
 
 @dataclass(frozen=True)
+class DynamixelConfig:
+    """The two servos of a DYNAMIXEL pan–tilt unit: bus ids, and whether an axis turns the other way (positive
+    pan left / positive tilt down = counter-clockwise seen from the horn unless reversed)."""
+
+    pan_id: int = 1
+    tilt_id: int = 2
+    pan_reversed: bool = False
+    tilt_reversed: bool = False
+
+
+@dataclass(frozen=True)
 class GimbalConfig:
     """Backend and its port, mount, joint limits [rad], park pose [rad], device watchdog [ms], park timeout [s]."""
 
@@ -143,6 +154,7 @@ class GimbalConfig:
     watchdog_ms: int = 250
     park_timeout_s: float = 3.0
     mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
+    dynamixel: DynamixelConfig = field(default_factory=DynamixelConfig)
 
 
 @dataclass(frozen=True)
@@ -269,6 +281,8 @@ def port_problem(backend: str, port: str) -> str | None:
             return None
         return (f"{port!r} is not a MAVLink connection; expected udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT "
                 "or a serial device such as /dev/ttyACM0")
+    if backend == "dynamixel" and "://" in port:
+        return f"{port!r}: the dynamixel backend opens a serial device path such as /dev/ttyUSB0, not a URL"
     return None
 
 
@@ -469,7 +483,20 @@ def _gimbal(s: Section, control: ControlConfig) -> GimbalConfig:
         watchdog_ms=watchdog_ms,
         park_timeout_s=s.number("park_timeout_s", d.park_timeout_s, min=0.0, min_open=True),
         mavlink=_mavlink(s.section("mavlink")),
+        dynamixel=_dynamixel(s.section("dynamixel")),
     )
+    s.finish()
+    return out
+
+
+def _dynamixel(s: Section) -> DynamixelConfig:
+    d = DynamixelConfig()
+    pan_id = s.number("pan_id", d.pan_id, min=0, max=252, integer=True)
+    tilt_id = s.number("tilt_id", d.tilt_id, min=0, max=252, integer=True)
+    if tilt_id == pan_id:
+        raise s.error("tilt_id", f"must differ from pan_id ({pan_id})")
+    out = DynamixelConfig(pan_id, tilt_id, s.boolean("pan_reversed", d.pan_reversed),
+                          s.boolean("tilt_reversed", d.tilt_reversed))
     s.finish()
     return out
 

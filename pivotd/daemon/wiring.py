@@ -17,6 +17,7 @@ from pivotd.config import Config
 from pivotd.daemon.control import ControlLoop, ControlSettings
 from pivotd.daemon.planner import PlannerSettings, RecedingHorizonPlanner
 from pivotd.errors import ConfigError
+from pivotd.gimbal.dynamixel_link import DynamixelGimbal, DynamixelSettings
 from pivotd.gimbal.interface import GimbalInterface
 from pivotd.gimbal.link import GimbalLink, LinkConfig
 from pivotd.gimbal.mavlink_link import MavlinkGimbal, MavlinkSettings
@@ -124,6 +125,15 @@ def build_mavlink_settings(cfg: Config) -> MavlinkSettings:
                            gimbal_device_id=m.gimbal_device_id)
 
 
+def build_dynamixel_settings(cfg: Config) -> DynamixelSettings:
+    """The dynamixel backend's servo ids and directions, and the limits the servos are configured with."""
+    d = cfg.gimbal.dynamixel
+    return DynamixelSettings(limits=cfg.gimbal.limits, pan_motion=cfg.motion.pan, tilt_motion=cfg.motion.tilt,
+                             pan_id=d.pan_id, tilt_id=d.tilt_id, pan_reversed=d.pan_reversed,
+                             tilt_reversed=d.tilt_reversed, watchdog_ms=cfg.gimbal.watchdog_ms,
+                             idle_period_s=2.0 / cfg.control.rate_hz)
+
+
 def build_gimbal(cfg: Config) -> GimbalInterface:
     """The gimbal of ``cfg.gimbal.backend`` on ``gimbal.port``, not yet started."""
     backend = cfg.gimbal.backend
@@ -131,6 +141,8 @@ def build_gimbal(cfg: Config) -> GimbalInterface:
         return GimbalLink(cfg.gimbal.port, build_link_config(cfg), baudrate=cfg.gimbal.baud)
     if backend == "mavlink":
         return MavlinkGimbal(cfg.gimbal.port, build_mavlink_settings(cfg), baudrate=cfg.gimbal.baud)
+    if backend == "dynamixel":
+        return DynamixelGimbal(cfg.gimbal.port, build_dynamixel_settings(cfg), baudrate=cfg.gimbal.baud)
     raise ConfigError(f"{cfg.source}: gimbal.backend: {backend!r} is not available in this version")
 
 
