@@ -97,8 +97,9 @@ def test_control_table_conversions():
     assert ct.MAX_POSITION_LIMIT == (48, 4) and ct.MIN_POSITION_LIMIT == (52, 4)
     assert ct.angle_to_ticks(math.pi / 2) == 3072 and ct.angle_to_ticks(math.pi / 2, reversed_axis=True) == 1024
     assert ct.ticks_to_angle(1024) == pytest.approx(-math.pi / 2)
-    assert ct.limits_to_ticks(-0.5, 1.0, reversed_axis=True) == (ct.angle_to_ticks(1.0, True),
-                                                                  ct.angle_to_ticks(-0.5, True))
+    # rounded inwards: 60° is 682.67 ticks from the centre
+    assert ct.limits_to_ticks(math.radians(-60), math.radians(60)) == (2048 - 682, 2048 + 682)
+    assert ct.limits_to_ticks(math.radians(-30), math.radians(60), reversed_axis=True) == (2048 - 682, 2048 + 341)
     # 0.229 rev/min and 214.577 rev/min² units, rounded down so the servo never exceeds our limit
     assert ct.velocity_units(math.radians(90)) == 65  # 90°/s = 15 rev/min = 65.5 units
     assert ct.velocity_units(math.radians(90)) * ct.VELOCITY_UNIT <= math.radians(90)
@@ -189,8 +190,7 @@ def test_servos_are_configured_from_our_limits_follow_fault_reboot_and_stop_on_t
             assert g.wait_up(5), g.last_error
             pan, tilt = sim.chain.servos[1], sim.chain.servos[2]
             assert (pan.get(ct.MIN_POSITION_LIMIT), pan.get(ct.MAX_POSITION_LIMIT)) == (1024, 3072)
-            assert (tilt.get(ct.MIN_POSITION_LIMIT), tilt.get(ct.MAX_POSITION_LIMIT)) == (
-                ct.angle_to_ticks(math.radians(60), True), ct.angle_to_ticks(math.radians(-30), True))
+            assert (tilt.get(ct.MIN_POSITION_LIMIT), tilt.get(ct.MAX_POSITION_LIMIT)) == (2048 - 682, 2048 + 341)
             assert pan.get(ct.PROFILE_VELOCITY) == 65 and pan.get(ct.PROFILE_ACCELERATION) == 16
             assert pan.get(ct.BUS_WATCHDOG) == 5 and pan.torque and tilt.torque
             assert pan.get(ct.OPERATING_MODE) == ct.POSITION_CONTROL_MODE

@@ -23,8 +23,7 @@ from pivotd.bus import ros
 from pivotd.bus.messages import JOINT_STATE, ODOMETRY, encode_odometry
 from pivotd.bus.probe import BusProbe
 from pivotd.config import load_config
-from pivotd.gimbal.dynamixel_table import POSITION_RESOLUTION
-from pivotd.sim.analysis import analyse_run, read_device_log, setpoint_dynamics
+from pivotd.sim.analysis import analyse_run, device_setpoint_dynamics, read_device_log, setpoint_dynamics
 from pivotd.sim.launch import derive_config
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
@@ -135,13 +134,9 @@ def test_tracking_run_end_to_end(tmp_path, backend):
     # --- what the gimbal saw
     dev = read_device_log(dev_log)
     assert dev.sp_pos.shape[0] > 500
-    if backend == "dynamixel":  # goal positions only (no rates on that wire), in ticks of 2π/4096
-        dyn = setpoint_dynamics(dev.sp_pos, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt,
-                                resolution=POSITION_RESOLUTION)
-        assert dyn.within_limits, dyn
-    else:
-        dyn = setpoint_dynamics(dev.sp_pos, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt, rates=dev.sp_rate)
-        assert dyn.within_limits, dyn
+    dyn = device_setpoint_dynamics(cfg, dev)  # dynamixel: goal positions only, in ticks of 2π/4096
+    assert dyn.within_limits, dyn
+    if backend != "dynamixel":
         # Positions alone (micro-radian resolution) tell the same story within their larger rounding bound.
         assert setpoint_dynamics(dev.sp_pos, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt).within_limits
     lim = cfg.gimbal.limits

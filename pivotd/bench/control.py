@@ -32,7 +32,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="control.realtime_priority (SCHED_FIFO; needs CAP_SYS_NICE)")
     parser.add_argument("--rss-landmarks", type=int, default=1_000_000, help="map size for the memory run (0: skip)")
     parser.add_argument("--json", type=Path, help="write the results to this file")
-    parser.add_argument("--backend", nargs="+", default=["pivot"], choices=("pivot", "mavlink"),
+    parser.add_argument("--backend", nargs="+", default=["pivot"], choices=("pivot", "mavlink", "dynamixel"),
                         help="gimbal backends to measure, each against its simulator (default: pivot)")
 
 
@@ -104,13 +104,13 @@ def _run(config: Path, endpoint: str, duration: float, out: Path) -> dict:
 def _setpoints_within_limits(cfg_path: Path, device_log: Path) -> bool:
     """Whether every setpoint the device logged respects the joint limits and the motion limits."""
     from pivotd.config import load_config
-    from pivotd.sim.analysis import read_device_log, setpoint_dynamics
+    from pivotd.sim.analysis import device_setpoint_dynamics, read_device_log
 
     cfg = load_config(cfg_path)
     dev = read_device_log(device_log)
     if dev.sp_pos.shape[0] < 3:
         return False
-    dyn = setpoint_dynamics(dev.sp_pos, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt, rates=dev.sp_rate)
+    dyn = device_setpoint_dynamics(cfg, dev)
     lim, tol = cfg.gimbal.limits, 1e-6
     inside = (lim.pan_min - tol <= dyn.position_min[0] and dyn.position_max[0] <= lim.pan_max + tol
               and lim.tilt_min - tol <= dyn.position_min[1] and dyn.position_max[1] <= lim.tilt_max + tol)

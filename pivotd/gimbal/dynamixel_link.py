@@ -5,8 +5,8 @@ happens there). On every (re)connection it pings both servos, turns the torque o
 Mode, Min/Max Position Limit from the joint limits, Profile Velocity/Acceleration from the motion limits, the
 Goal Position to where each servo is (no jump), turns the torque on and arms the Bus Watchdog with
 ``watchdog_ms`` (the servos stop by themselves when the host goes silent). Then, for every setpoint, in order:
-one Sync Write of both Goal Positions; after them one Sync Read of Present Velocity + Position, and every tenth
-cycle (at least every 0.1 s) one of Torque Enable … Hardware Error Status. A hardware error is a fault
+one Sync Write of both Goal Positions; after them one Sync Read of Torque Enable … Present Position (torque,
+Hardware Error Status, velocity and position from one answer). A hardware error is a fault
 (``clear_fault`` reboots the servo and configures it again); disabling turns the torque off. No state for
 ``state_timeout_s`` → link down, reconnect with backoff. Positions are 4096 ticks per turn: the joint limits
 must lie within ±180°.
@@ -33,9 +33,7 @@ from pivotd.gimbal.motion import AxisLimits
 
 log = logging.getLogger(__name__)
 
-_GOAL_QUEUE = 16  # setpoints waiting for the bus thread; older ones are dropped beyond this
-_STATUS_EVERY = 10  # cycles between reads of torque / hardware error
-_STATUS_MAX_AGE_S = 0.1
+_GOAL_QUEUE = 64  # setpoints waiting for the bus thread; older ones are dropped beyond this (counted)
 
 
 def load_sdk() -> Any:
@@ -91,10 +89,9 @@ class DynamixelGimbal:
         self._want_enabled = True
         self._torque = (False, False)
         self._hw_errors = (0, 0)
-        self._status_at = 0.0
         self._ever_up = False
         self._n = dict.fromkeys(("setpoints_sent", "sync_writes", "sync_reads", "comm_errors", "reconnects",
-                                 "link_losses", "reboots"), 0)
+                                 "link_losses", "reboots", "goals_dropped", "write_errors"), 0)
 
     # ------------------------------------------------------------------ GimbalInterface
     @property
@@ -135,6 +132,8 @@ class DynamixelGimbal:
             return None
         if not all(math.isfinite(v) for v in (pan, tilt, pan_rate, tilt_rate)):
             raise ValueError("setpoint must be finite")
+        if len(self._goals) == _GOAL_QUEUE:
+            self._n["goals_dropped"] += 1
         self._goals.append(self.settings.limits.clamp(pan, tilt))
         self._wake.set()
         self._n["setpoints_sent"] += 1
@@ -264,6 +263,7 @@ class DynamixelGimbal:
     def _check(self, what: str, dxl_id: int, comm: int, error: int) -> None:
         if comm != self._sdk.COMM_SUCCESS:
             self._n["comm_errors"] += 1
+            self._port.clearPort()
             raise _BusError(f"{what} on servo {dxl_id}: {self._ph.getTxRxResult(comm)}")
         if error & 0x7F:
             raise _BusError(f"{what} on servo {dxl_id}: {self._ph.getRxPacketError(error)}")
@@ -313,7 +313,7 @@ class DynamixelGimbal:
             present = self._read(dxl_id, ct.PRESENT_POSITION, signed=True)
             self._write(dxl_id, ct.GOAL_POSITION, min(tmax, max(tmin, present)))
         self._goals.clear()
-        self._read_status()
+        self._read_state()
         if self._want_enabled and not any(self._hw_errors):
             self._set_torque(True)
         for dxl_id, *_ in self._axes():
@@ -326,11 +326,11 @@ class DynamixelGimbal:
     def _set_torque(self, on: bool) -> bool:
         for dxl_id, *_ in self._axes():
             self._write(dxl_id, ct.TORQUE_ENABLE, 1 if on else 0)
-        self._read_status()
+        self._read_state()
         return self._torque == (on, on)
 
     def _reboot_faulted(self) -> bool:
-        self._read_status()
+        self._read_state()
         if not any(self._hw_errors):
             return True
         for (dxl_id, *_), err in zip(self._axes(), self._hw_errors, strict=True):
@@ -349,6 +349,7 @@ class DynamixelGimbal:
         self._n["sync_reads"] += 1
         if comm != self._sdk.COMM_SUCCESS:
             self._n["comm_errors"] += 1
+            self._port.clearPort()  # a late answer must not be taken for the next one
             return None
         out = []
         for dxl_id, *_ in self._axes():
@@ -358,25 +359,25 @@ class DynamixelGimbal:
             out.append(bytes(gsr.getData(dxl_id, start + i, 1) for i in range(length)))
         return out
 
-    def _read_status(self) -> bool:
-        data = self._sync_read(ct.TORQUE_ENABLE[0], ct.HARDWARE_ERROR_STATUS[0] - ct.TORQUE_ENABLE[0] + 1)
-        if data is None:
-            return False
-        off = ct.HARDWARE_ERROR_STATUS[0] - ct.TORQUE_ENABLE[0]
-        self._torque = (bool(data[0][0]), bool(data[1][0]))
-        self._hw_errors = (data[0][off], data[1][off])
-        self._status_at = time.monotonic()
-        return True
-
     def _read_state(self) -> bool:
-        data = self._sync_read(ct.PRESENT_VELOCITY[0], 8)
+        """One Sync Read of Torque Enable … Present Position (64–135) from both servos: torque, hardware errors,
+        position and velocity always come from the same answer, so a late answer can only be an older state."""
+        start = ct.TORQUE_ENABLE[0]
+        data = self._sync_read(start, ct.PRESENT_POSITION[0] + ct.PRESENT_POSITION[1] - start)
         if data is None:
             return False
         now = time.monotonic()
+
+        def field(raw: bytes, item: tuple[int, int]) -> int:
+            off = item[0] - start
+            return int.from_bytes(raw[off:off + item[1]], "little", signed=item[1] == 4)
+
+        self._torque = (bool(field(data[0], ct.TORQUE_ENABLE)), bool(field(data[1], ct.TORQUE_ENABLE)))
+        self._hw_errors = (field(data[0], ct.HARDWARE_ERROR_STATUS), field(data[1], ct.HARDWARE_ERROR_STATUS))
         values = []
         for raw, (_, reversed_axis, *_rest) in zip(data, self._axes(), strict=True):
-            vel = int.from_bytes(raw[:4], "little", signed=True) * ct.VELOCITY_UNIT
-            pos = ct.ticks_to_angle(int.from_bytes(raw[4:8], "little", signed=True), reversed_axis)
+            vel = field(raw, ct.PRESENT_VELOCITY) * ct.VELOCITY_UNIT
+            pos = ct.ticks_to_angle(field(raw, ct.PRESENT_POSITION), reversed_axis)
             values.append((pos, -vel if reversed_axis else vel))
         errors = self._hw_errors[0] | self._hw_errors[1]
         mode = GimbalMode.FAULT if errors else GimbalMode.ENABLED if all(self._torque) else GimbalMode.DISABLED
@@ -389,11 +390,14 @@ class DynamixelGimbal:
 
     def _write_goal(self, goal: tuple[float, float]) -> None:
         gsw = self._sdk.GroupSyncWrite(self._port, self._ph, ct.GOAL_POSITION[0], ct.GOAL_POSITION[1])
-        for angle, (dxl_id, reversed_axis, *_rest) in zip(goal, self._axes(), strict=True):
-            ticks = ct.angle_to_ticks(angle, reversed_axis)
+        for angle, (dxl_id, reversed_axis, lo, hi, _) in zip(goal, self._axes(), strict=True):
+            tmin, tmax = ct.limits_to_ticks(lo, hi, reversed_axis)
+            ticks = min(tmax, max(tmin, ct.angle_to_ticks(angle, reversed_axis)))
             gsw.addParam(dxl_id, list(ticks.to_bytes(4, "little", signed=True)))
-        if gsw.txPacket() != self._sdk.COMM_SUCCESS:
-            self._n["comm_errors"] += 1
+        result = gsw.txPacket()
+        if result != self._sdk.COMM_SUCCESS:
+            self._n["write_errors"] += 1
+            log.debug("goal sync write failed: %s", self._ph.getTxRxResult(result))
         self._n["sync_writes"] += 1
 
     def _cycle(self, cycle: int) -> bool:
@@ -406,8 +410,6 @@ class DynamixelGimbal:
             goal = self._goals.popleft()
             if all(self._torque) and not any(self._hw_errors):
                 self._write_goal(goal)
-        if cycle % _STATUS_EVERY == 0 or time.monotonic() - self._status_at > _STATUS_MAX_AGE_S:
-            self._read_status()
         return self._read_state()
 
     def _cycle_until_lost(self) -> None:

@@ -52,9 +52,11 @@ def ticks_to_angle(ticks: int, reversed_axis: bool = False) -> float:
 
 
 def limits_to_ticks(lo: float, hi: float, reversed_axis: bool = False) -> tuple[int, int]:
-    """Joint range [rad] → (Min, Max Position Limit) [ticks]."""
-    a, b = angle_to_ticks(lo, reversed_axis), angle_to_ticks(hi, reversed_axis)
-    return min(a, b), max(a, b)
+    """Joint range [rad] → (Min, Max Position Limit) [ticks], rounded inwards so that no tick inside them lies
+    outside the range."""
+    sign = -1.0 if reversed_axis else 1.0
+    a, b = CENTRE_TICKS + sign * lo / POSITION_RESOLUTION, CENTRE_TICKS + sign * hi / POSITION_RESOLUTION
+    return math.ceil(min(a, b) - 1e-9), math.floor(max(a, b) + 1e-9)
 
 
 def velocity_units(rad_s: float) -> int:

@@ -1,7 +1,8 @@
 """The main job on the embedded default: daemon + simulated robot + simulated gimbal.
 
-Starts ``pivotd`` with ``config/demo.yaml`` (gimbal ``mock://`` with a message log, or with ``--backend mavlink``
-the MAVLink gimbal manager simulator of ``tools/mock_gimbal`` on UDP, logging the same CSV) and
+Starts ``pivotd`` with ``config/demo.yaml`` (gimbal ``mock://`` with a message log, or with ``--backend
+mavlink`` / ``dynamixel`` the MAVLink gimbal manager on UDP / the DYNAMIXEL servo chain on a pty of
+``tools/mock_gimbal``, logging the same CSV) and
 ``tools/sim_pose`` on the S-shaped hallway, both talking Zenoh on loopback only. While the robot
 walks, a live status line shows what the daemon reports. Afterwards it prints a summary: landmarks
 visible per frame with PIVOT versus a forward-facing camera on the same route, setpoints sent, worst
@@ -178,8 +179,10 @@ def _print_summary(r: dict, cfg: Config, png: Path) -> None:
               f"of limit), acceleration {r['max_acceleration_deg_s2'][i]:7.2f} deg/s² "
               f"({r['acceleration_ratio'][i]:.0%}), jerk {r['max_jerk_deg_s3'][i]:8.1f} deg/s³ "
               f"({r['jerk_ratio'][i]:.0%})")
-    print(f"  within limits (acceleration and jerk from the setpoint rates; the wire's µrad/s resolution allows "
-          f"±{r['jerk_allowance_deg_s3']} deg/s³): {'yes' if r['within_limits'] else 'NO'}")
+    source = ("goal positions in ticks" if cfg.gimbal.backend == "dynamixel"
+              else "acceleration and jerk from the setpoint rates")
+    print(f"  within limits ({source}; the wire's resolution allows ±{r['jerk_allowance_deg_s3']} deg/s³): "
+          f"{'yes' if r['within_limits'] else 'NO'}")
     print(f"  pan range {r['pan_range_deg']} deg, tilt range {r['tilt_range_deg']} deg "
           f"(limits pan/tilt {r['joint_limits_deg']})")
     print(f"  daemon exit code after SIGTERM: {r['daemon_exit_code']}")

@@ -9,6 +9,7 @@ import os
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
@@ -59,7 +60,7 @@ def spawn(args: list[str], log_path: Path) -> subprocess.Popen:
 
 
 #: backends ``tools/mock_gimbal`` simulates (``gimbal.backend`` values)
-SIMULATED_BACKENDS = ("pivot", "mavlink")
+SIMULATED_BACKENDS = ("pivot", "mavlink", "dynamixel")
 
 
 def free_udp_port() -> int:
@@ -80,4 +81,14 @@ def start_gimbal_simulator(backend: str, device_log: Path, log_path: Path) -> tu
         proc = spawn([sys.executable, str(REPO / "tools" / "mock_gimbal"), "--protocol", "mavlink", "--udp",
                       f"127.0.0.1:{port}", "--log", str(device_log)], log_path)
         return proc, f"udpout:127.0.0.1:{port}"
+    if backend == "dynamixel":
+        link = device_log.with_name(device_log.stem + "_servos")
+        proc = spawn([sys.executable, str(REPO / "tools" / "mock_gimbal"), "--protocol", "dynamixel", "--link",
+                      str(link), "--log", str(device_log)], log_path)
+        deadline = time.monotonic() + 15.0
+        while not link.exists():  # the pty appears once the simulator runs
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"the servo simulator did not start; see {log_path}")
+            time.sleep(0.05)
+        return proc, str(link)
     raise ValueError(f"no simulator for gimbal backend {backend!r}; expected one of {', '.join(SIMULATED_BACKENDS)}")
