@@ -184,7 +184,7 @@ def test_limits_beyond_the_position_range_make_the_link_incompatible():
 def test_servos_are_configured_from_our_limits_follow_fault_reboot_and_stop_on_their_watchdog():
     limits = JointLimits(math.radians(-90), math.radians(90), math.radians(-30), math.radians(60))
     with ChainOnPty() as sim:
-        g = DynamixelGimbal(sim.path, settings(limits, tilt_reversed=True, watchdog_ms=100), baudrate=1_000_000)
+        g = DynamixelGimbal(sim.path, settings(limits, tilt_reversed=True, watchdog_ms=300), baudrate=1_000_000)
         g.start()
         try:
             assert g.wait_up(5), g.last_error
@@ -192,7 +192,7 @@ def test_servos_are_configured_from_our_limits_follow_fault_reboot_and_stop_on_t
             assert (pan.get(ct.MIN_POSITION_LIMIT), pan.get(ct.MAX_POSITION_LIMIT)) == (1024, 3072)
             assert (tilt.get(ct.MIN_POSITION_LIMIT), tilt.get(ct.MAX_POSITION_LIMIT)) == (2048 - 682, 2048 + 341)
             assert pan.get(ct.PROFILE_VELOCITY) == 65 and pan.get(ct.PROFILE_ACCELERATION) == 16
-            assert pan.get(ct.BUS_WATCHDOG) == 5 and pan.torque and tilt.torque
+            assert pan.get(ct.BUS_WATCHDOG) == 15 and pan.torque and tilt.torque
             assert pan.get(ct.OPERATING_MODE) == ct.POSITION_CONTROL_MODE
             # Setpoints (one beyond the pan limit: clamped on the host) are followed; the reversed tilt servo
             # turns the other way.
@@ -215,7 +215,7 @@ def test_servos_are_configured_from_our_limits_follow_fault_reboot_and_stop_on_t
                 g.send_setpoint(math.radians(-60), math.radians(-20))
                 time.sleep(0.005)
             g.stop(disable=False)
-            assert wait_for(lambda: pan.watchdog_expired and tilt.watchdog_expired, 2)
+            assert wait_for(lambda: pan.watchdog_expired and tilt.watchdog_expired, 5)
             with sim.lock:
                 held = (pan.axis.pos, tilt.axis.pos)
             assert wait_for(lambda: pan.axis.vel == 0.0 and tilt.axis.vel == 0.0, 2)

@@ -152,10 +152,16 @@ class DynamixelChain:
         self.packets = 0
 
     def feed(self, data: bytes, now: float, sent_us: int | None = None) -> bytes:
-        """Answers (status packets) to the instruction packets in ``data`` received at ``now``."""
+        """Answers (status packets) to the instruction packets in ``data`` received at ``now``. Bytes that waited
+        in the port while the simulator was not scheduled count as received at ``now`` for the watchdog (the host
+        was not silent)."""
+        pkts = self.decoder.feed(data)
+        if pkts:
+            for servo in self.servos.values():
+                servo.last_packet = max(servo.last_packet, now) if self._started else servo.last_packet
         self.step(now)
         out = b""
-        for pkt in self.decoder.feed(data):
+        for pkt in pkts:
             self.packets += 1
             for servo in self.servos.values():
                 servo.last_packet = now
