@@ -39,6 +39,15 @@ def load_error(tmp_path: Path, text: str) -> str:
     return message
 
 
+def test_shipped_backend_examples_load():
+    mav = load_config(CONFIG_DIR / "gimbal_mavlink.yaml")
+    assert (mav.gimbal.backend, mav.gimbal.port, mav.gimbal.mavlink.target_component) == (
+        "mavlink", "udpin:0.0.0.0:14550", 1)
+    dxl = load_config(CONFIG_DIR / "gimbal_dynamixel.yaml")
+    assert (dxl.gimbal.backend, dxl.gimbal.baud, dxl.gimbal.dynamixel.tilt_reversed) == ("dynamixel", 1_000_000, True)
+    assert dxl.gimbal.limits.tilt_max == pytest.approx(math.radians(90.0))
+
+
 def test_shipped_configs_load():
     spot = load_config(CONFIG_DIR / "spot.yaml")
     assert spot.name == "spot" and spot.status_key == "pivot/spot/status"
