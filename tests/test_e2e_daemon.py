@@ -168,7 +168,8 @@ def test_tracking_run_end_to_end(tmp_path):
 
 def test_gimbal_unplug_and_replug_recovers(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    mock, url, _ = start_mock_gimbal(tmp_path, "--disconnect-after", "4", "--reconnect-after", "2")
+    mock, url, _ = start_mock_gimbal(tmp_path, "--from-first-frame", "--disconnect-after", "4",
+                                       "--reconnect-after", "2")
     config = write_config(tmp_path, endpoint, url)
     cfg = load_config(config)
     with mock, start_daemon(config) as daemon:
@@ -188,7 +189,7 @@ def test_gimbal_unplug_and_replug_recovers(tmp_path):
 
 def test_gimbal_fault_is_reported_cleared_and_never_moved_through(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    mock, url, dev_log = start_mock_gimbal(tmp_path, "--fault-at", "3:0")
+    mock, url, dev_log = start_mock_gimbal(tmp_path, "--from-first-frame", "--fault-at", "3:0")
     config = write_config(tmp_path, endpoint, url)
     cfg = load_config(config)
     with mock, start_daemon(config) as daemon:
