@@ -17,7 +17,7 @@ from pivotd.localization.camera import CameraModel
 from pivotd.localization.estimator import require_poselib
 from pivotd.localization.metrics import PRIMARY, THRESHOLDS, RunMetrics, aggregate, run_metrics, threshold_label
 from pivotd.localization.policies import PolicyName, make_policy
-from pivotd.localization.scenes import FIF_SCENES, build_scene
+from pivotd.localization.scenes import FIF_SCENES, LocScene, build_scene
 from pivotd.localization.simulate import FRAME_HZ, Trajectory, localize, run_policy
 from pivotd.localization.stack import Config
 from pivotd.localization.world import World
@@ -52,7 +52,8 @@ class SceneResult:
     errors: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
 
-def _truncate(scene, max_duration: float | None):
+def truncate_scene(scene: LocScene, max_duration: float | None) -> LocScene:
+    """``scene`` with its route cut after ``max_duration`` [s] (unchanged when None or shorter)."""
     if max_duration is None or scene.duration <= max_duration:
         return scene
     from dataclasses import replace
@@ -72,7 +73,7 @@ def run_scene(st: BenchSettings, scene_name: str) -> SceneResult:
     world = None
     for n, seed in enumerate(st.seeds):
         if world is None or not fixed:
-            scene = _truncate(build_scene(scene_name, seed, st.fif_dir), st.max_duration)
+            scene = truncate_scene(build_scene(scene_name, seed, st.fif_dir), st.max_duration)
             world = World(st.cfg, scene, st.camera)
         for p in st.policies:
             reuse = fixed and p != PolicyName.RANDOM
