@@ -17,7 +17,7 @@ import logging
 import math
 import os
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 log = logging.getLogger(__name__)
@@ -38,6 +38,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="daemon config whose gimbal, motion, planner and control settings are used")
     parser.add_argument("--fif-dir", type=Path, default=REPO / "tests" / "data" / "fif")
     parser.add_argument("--jobs", type=int, default=1, help="worker processes (one scene each)")
+    abl = parser.add_argument_group("ablations (change the daemon config for every policy)")
+    abl.add_argument("--no-distance-weights", action="store_true",
+                     help="pivot.distance_weights: false (the optimizer weighs near and far landmarks alike)")
+    abl.add_argument("--continuous-pan", action="store_true", help="a slip-ring gimbal: no pan limits")
     parser.add_argument("--json", metavar="FILE", help="write all results as JSON")
     parser.add_argument("--plot", metavar="FILE", help="routes coloured by success and success curves (PNG)")
     cam = parser.add_argument_group("camera")
@@ -79,9 +83,13 @@ def _settings(args: argparse.Namespace):
                          max_depth=args.max_depth, detection_probability=args.detection, pixel_noise=args.pixel_noise,
                          outlier_ratio=args.outliers, dropout=args.dropout,
                          max_incidence_deg=args.max_incidence_deg or None)
+    cfg = load_config(args.config)
+    if args.no_distance_weights:
+        cfg = replace(cfg, pivot=replace(cfg.pivot, distance_weights=False))
+    if args.continuous_pan:
+        cfg = replace(cfg, gimbal=replace(cfg.gimbal, limits=replace(cfg.gimbal.limits, continuous_pan=True)))
     return BenchSettings(scenes=scenes, policies=tuple(PolicyName(p) for p in names),
-                         seeds=tuple(range(args.seed, args.seed + seeds)), camera=camera,
-                         cfg=load_config(args.config), fif_dir=args.fif_dir,
+                         seeds=tuple(range(args.seed, args.seed + seeds)), camera=camera, cfg=cfg, fif_dir=args.fif_dir,
                          max_duration=QUICK_DURATION if args.quick else None)
 
 
@@ -127,7 +135,9 @@ def run(args: argparse.Namespace) -> int:
     _print_goals(goals)
     if args.json:
         doc = {
-            "command": "pivotd bench localization" + (" --quick" if args.quick else f" --seeds {len(st.seeds)}"),
+            "command": "pivotd bench localization" + (" --quick" if args.quick else f" --seeds {len(st.seeds)}")
+            + (" --no-distance-weights" if args.no_distance_weights else "")
+            + (" --continuous-pan" if args.continuous_pan else ""),
             "seeds": list(st.seeds),
             "camera": asdict(st.camera),
             "config": str(args.config),

@@ -1,7 +1,8 @@
 """One run: a policy steers the gimbal along the route; every frame is observed and localized.
 
 Time advances in control periods of config/demo.yaml (100 Hz). At the planner rate the policy is asked
-for a command (its compute time is measured); every control period the daemon's :class:`ControlLoop`
+for a command (its compute is measured as CPU time, ``time.process_time``, which a shared machine's
+load does not inflate); every control period the daemon's :class:`ControlLoop`
 turns the latest plan (or joint target) and body pose into a jerk-limited setpoint, which a simulated
 gimbal follows exactly. At the frame rate the camera pose (centre from the body pose and mount,
 orientation from the setpoint, roll level) is recorded. The oracle skips the control loop and points
@@ -71,9 +72,9 @@ def run_policy(world: World, policy: Policy, frame_hz: float = FRAME_HZ) -> Traj
     centres = world.camera_centres(body_f, quat_f)
     if not policy.limited:
         assert isinstance(policy, OraclePolicy)
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         dirs = np.array([policy.look(c, world.sight(i, c)) for i, c in enumerate(centres)])
-        return Trajectory(frames, centres, dirs, np.zeros((0, 4)), 0.0, time.perf_counter() - t0)
+        return Trajectory(frames, centres, dirs, np.zeros((0, 4)), 0.0, time.process_time() - t0)
     cfg = world.cfg
     dt = cfg.control.dt
     ticks_per_replan = max(1, round(cfg.control.rate_hz / cfg.planner.replan_hz))
@@ -90,9 +91,9 @@ def run_policy(world: World, policy: Policy, frame_hz: float = FRAME_HZ) -> Traj
         t = float(times[k])
         pose = PoseSample(t, "map", body[k], quats[k], t)
         if k % ticks_per_replan == 0:
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             command = policy.update(t, pose, loop.commanded_direction)
-            compute += time.perf_counter() - t0
+            compute += time.process_time() - t0
             if isinstance(command, Plan):
                 plan = replace(command, created=t)
                 loop.override_target = None
