@@ -7,8 +7,7 @@ policy) change with the seed. Tasks are independent and may run in worker proces
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -56,8 +55,6 @@ def truncate_scene(scene: LocScene, max_duration: float | None) -> LocScene:
     """``scene`` with its route cut after ``max_duration`` [s] (unchanged when None or shorter)."""
     if max_duration is None or scene.duration <= max_duration:
         return scene
-    from dataclasses import replace
-
     keep = int(np.searchsorted(scene.stamps, scene.stamps[0] + max_duration, side="right"))
     keep = max(keep, 2)
     quats = None if scene.route_quats is None else scene.route_quats[:keep]
@@ -138,8 +135,3 @@ def check_goals(scene: str, summary: dict) -> list[GoalCheck]:
         checks.append(GoalCheck("success >= oracle - 2 pt", scene, True, gap <= 2.0,
                                 f"oracle − pivot = {gap:+.1f} pt"))
     return checks
-
-
-def finite_or_none(x: float) -> float | None:
-    """JSON cannot hold inf/NaN: such values become null."""
-    return x if math.isfinite(x) else None

@@ -17,8 +17,10 @@ from pivotd.localization.scenes import LocScene
 from pivotd.localization.stack import (
     BASE_LAYER,
     Config,
+    JointLimits,
     LandmarkCloud,
     MapStore,
+    Mount,
     OccupancyGrid,
     Polyline,
     camera_position,
@@ -57,11 +59,13 @@ class World:
         self._sight: dict[object, np.ndarray] = {}
 
     @property
-    def mount(self):
+    def mount(self) -> Mount:
+        """Gimbal base pose on the body (config ``gimbal.mount``)."""
         return self.cfg.gimbal.mount
 
     @property
-    def limits(self):
+    def limits(self) -> JointLimits:
+        """Joint ranges (config ``gimbal.limits``)."""
         return self.cfg.gimbal.limits
 
     def body_poses(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
