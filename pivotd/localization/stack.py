@@ -7,10 +7,11 @@ through this module, so a move of any of them is a one-line change here.
 
 from __future__ import annotations
 
-from pivotd.analysis import setpoint_dynamics
 from pivotd.bus.messages import PoseSample
 from pivotd.config import Config, load_config
-from pivotd.control import ControlLoop
+from pivotd.daemon.control import ControlLoop
+from pivotd.daemon.planner import Plan, RecedingHorizonPlanner
+from pivotd.daemon.wiring import build_control_loop, build_planner
 from pivotd.gimbal.kinematics import (
     JointLimits,
     Mount,
@@ -24,9 +25,8 @@ from pivotd.gimbal.motion import AxisLimits, MotionGenerator
 from pivotd.maps.formats import LandmarkCloud, load_landmarks
 from pivotd.maps.occlusion import OccupancyGrid
 from pivotd.maps.store import BASE_LAYER, MapStore
-from pivotd.paths import Polyline, load_path
-from pivotd.planner import Plan, RecedingHorizonPlanner
-from pivotd.runtime import build_control_loop, build_planner
+from pivotd.robot_path import Polyline, load_path
+from pivotd.sim.analysis import setpoint_dynamics
 
 __all__ = [
     "BASE_LAYER",
