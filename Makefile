@@ -10,10 +10,10 @@ BACKEND ?= pivot
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test,plot,record,mavlink,dynamixel]'
+	$(BIN)/pip install --quiet -e '.[test,plot,record,bench,mavlink,dynamixel]'
 	touch $(STAMP)
 
-# `make demo BACKEND=mavlink`: the same run against the MAVLink gimbal manager simulator.
+# `make demo BACKEND=mavlink` (or dynamixel): the same run against that backend's simulator.
 demo: $(STAMP)
 	$(BIN)/python tools/demo.py --backend $(BACKEND)
 

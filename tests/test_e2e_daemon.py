@@ -192,7 +192,8 @@ def test_tracking_run_end_to_end(tmp_path, backend):
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_gimbal_unplug_and_replug_recovers(tmp_path, backend):
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    mock, url, _ = start_mock_gimbal(tmp_path, "--disconnect-after", "6", "--reconnect-after", "2", backend=backend)
+    mock, url, _ = start_mock_gimbal(tmp_path, "--from-first-frame", "--disconnect-after", "4",
+                                       "--reconnect-after", "2", backend=backend)
     config = write_config(tmp_path, endpoint, url, backend)
     cfg = load_config(config)
     with mock, start_daemon(config) as daemon:
@@ -214,7 +215,7 @@ def test_gimbal_unplug_and_replug_recovers(tmp_path, backend):
 def test_gimbal_fault_is_reported_cleared_and_never_moved_through(tmp_path, backend):
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     fault_at, bit = FAULT_AT[backend]
-    mock, url, dev_log = start_mock_gimbal(tmp_path, "--fault-at", fault_at, backend=backend)
+    mock, url, dev_log = start_mock_gimbal(tmp_path, "--from-first-frame", "--fault-at", fault_at, backend=backend)
     config = write_config(tmp_path, endpoint, url, backend)
     cfg = load_config(config)
     with mock, start_daemon(config) as daemon:

@@ -35,6 +35,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fault-at", type=parse_fault_at, action="append", default=[], metavar="SECONDS:BIT",
                    help="set Hardware Error Status bit BIT on the pan servo at SECONDS (2: overheating)")
     p.add_argument("--disconnect-after", type=float, metavar="SECONDS", help="close the pty after SECONDS")
+    p.add_argument("--from-first-frame", action="store_true",
+                   help="count --fault-at and --disconnect-after from the host's first packet, not from start")
     p.add_argument("--reconnect-after", type=float, metavar="SECONDS", help="open a new pty SECONDS later")
     p.add_argument("--log", metavar="FILE", help="CSV log (the serial mock's columns, pivotd's pan/tilt convention)")
     p.add_argument("-v", "--verbose", action="store_true")
@@ -66,17 +68,21 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.monotonic()
     transport.open()
     disconnect_at, reconnect_at, connected = args.disconnect_after, None, True
+    first_frame_at: float | None = None
     try:
         while not stop.is_set():
             data = transport.read(0.002) if connected else b""
             now = time.monotonic() - t0
+            if data and first_frame_at is None:
+                first_frame_at = now
+            origin = first_frame_at if args.from_first_frame else 0.0
             if data and injector.apply(data) is not None:
                 out = chain.feed(data, now, round(time.monotonic() * 1e6))
                 if out:
                     order += 1
                     heapq.heappush(outgoing, (now + injector.latency_s, order, out))
             chain.step(now)
-            while faults and faults[0][0] <= now:
+            while faults and origin is not None and faults[0][0] <= now - origin:
                 _, bit = faults.pop(0)
                 log.info("hardware error bit %d on servo %d at t=%.3f s", bit, args.pan_id, now)
                 chain.inject_error(args.pan_id, 1 << bit, now)
@@ -86,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
                     transport.write(out)
             if not connected:
                 stop.wait(0.005)
-            if disconnect_at is not None and now >= disconnect_at:
+            if disconnect_at is not None and origin is not None and now - origin >= disconnect_at:
                 log.info("disconnecting at t=%.2f s", now)
                 transport.close()
                 connected, disconnect_at = False, None

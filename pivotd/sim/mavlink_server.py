@@ -53,6 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="set GIMBAL_DEVICE_ERROR_FLAGS bit BIT at SECONDS after start (repeatable; 5 = motor error)")
     p.add_argument("--fault-duration", type=float, default=2.0, help="seconds until the device clears a failure")
     p.add_argument("--disconnect-after", type=float, metavar="SECONDS", help="go silent after SECONDS")
+    p.add_argument("--from-first-frame", action="store_true",
+                   help="count --fault-at and --disconnect-after from the host's first datagram, not from start")
     p.add_argument("--reconnect-after", type=float, metavar="SECONDS", help="answer again SECONDS after going silent")
     p.add_argument("--pan-range-deg", type=float, nargs=2, default=(-180.0, 180.0), metavar=("MIN", "MAX"),
                    help="device pan range in pivotd's convention (positive left) [deg]")
@@ -77,6 +79,8 @@ class MavlinkServer:
         self.injector = injector
         self.faults_at = sorted(faults_at)
         self.fault_duration = fault_duration
+        self.from_first_frame = False
+        self.first_frame_at: float | None = None  # device time of the host's first datagram
         self.mavutil = load_mavutil()
         self.out = _Collector()
         self.mav = self.mavutil.mavlink.MAVLink(self.out, srcSystem=model.system_id, srcComponent=model.component_id)
@@ -110,6 +114,8 @@ class MavlinkServer:
             except OSError:
                 data, addr = b"", None
             if data and not self.silent:
+                if self.first_frame_at is None:
+                    self.first_frame_at = now
                 self.peer = addr
                 sent_us = round(time.monotonic() * 1e6)
                 data = self.injector.apply(data)
@@ -121,7 +127,8 @@ class MavlinkServer:
             for msg in self.mav.parse_buffer(data) or []:
                 if msg.get_type() != "BAD_DATA":
                     self._queue_out(self.model.handle(msg, now, sent_us), now)
-        while self.faults_at and self.faults_at[0][0] <= now:
+        t0 = self.origin()
+        while self.faults_at and t0 is not None and self.faults_at[0][0] <= now - t0:
             _, bit = self.faults_at.pop(0)
             log.info("setting failure flag bit %d at t=%.3f s", bit, now)
             self.model.inject_failure(1 << bit, now, self.fault_duration)
@@ -134,14 +141,19 @@ class MavlinkServer:
                 except OSError as exc:
                     log.debug("datagram lost: %s", exc)
 
+    def origin(self) -> float | None:
+        """Device time the fault and disconnect timers count from (None: not yet, waiting for the first datagram)."""
+        return self.first_frame_at if self.from_first_frame else 0.0
+
     def next_due(self) -> float:
         """Device time [s] of the next thing to do."""
         times = [min(self.model._next.values()), self.elapsed() + 0.05]
         for heap in (self._incoming, self._outgoing):
             if heap:
                 times.append(heap[0][0])
-        if self.faults_at:
-            times.append(self.faults_at[0][0])
+        t0 = self.origin()
+        if self.faults_at and t0 is not None:
+            times.append(t0 + self.faults_at[0][0])
         return min(times)
 
 
@@ -176,6 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     sys.stdout.write(f"{sock.getsockname()[1]}\n")
     sys.stdout.flush()
     server = MavlinkServer(model, sock, injector, args.fault_at, args.fault_duration)
+    server.from_first_frame = args.from_first_frame
 
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
@@ -186,7 +199,8 @@ def main(argv: list[str] | None = None) -> int:
         while not stop.is_set():
             server.poll(min(0.02, server.next_due() - server.elapsed()))
             now = server.elapsed()
-            if silent_from is not None and now >= silent_from:
+            t0 = server.origin()
+            if silent_from is not None and t0 is not None and now - t0 >= silent_from:
                 log.info("disconnecting at t=%.2f s", now)
                 server.silent, silent_from = True, None
                 silent_until = math.inf if args.reconnect_after is None else now + args.reconnect_after
