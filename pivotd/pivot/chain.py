@@ -46,20 +46,27 @@ def best_chain(
     span: np.ndarray,
     smooth: float,
     anchor: np.ndarray | None = None,
+    max_step: float | None = None,
+    slack: float = 0.0,
 ) -> np.ndarray:
     """Grid index per node (K,) maximising the module's objective (Viterbi).
 
     scores (K, G): visible fractions; span (K,): waypoints each node stands for (≥ 1); smooth: λκ ≥ 0;
-    anchor (3,): a fixed direction before node 0 (cost of turning from it counts once).
+    anchor (3,): a fixed direction before node 0 (cost of turning from it counts once); max_step [rad]:
+    transitions between nodes s waypoints apart may turn by at most s·max_step + ``slack`` (the grid's
+    resolution, so that a coarse grid never forbids a turn the limit allows).
     """
     K, G = scores.shape
-    if smooth <= 0:
+    if smooth <= 0 and max_step is None:
         return np.argmax(scores, axis=1)
     scores = scores.astype(np.float32)
     value = scores[0] * np.float32(span[0])
     ang = np.arccos(np.clip(grid @ grid.T, -1.0, 1.0))
     if anchor is not None:
         value = value + (smooth * (grid @ anchor - 1.0)).astype(np.float32)
+        if max_step is not None:
+            far = np.arccos(np.clip(grid @ anchor, -1.0, 1.0)) > max_step + slack
+            value = np.where(far, np.float32(-np.inf), value)
     back = np.zeros((K, G), dtype=np.intp)
     cols = np.arange(G)
     cache: dict[int, np.ndarray] = {}
@@ -67,7 +74,10 @@ def best_chain(
         s = max(round(span[k]), 1)
         trans = cache.get(s)
         if trans is None:  # indexed (to, from): the argmax runs along contiguous rows
-            trans = np.ascontiguousarray(((s * smooth) * (np.cos(ang / s) - 1.0)).astype(np.float32).T)
+            cost = (s * smooth) * (np.cos(ang / s) - 1.0)
+            if max_step is not None:
+                cost[ang > s * max_step + slack] = -np.inf
+            trans = np.ascontiguousarray(cost.astype(np.float32).T)
             cache[s] = trans
         total = trans + value[None, :]  # (to, from)
         back[k] = np.argmax(total, axis=1)
@@ -127,15 +137,17 @@ def initial_directions(
     *,
     resolution_deg: float = 12.0,
     anchor: np.ndarray | None = None,
+    max_step: float | None = None,
 ) -> np.ndarray:
     """Chain initialisation (n, 3) from unit ``bearings`` (K, L, 3) and ``weights`` (K, L) of the node
     waypoints ``nodes`` (K,) (increasing indices into the n waypoints, see :func:`node_indices`).
 
-    λ = 0 (``smooth`` 0) picks each node's best grid direction independently (pass every waypoint as a node).
+    λ = 0 (``smooth`` 0) without ``max_step`` picks each node's best grid direction independently (pass
+    every waypoint as a node). ``max_step`` [rad]: the step limit per waypoint (see :func:`best_chain`).
     """
     grid = sphere_grid(resolution_deg)
     nodes = np.asarray(nodes, dtype=np.intp)
     scores = grid_scores(bearings, weights, grid, alpha)
     span = np.diff(nodes, prepend=nodes[0] - 1).astype(float) if nodes.size > 1 else np.ones(1)
-    choice = best_chain(scores, grid, span, smooth, anchor)
+    choice = best_chain(scores, grid, span, smooth, anchor, max_step, np.radians(resolution_deg))
     return slerp_fill(n, nodes, grid[choice])

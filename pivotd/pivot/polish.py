@@ -11,6 +11,13 @@ maximises the exact per-waypoint objective
 waypoints try 8 directions on each ring of radius r, r/2, … ≥ tol around their axis at once, with
 their neighbours fixed, and move to the best strict improvement; then the odd ones. Every accepted
 move raises Φ_hard, so the polish never makes the plan worse by the measure it is judged by.
+
+:func:`step_limited_polish` is the same idea for a plan with a largest step S: at every waypoint the
+axis and the directions on two rings around it are candidates, and dynamic programming picks the
+sequence of candidates with the largest total hard visible weight whose consecutive directions (and
+the step from the anchor) stay within S: exact over the candidates, so whole runs of waypoints move
+together (a red-black move is blocked wherever the step is already at S), and the current plan is one
+of the sequences, so the count never drops and no step exceeds S.
 """
 
 from __future__ import annotations
@@ -72,12 +79,15 @@ def polish_trajectory(
     inv = 1.0 / np.maximum(norm, 1e-12)
     coupled = smooth > 0 and (N > 1 or anchor is not None)
     moves = 0
+    dirty = np.ones(N, dtype=bool)  # rows whose own axis or a neighbour changed since they were last tried
     for _ in range(sweeps):
         moved = 0
         for parity in (0, 1):
             rows = np.arange(parity, N, 2)
+            rows = rows[dirty[rows]]
             if rows.size == 0:
                 continue
+            dirty[rows] = False
             c = C[rows]
             t1, t2 = _tangents(c)
             ring = cos_r[None] * c[:, None, :] + sin_r[None] * (ca[None] * t1[:, None, :] + sa[None] * t2[:, None, :])
@@ -99,9 +109,75 @@ def polish_trajectory(
             better = val[np.arange(rows.size), k] > val[:, 0] + 1e-12
             if np.any(better):
                 new = cand[better, k[better]]
-                C[rows[better]] = new / np.linalg.norm(new, axis=1, keepdims=True)
-                moved += int(np.count_nonzero(better))
+                changed = rows[better]
+                C[changed] = new / np.linalg.norm(new, axis=1, keepdims=True)
+                moved += int(changed.size)
+                dirty[changed] = True
+                dirty[changed[changed > 0] - 1] = True
+                dirty[changed[changed < N - 1] + 1] = True
         moves += moved
         if moved == 0:
             break
     return C, moves
+
+
+
+def _ring_candidates(C: np.ndarray, radius: float) -> np.ndarray:
+    """Candidates (N, 17, 3) per unit axis C (N, 3): the axis, then 8 directions at ``radius`` and 8 at radius/2."""
+    cos_r, sin_r, ca, sa = ring_offsets(radius, 0.5 * radius)
+    t1, t2 = _tangents(C)
+    ring = cos_r[None] * C[:, None, :] + sin_r[None] * (ca[None] * t1[:, None, :] + sa[None] * t2[:, None, :])
+    return np.concatenate([C[:, None, :], ring], axis=1)
+
+
+def step_limited_polish(
+    B: np.ndarray,
+    Wa: np.ndarray,
+    C: np.ndarray,
+    alpha: float,
+    max_step: float,
+    radius: float,
+    tol: float,
+    *,
+    anchor: np.ndarray | None = None,
+    reachable: Reachable | None = None,
+) -> np.ndarray:
+    """Step-limited dynamic-programming polish (module docstring); returns the new unit axes (N, 3).
+
+    B (N, L, 3) float32 unit bearings of the landmarks that can change state (the band around each
+    cone), Wa (N, L) their weights; C (N, 3) unit axes whose steps are ≤ ``max_step`` [rad]; one DP per
+    radius r = radius, radius/2, … ≥ tol [rad] over rings r and r/2 (recentred on each result);
+    ``reachable`` as in :func:`polish_trajectory`.
+    """
+    C = np.array(C, dtype=float)
+    N = C.shape[0]
+    if N == 0 or B.shape[1] == 0:
+        return C
+    cos_a = np.float32(np.cos(alpha) - 1e-7)
+    cos_s = float(np.cos(max_step)) - 1e-12
+    r = radius
+    while r >= tol:
+        cand = _ring_candidates(C, r)  # (N, K, 3)
+        inside = np.matmul(cand.astype(np.float32), B.transpose(0, 2, 1)) >= cos_a  # (N, K, L)
+        val = np.matmul(inside.astype(np.float32), Wa[:, :, None])[..., 0].astype(float)  # (N, K)
+        if reachable is not None:
+            val[:, 1:][~reachable(np.arange(N), cand[:, 1:])] = -np.inf
+        if anchor is not None:
+            far = cand[0] @ anchor < cos_s
+            far[0] = False  # the current axis stays a choice whatever the rounding
+            val[0, far] = -np.inf
+        ok = np.einsum("nkj,nlj->nkl", cand[1:], cand[:-1]) >= cos_s  # (N − 1, K to, K from)
+        ok[:, 0, 0] = True  # the current plan is always feasible
+        pen = np.where(ok, 0.0, -np.inf)
+        scores = np.empty_like(val)
+        scores[0] = val[0]
+        for i in range(1, N):  # forward: best total of a feasible sequence ending in each candidate
+            scores[i] = np.max(pen[i - 1] + scores[i - 1], axis=1) + val[i]
+        pick = np.empty(N, dtype=np.intp)
+        pick[-1] = int(np.argmax(scores[-1]))
+        for i in range(N - 1, 0, -1):  # backward: the predecessor that realised it
+            pick[i - 1] = int(np.argmax(pen[i - 1, pick[i]] + scores[i - 1]))
+        C = cand[np.arange(N), pick]
+        C /= np.linalg.norm(C, axis=1, keepdims=True)
+        r *= 0.5
+    return C

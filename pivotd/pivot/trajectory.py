@@ -18,7 +18,8 @@ from pivotd.geometry import optical_frame_from_direction
 from pivotd.pivot import _ascent, chain, polish
 from pivotd.pivot._checks import feature_weights, finite_array, half_angle, unit_vector
 from pivotd.pivot.constraints import PanTiltConstraint
-from pivotd.pivot.view import schedule
+from pivotd.pivot.steps import limit_steps, step_angles
+from pivotd.pivot.view import optimize_view, schedule
 
 
 @dataclass
@@ -53,6 +54,7 @@ class TrajectoryOptions:
     polish_sweeps: int = 4  # ... at most this many red-black sweeps
     polish_cap: int = 2048  # ... landmarks per waypoint in its band (strided beyond)
     warm_polish: bool = False  # also polish warm starts (receding-horizon replans)
+    step_polish_deg: float = 4.0  # step-limited DP polish of the visible count (pivotd.pivot.polish): radius (0: off)
 
 
 @dataclass
@@ -153,7 +155,7 @@ def _ragged_geometry(points, waypoints, fw, dist_w, retained: Sequence[np.ndarra
     # runs along L instead of over a trailing axis of length 3 (several times faster); pairs closer than
     # 1 % of the scene scale (where float32 rounding of the positions would show) are redone in float64
     centre = waypoints.mean(axis=0)
-    PT = np.empty((3, points.shape[0]), np.float32)
+    PT = np.empty((3, points.shape[0]), np.float32)  # points: only the retained landmarks (see _local_map)
     for k in range(3):
         np.subtract(points[:, k], centre[k], out=PT[k], casting="same_kind")
     T = (waypoints - centre).astype(np.float32)
@@ -211,6 +213,118 @@ def _weights(d: np.ndarray, valid: np.ndarray | None, fw: np.ndarray, dist_w: bo
     return s.astype(np.float32, copy=False)
 
 
+def _spatial_key(P: np.ndarray) -> np.ndarray:
+    """A pseudo-random uint64 key (M,) per landmark computed from its coordinates (M, 3) alone.
+
+    Ordering landmarks by it makes every strided subsample (active-set thinning, the chain's scoring
+    sample) a function of the landmarks, not of their order in the map.
+    """
+    bits = np.ascontiguousarray(P + 0.0, dtype=np.float64).view(np.uint64).reshape(-1, 3)  # + 0.0: −0 → +0
+    with np.errstate(over="ignore"):
+        h = bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)
+        h ^= bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F) + (h >> np.uint64(29))
+        h ^= bits[:, 2] * np.uint64(0x165667B19E3779F9) + (h >> np.uint64(32))
+        h ^= h >> np.uint64(33)
+        h *= np.uint64(0xFF51AFD7ED558CCD)
+        h ^= h >> np.uint64(33)
+    return h
+
+
+def _local_map(
+    points: np.ndarray, weights: np.ndarray | None, retained: Sequence[np.ndarray], N: int
+) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """Only the landmarks some waypoint retains: points (U, 3) float64, weights (U,) and the retained
+    lists re-indexed into them, each ordered by :func:`_spatial_key`.
+
+    Everything here costs O(retained pairs): the map itself is only indexed, never converted, checked
+    or copied as a whole (NaN/inf and negative weights are reported with their row in the map).
+    """
+    if len(retained) != N:
+        raise ValueError(f"retained must have one index array per waypoint ({N}), got {len(retained)}")
+    pts = points if isinstance(points, np.ndarray) else np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"points must have shape (n, 3), got {pts.shape}")
+    M = pts.shape[0]
+    lists = [np.asarray(r).ravel() for r in retained]
+    for i, r in enumerate(lists):
+        if r.size and r.dtype.kind not in "iu":
+            raise ValueError(f"retained[{i}] must hold integer indices, got {r.dtype}")
+    lens = np.array([r.size for r in lists], dtype=np.intp)
+    flat = np.concatenate(lists).astype(np.intp, copy=False) if lists else np.zeros(0, np.intp)
+    if flat.size and (flat.min() < 0 or flat.max() >= M):
+        bad = int(np.searchsorted(np.cumsum(lens), int(np.argmax((flat < 0) | (flat >= M))), side="right"))
+        raise ValueError(f"retained[{bad}] indexes outside 0..{M - 1}")
+    union, inverse = np.unique(flat, return_inverse=True)
+    P = finite_array("points", pts.take(union, axis=0), rows=union)
+    if weights is None:
+        fw = np.ones(union.size)
+    else:
+        w = weights if isinstance(weights, np.ndarray) else np.asarray(weights)
+        if w.shape != (M,):
+            raise ValueError(f"weights must have shape ({M},), got {w.shape}")
+        fw = feature_weights(w.take(union), union.size, rows=union)
+    owner = np.repeat(np.arange(N), lens)
+    order = np.lexsort((_spatial_key(P)[inverse], owner))  # by waypoint, then by key
+    local = np.split(inverse.ravel()[order], np.cumsum(lens)[:-1])
+    return P, fw, local
+
+
+def _independent_views(
+    P: np.ndarray,
+    T: np.ndarray,
+    fw: np.ndarray,
+    retained: list[np.ndarray] | None,
+    alpha: float,
+    init: np.ndarray | None,
+    dist_w: bool,
+) -> TrajectoryResult:
+    """λ = 0 without joint limits: every waypoint is its own single-pose problem, solved by
+    :func:`pivotd.pivot.view.optimize_view` (init[i] joins its multi-start set); objective Σ F_i/W_i."""
+    N = T.shape[0]
+    dirs, rots, visible = np.empty((N, 3)), np.empty((N, 3, 3)), np.zeros(N, dtype=int)
+    obj, iters = 0.0, 0
+    scale = max(float(np.abs(P).max(initial=0.0)), float(np.abs(T).max()), 1.0)
+    for i in range(N):
+        Pi, wi = (P, fw) if retained is None else (P[retained[i]], fw[retained[i]])
+        d = Pi - T[i]
+        n = np.sqrt(np.square(d) @ np.ones(3))
+        ok = n > 1e-9 * scale  # a landmark at the sensor has no bearing
+        B, w, n = d[ok] / n[ok, None], wi[ok], n[ok]
+        if dist_w and n.size:
+            w = np.maximum(_weights(n[None].astype(np.float32), None, w[None], True)[0].astype(float), 0.0)
+        uniform = w.size == 0 or bool(np.all(w == w[0]))
+        r = optimize_view(B, None if uniform else w, alpha, init=None if init is None else init[i])
+        dirs[i], rots[i], visible[i] = r.direction, r.rotation, r.visible
+        # F_i / W_i: with uniform weights optimize_view counted each landmark as 1
+        obj += r.objective / max(float(w.size) if uniform else float(w.sum()), 1e-12)
+        iters = max(iters, r.iterations)
+    return TrajectoryResult(dirs, rots, visible, iters, obj)
+
+
+def _band(geom: _ascent.Geometry, C: np.ndarray, alpha: float, reach: float, cap: int):
+    """Bearings (N, L, 3) and weights (N, L) of the landmarks within α ± reach of each axis C (N, 3):
+    the only ones whose state a search moving the axes by at most ``reach`` [rad] can change."""
+    cos_lo = float(np.cos(min(np.pi, alpha + reach)))
+    cos_hi = float(np.cos(alpha - reach)) if alpha > reach else 2.0
+    return _ascent._active(geom, C, cos_lo, cos_hi, cap)
+
+
+def _reachable_fn(constraint: PanTiltConstraint | None) -> polish.Reachable | None:
+    """``reachable(rows, directions (n, K, 3)) -> (n, K) bool`` for the polish, or None without limits."""
+    if constraint is None:
+        return None
+
+    def reachable(rows: np.ndarray, d: np.ndarray) -> np.ndarray:
+        n, K, _ = d.shape
+        sub = PanTiltConstraint(
+            np.repeat(constraint.base_from_world[rows], K, axis=0),
+            constraint.pan_min, constraint.pan_max, constraint.tilt_min, constraint.tilt_max,
+        )
+        return sub.reachable(d.reshape(-1, 3)).reshape(n, K)
+
+    return reachable
+
+
 def _polish(
     geom: _ascent.Geometry,
     C: np.ndarray,
@@ -221,27 +335,31 @@ def _polish(
     constraint: PanTiltConstraint | None,
     opts: TrajectoryOptions,
 ) -> np.ndarray:
-    """Hard-count polish of the axes C (N, 3) on the landmarks that can change state within its reach."""
+    """Hard-count polish of Φ_hard (pivotd.pivot.polish.polish_trajectory) of the axes C (N, 3)."""
     radius, tol = np.radians(opts.polish_deg), np.radians(opts.polish_tol_deg)
-    reach = (opts.polish_sweeps + 1) * radius
-    cos_lo = float(np.cos(min(np.pi, alpha + reach)))
-    cos_hi = float(np.cos(alpha - reach)) if alpha > reach else 2.0
-    B, Wa = _ascent._active(geom, C, cos_lo, cos_hi, opts.polish_cap)
-    reachable = None
-    if constraint is not None:
-
-        def reachable(rows: np.ndarray, d: np.ndarray) -> np.ndarray:
-            n, K, _ = d.shape
-            sub = PanTiltConstraint(
-                np.repeat(constraint.base_from_world[rows], K, axis=0),
-                constraint.pan_min, constraint.pan_max, constraint.tilt_min, constraint.tilt_max,
-            )
-            return sub.reachable(d.reshape(-1, 3)).reshape(n, K)
-
+    B, Wa = _band(geom, C, alpha, (opts.polish_sweeps + 1) * radius, opts.polish_cap)
     C_new, _ = polish.polish_trajectory(
-        B, Wa, C, norm, alpha, smooth, radius, tol, sweeps=opts.polish_sweeps, anchor=anchor, reachable=reachable
+        B, Wa, C, norm, alpha, smooth, radius, tol, sweeps=opts.polish_sweeps, anchor=anchor,
+        reachable=_reachable_fn(constraint),
     )
     return C_new
+
+
+def _step_polish(
+    geom: _ascent.Geometry,
+    C: np.ndarray,
+    alpha: float,
+    max_step: float,
+    anchor: np.ndarray | None,
+    constraint: PanTiltConstraint | None,
+    opts: TrajectoryOptions,
+) -> np.ndarray:
+    """Step-limited polish of the visible weight (pivotd.pivot.polish.step_limited_polish) of the axes C (N, 3)."""
+    radius, tol = np.radians(opts.step_polish_deg), np.radians(opts.polish_tol_deg)
+    B, Wa = _band(geom, C, alpha, 2.0 * radius, opts.polish_cap)
+    return polish.step_limited_polish(
+        B, Wa, C, alpha, max_step, radius, tol, anchor=anchor, reachable=_reachable_fn(constraint)
+    )
 
 
 def optimize_trajectory(
@@ -255,28 +373,44 @@ def optimize_trajectory(
     init_directions: np.ndarray | None = None,
     anchor: np.ndarray | None = None,
     constraint: PanTiltConstraint | None = None,
+    max_step: float | None = None,
     options: TrajectoryOptions | None = None,
 ) -> TrajectoryResult:
     """Optimise viewing directions for landmarks ``points`` (M, 3) [m] along ``waypoints`` (N, 3) [m].
 
     α: FoV half-angle [rad]; λ ≥ 0: smoothness weight; ``weights`` (M,) feature weights (None: 1);
-    ``retained``: per-waypoint index arrays into ``points`` (None: every landmark everywhere);
-    ``init_directions`` (N, 3): warm start (no multi-start, no FoV widening unless configured) — None
-    starts along the local path direction with the FoV schedule; ``anchor`` (3,): a fixed direction
-    just before waypoint 0 (adds λ anchor·c_0); ``constraint``: pan/tilt limits enforced at every step.
-    Landmarks coinciding with a waypoint are ignored there. Raises ValueError on NaN/inf or bad shapes.
+    ``retained``: per-waypoint index arrays into ``points`` (None: every landmark everywhere) — only
+    those landmarks are read, so the cost does not depend on the map's size; ``init_directions``
+    (N, 3): warm start (no multi-start, no FoV widening unless configured) — None starts from the
+    chain initialisation; ``anchor`` (3,): a fixed direction just before waypoint 0 (adds λ anchor·c_0);
+    ``constraint``: pan/tilt limits enforced at every step; ``max_step`` [rad]: a hard limit on the
+    angle between consecutive directions (and from the anchor), guaranteed (pivotd.pivot.steps).
+    λ = 0 without ``constraint`` and ``max_step`` solves each waypoint with
+    :func:`pivotd.pivot.view.optimize_view`. Landmarks coinciding with a waypoint are ignored there.
+    Raises ValueError on NaN/inf or bad shapes.
     """
     opts = options or TrajectoryOptions()
     alpha = half_angle(alpha)
     lam = float(lam)
     if not (np.isfinite(lam) and lam >= 0):
         raise ValueError(f"lambda must be a finite number ≥ 0, got {lam}")
-    P = finite_array("points", points)
+    if max_step is not None:
+        max_step = float(max_step)
+        if not (np.isfinite(max_step) and 0.0 < max_step <= np.pi):
+            raise ValueError(f"max_step must be an angle in (0, pi] rad, got {max_step}")
     T = finite_array("waypoints", waypoints)
     N = T.shape[0]
     if N == 0:
         raise ValueError("waypoints is empty")
-    fw = feature_weights(weights, P.shape[0])
+    if retained is None:
+        P = finite_array("points", points)
+        fw = feature_weights(weights, P.shape[0])
+        if P.shape[0] > 1:  # landmark order must not matter (strided subsamples): order them by _spatial_key
+            order = np.argsort(_spatial_key(P), kind="stable")
+            P, fw = P[order], fw[order]
+        local = None
+    else:
+        P, fw, local = _local_map(points, weights, retained, N)
     if constraint is not None and len(constraint) != N:
         raise ValueError(f"constraint has {len(constraint)} waypoints, the path has {N}")
     a_vec = None if anchor is None else unit_vector("anchor", anchor)
@@ -291,14 +425,16 @@ def optimize_trajectory(
         C0 = C0 / n0[:, None]
     else:
         C0 = path_directions(T)
+    if lam == 0.0 and constraint is None and max_step is None:
+        return _independent_views(P, T, fw, local, alpha, C0 if warm else None, opts.distance_weights)
     R0 = optical_frame_from_direction(C0)
 
     if P.shape[0] == 0:
         geom, norm = None, np.zeros(N)
-    elif retained is None:
+    elif local is None:
         geom, norm = _dense_geometry(P, T, fw, opts.distance_weights)
     else:
-        geom, norm = _ragged_geometry(P, T, fw, opts.distance_weights, retained)
+        geom, norm = _ragged_geometry(P, T, fw, opts.distance_weights, local)
 
     rad = np.radians
     if warm:
@@ -335,15 +471,14 @@ def optimize_trajectory(
     coarse = None
     smooth = lam * opts.smooth_scale
     if geom is not None and (len(stages) > 1 or (opts.chain_init and not warm)):
-        lengths = (
-            np.full(N, P.shape[0]) if retained is None else np.array([np.asarray(r).size for r in retained])
-        )
+        lengths = np.full(N, P.shape[0]) if local is None else np.array([r.size for r in local])
         if opts.chain_init and not warm:  # the chain scores its node waypoints only
-            nodes = chain.node_indices(N, opts.chain_nodes) if smooth > 0 else np.arange(N)
+            linked = smooth > 0 or max_step is not None
+            nodes = chain.node_indices(N, opts.chain_nodes) if linked else np.arange(N)
             sub = _ascent.subsample(geom.take_rows(nodes), lengths[nodes], opts.active_cap)
             C_init = chain.initial_directions(
                 sub.points, sub.weights, alpha, smooth, nodes, N,
-                resolution_deg=opts.chain_resolution_deg, anchor=a_vec,
+                resolution_deg=opts.chain_resolution_deg, anchor=a_vec, max_step=max_step,
             )
             R0 = optical_frame_from_direction(C_init)
             settings.stages = [alpha]
@@ -352,10 +487,20 @@ def optimize_trajectory(
             coarse = _ascent.subsample(geom, lengths, opts.active_cap)
     R, iters = _ascent.ascend(geom_run, R0, norm, settings, lam=smooth, anchor=a_vec, project=project, coarse=coarse)
     C = R[:, :, 2].copy()
-    if geom is not None and opts.polish_deg > 0 and (opts.warm_polish or not warm):
-        C_new = _polish(geom, C, norm, alpha, smooth, a_vec, constraint, opts)
-        R = _ascent._turn_to(R, C_new)
-        C = R[:, :, 2].copy()
+    cold_or_allowed = opts.warm_polish or not warm
+    if geom is not None and opts.polish_deg > 0 and cold_or_allowed:
+        C = _polish(geom, C, norm, alpha, smooth, a_vec, constraint, opts)
+    if max_step is not None:  # the hard limit: project, then polish the count within it
+        C = limit_steps(C, max_step, anchor=a_vec, constraint=constraint)
+        limit = max_step
+    else:  # Pareto polish: more visible landmarks at the plan's own largest step
+        limit = float(step_angles(C, a_vec).max(initial=0.0)) if (N > 1 or a_vec is not None) else None
+    if geom is not None and opts.step_polish_deg > 0 and cold_or_allowed and limit is not None:
+        C = _step_polish(geom, C, alpha, limit, a_vec, constraint, opts)
+        if max_step is not None:
+            C = limit_steps(C, max_step, anchor=a_vec, constraint=constraint)  # a no-op: the guarantee
+    R = _ascent._turn_to(R, C)
+    C = R[:, :, 2].copy()
     if geom is None:
         visible = np.zeros(N, dtype=int)
         F = np.zeros(N)
