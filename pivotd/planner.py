@@ -84,7 +84,9 @@ class Plan:
 
 @dataclass(frozen=True)
 class PlannerSettings:
-    """fov: full cone opening [rad]; lam: smoothness weight λ; spacing [m]; horizon: waypoints."""
+    """fov: full cone opening [rad]; lam: smoothness weight λ; spacing [m]; horizon: waypoints;
+    max_step: hard limit on the turn between consecutive planned directions, from the commanded one
+    on [rad] (None: no limit)."""
 
     fov: float
     lam: float = 0.6
@@ -95,6 +97,7 @@ class PlannerSettings:
     options: TrajectoryOptions | None = None
     back_window: float = 1.0
     ahead_window: float = 5.0
+    max_step: float | None = None
 
     @property
     def alpha(self) -> float:
@@ -236,6 +239,7 @@ class RecedingHorizonPlanner:
             init_directions=init,
             anchor=anchor,
             constraint=self._constraint(quats),
+            max_step=st.max_step,
             options=st.options,
         )
         plan = Plan(

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pivotd.pivot.brute import sphere_grid
+from pivotd.pivot.brute import best_grid_chain, sphere_grid
 
 
 def node_indices(n: int, max_nodes: int) -> np.ndarray:
@@ -46,27 +46,20 @@ def best_chain(
     span: np.ndarray,
     smooth: float,
     anchor: np.ndarray | None = None,
-    max_step: float | None = None,
-    slack: float = 0.0,
 ) -> np.ndarray:
     """Grid index per node (K,) maximising the module's objective (Viterbi).
 
     scores (K, G): visible fractions; span (K,): waypoints each node stands for (≥ 1); smooth: λκ ≥ 0;
-    anchor (3,): a fixed direction before node 0 (cost of turning from it counts once); max_step [rad]:
-    transitions between nodes s waypoints apart may turn by at most s·max_step + ``slack`` (the grid's
-    resolution, so that a coarse grid never forbids a turn the limit allows).
+    anchor (3,): a fixed direction before node 0 (cost of turning from it counts once).
     """
     K, G = scores.shape
-    if smooth <= 0 and max_step is None:
+    if smooth <= 0:
         return np.argmax(scores, axis=1)
     scores = scores.astype(np.float32)
     value = scores[0] * np.float32(span[0])
     ang = np.arccos(np.clip(grid @ grid.T, -1.0, 1.0))
     if anchor is not None:
         value = value + (smooth * (grid @ anchor - 1.0)).astype(np.float32)
-        if max_step is not None:
-            far = np.arccos(np.clip(grid @ anchor, -1.0, 1.0)) > max_step + slack
-            value = np.where(far, np.float32(-np.inf), value)
     back = np.zeros((K, G), dtype=np.intp)
     cols = np.arange(G)
     cache: dict[int, np.ndarray] = {}
@@ -74,10 +67,7 @@ def best_chain(
         s = max(round(span[k]), 1)
         trans = cache.get(s)
         if trans is None:  # indexed (to, from): the argmax runs along contiguous rows
-            cost = (s * smooth) * (np.cos(ang / s) - 1.0)
-            if max_step is not None:
-                cost[ang > s * max_step + slack] = -np.inf
-            trans = np.ascontiguousarray(cost.astype(np.float32).T)
+            trans = np.ascontiguousarray(((s * smooth) * (np.cos(ang / s) - 1.0)).astype(np.float32).T)
             cache[s] = trans
         total = trans + value[None, :]  # (to, from)
         back[k] = np.argmax(total, axis=1)
@@ -137,17 +127,46 @@ def initial_directions(
     *,
     resolution_deg: float = 12.0,
     anchor: np.ndarray | None = None,
-    max_step: float | None = None,
 ) -> np.ndarray:
     """Chain initialisation (n, 3) from unit ``bearings`` (K, L, 3) and ``weights`` (K, L) of the node
     waypoints ``nodes`` (K,) (increasing indices into the n waypoints, see :func:`node_indices`).
 
-    λ = 0 (``smooth`` 0) without ``max_step`` picks each node's best grid direction independently (pass
-    every waypoint as a node). ``max_step`` [rad]: the step limit per waypoint (see :func:`best_chain`).
+    λ = 0 (``smooth`` 0) picks each node's best grid direction independently (pass every waypoint as a node).
     """
     grid = sphere_grid(resolution_deg)
     nodes = np.asarray(nodes, dtype=np.intp)
     scores = grid_scores(bearings, weights, grid, alpha)
     span = np.diff(nodes, prepend=nodes[0] - 1).astype(float) if nodes.size > 1 else np.ones(1)
-    choice = best_chain(scores, grid, span, smooth, anchor, max_step, np.radians(resolution_deg))
+    choice = best_chain(scores, grid, span, smooth, anchor)
+    return slerp_fill(n, nodes, grid[choice])
+
+
+def step_limited_directions(
+    bearings: np.ndarray,
+    weights: np.ndarray,
+    alpha: float,
+    nodes: np.ndarray,
+    n: int,
+    max_step: float,
+    *,
+    resolution_deg: float = 12.0,
+    anchor: np.ndarray | None = None,
+) -> np.ndarray:
+    """Initialisation (n, 3) for a hard step limit ``max_step`` [rad]: the node directions with the largest
+    total visible fraction whose consecutive node directions are at most (smallest node span) × max_step
+    apart, exactly over a grid of resolution clamp(max_step / 2, 2°, ``resolution_deg``)
+    (:func:`pivotd.pivot.brute.best_grid_chain`), slerped in between, so every step is ≤ max_step.
+
+    With an anchor, node 0 stays within max_step + the grid's resolution of it. bearings (K, L, 3),
+    weights (K, L) as in :func:`initial_directions`.
+    """
+    res = float(np.clip(np.degrees(max_step) / 2, 2.0, max(resolution_deg, 2.0)))
+    grid = sphere_grid(res)
+    nodes = np.asarray(nodes, dtype=np.intp)
+    scores = grid_scores(bearings, weights, grid, alpha).astype(np.float64)
+    if anchor is not None:
+        far = grid @ anchor < np.cos(min(np.pi, max_step + np.radians(res)))
+        scores[0, far] = -np.inf
+    span = int(np.diff(nodes).min()) if nodes.size > 1 else 1
+    choice = best_grid_chain(scores, grid, np.degrees(span * max_step))
     return slerp_fill(n, nodes, grid[choice])

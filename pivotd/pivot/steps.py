@@ -16,6 +16,9 @@ import numpy as np
 
 from pivotd.pivot.constraints import PanTiltConstraint
 
+#: step limits users may ask for [deg]: below 0.01° a plan can hardly turn, 180° is no limit at all
+MAX_STEP_RANGE_DEG = (0.01, 180.0)
+
 
 def step_angles(C: np.ndarray, anchor: np.ndarray | None = None) -> np.ndarray:
     """Angles [rad] between consecutive unit axes C (N, 3): (N − 1,), or (N,) with the anchor's step first."""

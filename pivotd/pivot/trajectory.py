@@ -460,6 +460,11 @@ def optimize_trajectory(
         settle_frac=opts.settle_frac,
     )
     project = None if constraint is None else constraint.project
+    if max_step is not None:  # the limit replaces the smoothness term: most visible plan within the limit
+
+        def project(C: np.ndarray, _joints=project) -> np.ndarray:
+            return limit_steps(C if _joints is None else _joints(C), max_step, anchor=a_vec, constraint=constraint)
+
     if geom is None:
         empty = _ascent.Geometry(
             np.zeros((0, 3), np.float32), np.zeros((N, 3), np.float32), None, np.zeros(0, np.float32),
@@ -469,23 +474,36 @@ def optimize_trajectory(
     else:
         geom_run = geom
     coarse = None
-    smooth = lam * opts.smooth_scale
+    smooth = 0.0 if max_step is not None else lam * opts.smooth_scale
     if geom is not None and (len(stages) > 1 or (opts.chain_init and not warm)):
         lengths = np.full(N, P.shape[0]) if local is None else np.array([r.size for r in local])
         if opts.chain_init and not warm:  # the chain scores its node waypoints only
             linked = smooth > 0 or max_step is not None
             nodes = chain.node_indices(N, opts.chain_nodes) if linked else np.arange(N)
             sub = _ascent.subsample(geom.take_rows(nodes), lengths[nodes], opts.active_cap)
-            C_init = chain.initial_directions(
-                sub.points, sub.weights, alpha, smooth, nodes, N,
-                resolution_deg=opts.chain_resolution_deg, anchor=a_vec, max_step=max_step,
-            )
+            if max_step is None:
+                C_init = chain.initial_directions(
+                    sub.points, sub.weights, alpha, smooth, nodes, N,
+                    resolution_deg=opts.chain_resolution_deg, anchor=a_vec,
+                )
+            else:
+                C_init = chain.step_limited_directions(
+                    sub.points, sub.weights, alpha, nodes, N, max_step,
+                    resolution_deg=opts.chain_resolution_deg, anchor=a_vec,
+                )
             R0 = optical_frame_from_direction(C_init)
             settings.stages = [alpha]
             settings.step_init = rad(opts.chain_resolution_deg) / 2
         else:
             coarse = _ascent.subsample(geom, lengths, opts.active_cap)
-    R, iters = _ascent.ascend(geom_run, R0, norm, settings, lam=smooth, anchor=a_vec, project=project, coarse=coarse)
+    if max_step is not None and opts.chain_init and not warm and geom is not None:
+        # the step-limited chain is already the best plan within the limit on its grid: the ascent of the
+        # per-waypoint objective would pull the waypoints apart against the limit; the polish refines it
+        R, iters = R0, 0
+    else:
+        R, iters = _ascent.ascend(
+            geom_run, R0, norm, settings, lam=smooth, anchor=a_vec, project=project, coarse=coarse
+        )
     C = R[:, :, 2].copy()
     cold_or_allowed = opts.warm_polish or not warm
     if geom is not None and opts.polish_deg > 0 and cold_or_allowed:
@@ -507,7 +525,7 @@ def optimize_trajectory(
     else:
         visible, F = _ascent.evaluate(geom, C, alpha, rad(opts.width_deg))
     obj = float(np.sum(F / np.maximum(norm, 1e-12)))
-    if lam > 0:
+    if smooth > 0:
         obj += smooth * float(np.sum(C[1:] * C[:-1]))
         if a_vec is not None:
             obj += smooth * float(a_vec @ C[0])
