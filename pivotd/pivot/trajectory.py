@@ -127,7 +127,8 @@ def _dense_geometry(points: np.ndarray, waypoints: np.ndarray, fw: np.ndarray, d
         v = points[c] - waypoints[r]
         return np.einsum("ij,ij->i", v, C[r]) / np.maximum(np.linalg.norm(v, axis=1), 1e-300)
 
-    return _ascent.Geometry(P, T, inv, W, exact, valid_all), W.sum(axis=1, dtype=np.float64)
+    geom = _ascent.Geometry(P, T, inv, W, exact, valid_all, keys=_spatial_key(points))
+    return geom, W.sum(axis=1, dtype=np.float64)
 
 
 def _ragged_geometry(points, waypoints, fw, dist_w, retained: Sequence[np.ndarray]):
@@ -182,7 +183,8 @@ def _ragged_geometry(points, waypoints, fw, dist_w, retained: Sequence[np.ndarra
         v = points[idx[r, c]] - waypoints[r]
         return np.einsum("ij,ij->i", v, C[r]) / np.maximum(np.linalg.norm(v, axis=1), 1e-300)
 
-    geom = _ascent.Geometry(U, np.zeros((N, 3), np.float32), None, W, exact, valid=valid)
+    geom = _ascent.Geometry(U, np.zeros((N, 3), np.float32), None, W, exact, valid=valid,
+                            keys=_spatial_key(points).take(idx))
     return geom, W.sum(axis=1, dtype=np.float64)
 
 
@@ -214,10 +216,10 @@ def _weights(d: np.ndarray, valid: np.ndarray | None, fw: np.ndarray, dist_w: bo
 
 
 def _spatial_key(P: np.ndarray) -> np.ndarray:
-    """A pseudo-random uint64 key (M,) per landmark computed from its coordinates (M, 3) alone.
+    """A pseudo-random uint32 key (M,) per landmark computed from its coordinates (M, 3) alone.
 
-    Ordering landmarks by it makes every strided subsample (active-set thinning, the chain's scoring
-    sample) a function of the landmarks, not of their order in the map.
+    Subsamples keep the landmarks with the smallest keys (see ``_ascent.Geometry.keys``), so they are a
+    function of the landmarks, not of their order in the map. O(M), no sorting.
     """
     bits = np.ascontiguousarray(P + 0.0, dtype=np.float64).view(np.uint64).reshape(-1, 3)  # + 0.0: −0 → +0
     with np.errstate(over="ignore"):
@@ -227,17 +229,17 @@ def _spatial_key(P: np.ndarray) -> np.ndarray:
         h ^= h >> np.uint64(33)
         h *= np.uint64(0xFF51AFD7ED558CCD)
         h ^= h >> np.uint64(33)
-    return h
+    return (h >> np.uint64(32)).astype(np.uint32)
 
 
-def _local_map(
+def _gather_pairs(
     points: np.ndarray, weights: np.ndarray | None, retained: Sequence[np.ndarray], N: int
 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-    """Only the landmarks some waypoint retains: points (U, 3) float64, weights (U,) and the retained
-    lists re-indexed into them, each ordered by :func:`_spatial_key`.
+    """The retained (waypoint, landmark) pairs only: points (R, 3) float64 and weights (R,) of every pair,
+    in retained order, and per-waypoint index arrays into them.
 
-    Everything here costs O(retained pairs): the map itself is only indexed, never converted, checked
-    or copied as a whole (NaN/inf and negative weights are reported with their row in the map).
+    Everything here costs O(R): the map itself is only indexed, never converted, checked or copied as a
+    whole (NaN/inf coordinates and bad weights are reported with their row in the map).
     """
     if len(retained) != N:
         raise ValueError(f"retained must have one index array per waypoint ({N}), got {len(retained)}")
@@ -254,19 +256,15 @@ def _local_map(
     if flat.size and (flat.min() < 0 or flat.max() >= M):
         bad = int(np.searchsorted(np.cumsum(lens), int(np.argmax((flat < 0) | (flat >= M))), side="right"))
         raise ValueError(f"retained[{bad}] indexes outside 0..{M - 1}")
-    union, inverse = np.unique(flat, return_inverse=True)
-    P = finite_array("points", pts.take(union, axis=0), rows=union)
+    P = finite_array("points", pts.take(flat, axis=0), rows=flat)
     if weights is None:
-        fw = np.ones(union.size)
+        fw = np.ones(flat.size)
     else:
         w = weights if isinstance(weights, np.ndarray) else np.asarray(weights)
         if w.shape != (M,):
             raise ValueError(f"weights must have shape ({M},), got {w.shape}")
-        fw = feature_weights(w.take(union), union.size, rows=union)
-    owner = np.repeat(np.arange(N), lens)
-    order = np.lexsort((_spatial_key(P)[inverse], owner))  # by waypoint, then by key
-    local = np.split(inverse.ravel()[order], np.cumsum(lens)[:-1])
-    return P, fw, local
+        fw = feature_weights(w.take(flat), flat.size, rows=flat)
+    return P, fw, np.split(np.arange(flat.size), np.cumsum(lens)[:-1])
 
 
 def _independent_views(
@@ -284,8 +282,11 @@ def _independent_views(
     dirs, rots, visible = np.empty((N, 3)), np.empty((N, 3, 3)), np.zeros(N, dtype=int)
     obj, iters = 0.0, 0
     scale = max(float(np.abs(P).max(initial=0.0)), float(np.abs(T).max()), 1.0)
+    keys = _spatial_key(P)
     for i in range(N):
-        Pi, wi = (P, fw) if retained is None else (P[retained[i]], fw[retained[i]])
+        rows = np.arange(P.shape[0]) if retained is None else retained[i]
+        rows = rows[np.argsort(keys[rows], kind="stable")]  # optimize_view's samples: independent of the order
+        Pi, wi = P[rows], fw[rows]
         d = Pi - T[i]
         n = np.sqrt(np.square(d) @ np.ones(3))
         ok = n > 1e-9 * scale  # a landmark at the sensor has no bearing
@@ -405,12 +406,9 @@ def optimize_trajectory(
     if retained is None:
         P = finite_array("points", points)
         fw = feature_weights(weights, P.shape[0])
-        if P.shape[0] > 1:  # landmark order must not matter (strided subsamples): order them by _spatial_key
-            order = np.argsort(_spatial_key(P), kind="stable")
-            P, fw = P[order], fw[order]
         local = None
     else:
-        P, fw, local = _local_map(points, weights, retained, N)
+        P, fw, local = _gather_pairs(points, weights, retained, N)
     if constraint is not None and len(constraint) != N:
         raise ValueError(f"constraint has {len(constraint)} waypoints, the path has {N}")
     a_vec = None if anchor is None else unit_vector("anchor", anchor)
