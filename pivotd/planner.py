@@ -26,7 +26,7 @@ from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapSnapshot
 from pivotd.paths import Polyline, project_onto_polyline
 from pivotd.pivot.constraints import PanTiltConstraint
-from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
+from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory, spatial_order
 
 
 def slerp_directions(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -181,7 +181,10 @@ class RecedingHorizonPlanner:
             self._cache_key, self._cache = key, {}
         cached = {i: self._cache.get(round(float(s[i]) * 1e6)) for i in range(1, s.shape[0])}
         todo = [0] + [i for i, r in cached.items() if r is None]
-        fresh = _cap_retained(snapshot.retained(cams[todo], st.retained_filter), st.max_landmarks_per_waypoint)
+        # spatially ordered before the cap's strided subsample (and the optimizer's): the plan does not depend
+        # on the order of the landmarks in the map; only the waypoints new to the window pay for it
+        fresh = _cap_retained(spatial_order(snapshot.points, snapshot.retained(cams[todo], st.retained_filter)),
+                              st.max_landmarks_per_waypoint)
         out: list[np.ndarray] = [np.zeros(0, np.int64)] * s.shape[0]
         for i, r in zip(todo, fresh, strict=True):
             out[i] = r

@@ -39,8 +39,6 @@ class Geometry:
     exact: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
     valid_all: bool = False  # True when no landmark sits at a sensor (inv_dist > 0 wherever weights exist)
     valid: np.ndarray | None = None  # (K, L) bool for per-row unit bearings (inv_dist None): False for padding
-    keys: np.ndarray | None = None  # (L,) or (K, L) uint32 pseudo-random key per landmark (from its position):
-    # subsamples keep the landmarks with the smallest keys, so they do not depend on the landmarks' order
 
     @property
     def rows(self) -> int:
@@ -72,7 +70,6 @@ class Geometry:
             None if self.inv_dist is None else self.inv_dist[rows],
             self.weights if self.weights.ndim == 1 else self.weights[rows],
             self.exact,
-            keys=None if self.keys is None else (self.keys if self.keys.ndim == 1 else self.keys[rows]),
         )
 
 
@@ -107,9 +104,8 @@ def _active(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Padded active bearings (K, L, 3) and weights (K, L): landmarks with cos_lo ≤ cos θ ≤ cos_hi.
 
-    Rows with more than ``cap`` such landmarks keep a subset (about 1/stride of them: those whose key is
-    below 2³²/stride, or every stride-th column without keys) whose weights are scaled up so that each
-    row's total active weight is preserved. With cos_lo ≤ −1 ≤ 1 ≤ cos_hi and unit
+    Rows with more than ``cap`` such landmarks keep an evenly strided subset whose weights are scaled
+    up so that each row's total active weight is preserved. With cos_lo ≤ −1 ≤ 1 ≤ cos_hi and unit
     bearings (inv_dist None) within the cap, the stored arrays are returned as they are.
     """
     everything = cos_lo <= -1.0 and cos_hi >= 1.0
@@ -133,12 +129,8 @@ def _active(
         crowded = np.flatnonzero(stride > 1)
         for st in np.unique(stride[crowded]):  # rows sharing a stride are thinned together
             rows_st = crowded[stride[crowded] == st]
-            if geom.keys is None:
-                keep = np.zeros(Lfull, dtype=bool)
-                keep[:: int(st)] = True
-            else:
-                keys = geom.keys if geom.keys.ndim == 1 else geom.keys[rows_st]
-                keep = keys < np.uint32((1 << 32) // int(st))
+            keep = np.zeros(Lfull, dtype=bool)
+            keep[:: int(st)] = True
             mask[rows_st] &= keep
         kept = np.count_nonzero(mask, axis=1)
         scale = (counts / np.maximum(kept, 1)).astype(np.float32)
@@ -196,8 +188,7 @@ def _refresh_rows(
 
 
 def subsample(geom: Geometry, lengths: np.ndarray, cap: int) -> Geometry:
-    """At most ``cap`` landmarks of each row as unit bearings, weights scaled to the row totals: the
-    ``cap`` smallest keys (``geom.keys``), or evenly strided columns without keys.
+    """At most ``cap`` evenly strided landmarks of each row as unit bearings, weights scaled to the row totals.
 
     ``lengths`` (K,): how many leading columns of each row are real (the rest is padding).
     """
@@ -205,14 +196,6 @@ def subsample(geom: Geometry, lengths: np.ndarray, cap: int) -> Geometry:
     k = np.arange(cap)
     lengths = np.asarray(lengths, dtype=np.intp)
     cols = np.where(lengths[:, None] > cap, (k[None, :] * lengths[:, None]) // cap, k[None, :])
-    crowded = np.flatnonzero(lengths > cap)
-    if geom.keys is not None and crowded.size:
-        if geom.keys.ndim == 1:  # shared landmarks: every row has them all
-            cols[crowded] = np.sort(np.argpartition(geom.keys, cap - 1)[:cap])
-        else:
-            kk = geom.keys[crowded].copy()
-            kk[np.arange(kk.shape[1])[None, :] >= lengths[crowded, None]] = np.iinfo(np.uint32).max  # padding
-            cols[crowded] = np.sort(np.argpartition(kk, cap - 1, axis=1)[:, :cap], axis=1)
     real = k[None, :] < np.minimum(lengths, cap)[:, None]
     cols = np.where(real, cols, 0)
     rows = np.broadcast_to(np.arange(K)[:, None], cols.shape)

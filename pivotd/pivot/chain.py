@@ -153,20 +153,20 @@ def step_limited_directions(
     anchor: np.ndarray | None = None,
 ) -> np.ndarray:
     """Initialisation (n, 3) for a hard step limit ``max_step`` [rad]: the node directions with the largest
-    total visible fraction whose consecutive node directions are at most (smallest node span) × max_step
-    apart, exactly over a grid of resolution clamp(max_step / 2, 2°, ``resolution_deg``)
+    total visible fraction whose consecutive node directions are at most s × max_step apart (s: the
+    smallest node span), exactly over a grid of resolution clamp(s × max_step / 2, 2°, ``resolution_deg``)
     (:func:`pivotd.pivot.brute.best_grid_chain`), slerped in between, so every step is ≤ max_step.
 
     With an anchor, node 0 stays within max_step + the grid's resolution of it. bearings (K, L, 3),
     weights (K, L) as in :func:`initial_directions`.
     """
-    res = float(np.clip(np.degrees(max_step) / 2, 2.0, max(resolution_deg, 2.0)))
-    grid = sphere_grid(res)
     nodes = np.asarray(nodes, dtype=np.intp)
+    span = int(np.diff(nodes).min()) if nodes.size > 1 else 1
+    res = float(np.clip(np.degrees(span * max_step) / 2, 2.0, max(resolution_deg, 2.0)))
+    grid = sphere_grid(res)
     scores = grid_scores(bearings, weights, grid, alpha).astype(np.float64)
     if anchor is not None:
         far = grid @ anchor < np.cos(min(np.pi, max_step + np.radians(res)))
         scores[0, far] = -np.inf
-    span = int(np.diff(nodes).min()) if nodes.size > 1 else 1
     choice = best_grid_chain(scores, grid, np.degrees(span * max_step))
     return slerp_fill(n, nodes, grid[choice])

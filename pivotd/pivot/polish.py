@@ -131,8 +131,7 @@ def _ring_candidates(C: np.ndarray, radius: float) -> np.ndarray:
 
 
 def step_limited_polish(
-    B: np.ndarray,
-    Wa: np.ndarray,
+    band: Callable[[np.ndarray, float], tuple[np.ndarray, np.ndarray]],
     C: np.ndarray,
     alpha: float,
     max_step: float,
@@ -141,34 +140,47 @@ def step_limited_polish(
     *,
     anchor: np.ndarray | None = None,
     reachable: Reachable | None = None,
+    smooth: float = 0.0,
+    norm: np.ndarray | None = None,
 ) -> np.ndarray:
     """Step-limited dynamic-programming polish (module docstring); returns the new unit axes (N, 3).
 
-    B (N, L, 3) float32 unit bearings of the landmarks that can change state (the band around each
-    cone), Wa (N, L) their weights; C (N, 3) unit axes whose steps are ≤ ``max_step`` [rad]; one DP per
-    radius r = radius, radius/2, … ≥ tol [rad] over rings r and r/2 (recentred on each result);
-    ``reachable`` as in :func:`polish_trajectory`.
+    ``band(C, reach)`` returns float32 unit bearings (N, L, 3) and weights (N, L) of the landmarks
+    within α ± reach [rad] of each axis C (N, 3): the only ones whose state a move of at most ``reach``
+    can change (the others add the same to every candidate of their waypoint). C (N, 3): unit axes whose
+    steps are ≤ ``max_step`` [rad]; one DP per radius r = radius, radius/2, … ≥ tol [rad] over the
+    rings r and r/2 (recentred on each result, band re-selected); ``reachable`` as in
+    :func:`polish_trajectory`. With ``smooth`` = λκ > 0 it maximises Φ_hard (visible weight / ``norm``
+    (N,) plus λκ Σ c_{i+1}·c_i) within the limit instead of the visible weight alone.
     """
     C = np.array(C, dtype=float)
     N = C.shape[0]
-    if N == 0 or B.shape[1] == 0:
+    if N == 0:
         return C
     cos_a = np.float32(np.cos(alpha) - 1e-7)
     cos_s = float(np.cos(max_step)) - 1e-12
     r = radius
     while r >= tol:
+        B, Wa = band(C, 1.01 * r)
+        if B.shape[1] == 0:
+            break
         cand = _ring_candidates(C, r)  # (N, K, 3)
         inside = np.matmul(cand.astype(np.float32), B.transpose(0, 2, 1)) >= cos_a  # (N, K, L)
         val = np.matmul(inside.astype(np.float32), Wa[:, :, None])[..., 0].astype(float)  # (N, K)
+        if smooth > 0:
+            val /= np.maximum(norm, 1e-12)[:, None]
         if reachable is not None:
             val[:, 1:][~reachable(np.arange(N), cand[:, 1:])] = -np.inf
         if anchor is not None:
             far = cand[0] @ anchor < cos_s
             far[0] = False  # the current axis stays a choice whatever the rounding
             val[0, far] = -np.inf
-        ok = np.einsum("nkj,nlj->nkl", cand[1:], cand[:-1]) >= cos_s  # (N − 1, K to, K from)
+        cos_pairs = np.einsum("nkj,nlj->nkl", cand[1:], cand[:-1])  # (N − 1, K to, K from)
+        ok = cos_pairs >= cos_s
         ok[:, 0, 0] = True  # the current plan is always feasible
-        pen = np.where(ok, 0.0, -np.inf)
+        pen = np.where(ok, smooth * cos_pairs if smooth > 0 else 0.0, -np.inf)
+        if smooth > 0 and anchor is not None:
+            val[0] += smooth * (cand[0] @ anchor)
         scores = np.empty_like(val)
         scores[0] = val[0]
         for i in range(1, N):  # forward: best total of a feasible sequence ending in each candidate

@@ -55,6 +55,7 @@ class TrajectoryOptions:
     polish_cap: int = 2048  # ... landmarks per waypoint in its band (strided beyond)
     warm_polish: bool = False  # also polish warm starts (receding-horizon replans)
     step_polish_deg: float = 4.0  # step-limited DP polish of the visible count (pivotd.pivot.polish): radius (0: off)
+    seed_cap: int = 512  # landmarks per node waypoint scoring the step-limited grid chain (a second candidate plan)
 
 
 @dataclass
@@ -127,8 +128,7 @@ def _dense_geometry(points: np.ndarray, waypoints: np.ndarray, fw: np.ndarray, d
         v = points[c] - waypoints[r]
         return np.einsum("ij,ij->i", v, C[r]) / np.maximum(np.linalg.norm(v, axis=1), 1e-300)
 
-    geom = _ascent.Geometry(P, T, inv, W, exact, valid_all, keys=_spatial_key(points))
-    return geom, W.sum(axis=1, dtype=np.float64)
+    return _ascent.Geometry(P, T, inv, W, exact, valid_all), W.sum(axis=1, dtype=np.float64)
 
 
 def _ragged_geometry(points, waypoints, fw, dist_w, retained: Sequence[np.ndarray]):
@@ -183,8 +183,7 @@ def _ragged_geometry(points, waypoints, fw, dist_w, retained: Sequence[np.ndarra
         v = points[idx[r, c]] - waypoints[r]
         return np.einsum("ij,ij->i", v, C[r]) / np.maximum(np.linalg.norm(v, axis=1), 1e-300)
 
-    geom = _ascent.Geometry(U, np.zeros((N, 3), np.float32), None, W, exact, valid=valid,
-                            keys=_spatial_key(points).take(idx))
+    geom = _ascent.Geometry(U, np.zeros((N, 3), np.float32), None, W, exact, valid=valid)
     return geom, W.sum(axis=1, dtype=np.float64)
 
 
@@ -215,21 +214,46 @@ def _weights(d: np.ndarray, valid: np.ndarray | None, fw: np.ndarray, dist_w: bo
     return s.astype(np.float32, copy=False)
 
 
-def _spatial_key(P: np.ndarray) -> np.ndarray:
-    """A pseudo-random uint32 key (M,) per landmark computed from its coordinates (M, 3) alone.
+def morton_keys(P: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Z-order (Morton) keys (M,) uint64 of points P (M, 3) [m] in the box [lo, hi] (21 bits per axis).
 
-    Subsamples keep the landmarks with the smallest keys (see ``_ascent.Geometry.keys``), so they are a
-    function of the landmarks, not of their order in the map. O(M), no sorting.
+    Sorting landmarks by them lays them out along a space-filling curve: every strided subsample
+    (active-set thinning, the chain's scoring sample, the planner's cap) is then spread over space
+    evenly and depends on the landmarks only, not on their order in the map.
     """
-    bits = np.ascontiguousarray(P + 0.0, dtype=np.float64).view(np.uint64).reshape(-1, 3)  # + 0.0: −0 → +0
-    with np.errstate(over="ignore"):
-        h = bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)
-        h ^= bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F) + (h >> np.uint64(29))
-        h ^= bits[:, 2] * np.uint64(0x165667B19E3779F9) + (h >> np.uint64(32))
-        h ^= h >> np.uint64(33)
-        h *= np.uint64(0xFF51AFD7ED558CCD)
-        h ^= h >> np.uint64(33)
-    return (h >> np.uint64(32)).astype(np.uint32)
+    span = np.maximum(np.asarray(hi, float) - lo, 1e-12)
+    q = ((np.asarray(P, float) - lo) * ((2**21 - 1) / span)).clip(0, 2**21 - 1).astype(np.uint64)
+    key = np.zeros(q.shape[0], np.uint64)
+    for k in range(3):
+        v = q[:, k]
+        v = (v | (v << np.uint64(32))) & np.uint64(0x1F00000000FFFF)  # spread 21 bits to every third bit
+        v = (v | (v << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
+        v = (v | (v << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)
+        v = (v | (v << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
+        v = (v | (v << np.uint64(2))) & np.uint64(0x1249249249249249)
+        key |= v << np.uint64(k)
+    return key
+
+
+def spatial_order(points: np.ndarray, retained: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Each retained index array ordered by the Morton key of its landmarks (``points`` (M, 3) [m]) in the
+    box of all retained landmarks; ties (coincident landmarks) by coordinates. Cost O(R log R) for R
+    retained pairs: only the retained rows of ``points`` are read.
+
+    ``optimize_trajectory`` subsamples each waypoint's landmarks by strides in the given order, so
+    retained sets in this order give answers that do not depend on the map's landmark order.
+    """
+    lists = [np.asarray(r, dtype=np.intp).ravel() for r in retained]
+    if not lists or sum(r.size for r in lists) == 0:
+        return lists
+    pts = [np.asarray(points.take(r, axis=0), float) for r in lists]
+    nonempty = [p for p in pts if p.size]
+    lo = np.min([p.min(axis=0) for p in nonempty], axis=0)
+    hi = np.max([p.max(axis=0) for p in nonempty], axis=0)
+    out = []
+    for r, p in zip(lists, pts, strict=True):
+        out.append(r[np.lexsort((p[:, 2], p[:, 1], p[:, 0], morton_keys(p, lo, hi)))] if r.size > 1 else r)
+    return out
 
 
 def _gather_pairs(
@@ -282,11 +306,8 @@ def _independent_views(
     dirs, rots, visible = np.empty((N, 3)), np.empty((N, 3, 3)), np.zeros(N, dtype=int)
     obj, iters = 0.0, 0
     scale = max(float(np.abs(P).max(initial=0.0)), float(np.abs(T).max()), 1.0)
-    keys = _spatial_key(P)
     for i in range(N):
-        rows = np.arange(P.shape[0]) if retained is None else retained[i]
-        rows = rows[np.argsort(keys[rows], kind="stable")]  # optimize_view's samples: independent of the order
-        Pi, wi = P[rows], fw[rows]
+        Pi, wi = (P, fw) if retained is None else (P[retained[i]], fw[retained[i]])
         d = Pi - T[i]
         n = np.sqrt(np.square(d) @ np.ones(3))
         ok = n > 1e-9 * scale  # a landmark at the sensor has no bearing
@@ -346,6 +367,14 @@ def _polish(
     return C_new
 
 
+def _hard_total(geom: _ascent.Geometry, C: np.ndarray, alpha: float) -> float:
+    """Σ_i of the hard visible weight of waypoint i's landmarks for axes C (N, 3) (float32 cosines)."""
+    inside = geom.cos_all(C) >= np.float32(np.cos(alpha))
+    if geom.inv_dist is not None and not geom.valid_all:
+        inside &= geom.inv_dist > 0
+    return float(np.sum(inside * geom.weight_rows(), dtype=np.float64))
+
+
 def _step_polish(
     geom: _ascent.Geometry,
     C: np.ndarray,
@@ -354,12 +383,15 @@ def _step_polish(
     anchor: np.ndarray | None,
     constraint: PanTiltConstraint | None,
     opts: TrajectoryOptions,
+    smooth: float = 0.0,
+    norm: np.ndarray | None = None,
 ) -> np.ndarray:
     """Step-limited polish of the visible weight (pivotd.pivot.polish.step_limited_polish) of the axes C (N, 3)."""
     radius, tol = np.radians(opts.step_polish_deg), np.radians(opts.polish_tol_deg)
-    B, Wa = _band(geom, C, alpha, 2.0 * radius, opts.polish_cap)
     return polish.step_limited_polish(
-        B, Wa, C, alpha, max_step, radius, tol, anchor=anchor, reachable=_reachable_fn(constraint)
+        lambda C_, reach: _band(geom, C_, alpha, reach, opts.polish_cap),
+        C, alpha, max_step, radius, tol, anchor=anchor, reachable=_reachable_fn(constraint),
+        smooth=smooth, norm=norm,
     )
 
 
@@ -406,6 +438,9 @@ def optimize_trajectory(
     if retained is None:
         P = finite_array("points", points)
         fw = feature_weights(weights, P.shape[0])
+        if P.shape[0] > 1:  # every landmark is used: lay them out along a space-filling curve (spatial_order)
+            order = spatial_order(P, [np.arange(P.shape[0])])[0]
+            P, fw = P[order], fw[order]
         local = None
     else:
         P, fw, local = _gather_pairs(points, weights, retained, N)
@@ -458,11 +493,6 @@ def optimize_trajectory(
         settle_frac=opts.settle_frac,
     )
     project = None if constraint is None else constraint.project
-    if max_step is not None:  # the limit replaces the smoothness term: most visible plan within the limit
-
-        def project(C: np.ndarray, _joints=project) -> np.ndarray:
-            return limit_steps(C if _joints is None else _joints(C), max_step, anchor=a_vec, constraint=constraint)
-
     if geom is None:
         empty = _ascent.Geometry(
             np.zeros((0, 3), np.float32), np.zeros((N, 3), np.float32), None, np.zeros(0, np.float32),
@@ -472,36 +502,26 @@ def optimize_trajectory(
     else:
         geom_run = geom
     coarse = None
-    smooth = 0.0 if max_step is not None else lam * opts.smooth_scale
+    seed = None  # node waypoints of the chain initialisation, for the step-limited seed
+    smooth = lam * opts.smooth_scale
     if geom is not None and (len(stages) > 1 or (opts.chain_init and not warm)):
         lengths = np.full(N, P.shape[0]) if local is None else np.array([r.size for r in local])
         if opts.chain_init and not warm:  # the chain scores its node waypoints only
             linked = smooth > 0 or max_step is not None
             nodes = chain.node_indices(N, opts.chain_nodes) if linked else np.arange(N)
             sub = _ascent.subsample(geom.take_rows(nodes), lengths[nodes], opts.active_cap)
-            if max_step is None:
-                C_init = chain.initial_directions(
-                    sub.points, sub.weights, alpha, smooth, nodes, N,
-                    resolution_deg=opts.chain_resolution_deg, anchor=a_vec,
-                )
-            else:
-                C_init = chain.step_limited_directions(
-                    sub.points, sub.weights, alpha, nodes, N, max_step,
-                    resolution_deg=opts.chain_resolution_deg, anchor=a_vec,
-                )
+            seed = nodes if linked else None
+            node_scores = sub if smooth > 0 or not linked else _ascent.subsample(geom, lengths, opts.active_cap)
+            C_init = chain.initial_directions(
+                node_scores.points, node_scores.weights, alpha, smooth, nodes if smooth > 0 else np.arange(N), N,
+                resolution_deg=opts.chain_resolution_deg, anchor=a_vec,
+            )
             R0 = optical_frame_from_direction(C_init)
             settings.stages = [alpha]
             settings.step_init = rad(opts.chain_resolution_deg) / 2
         else:
             coarse = _ascent.subsample(geom, lengths, opts.active_cap)
-    if max_step is not None and opts.chain_init and not warm and geom is not None:
-        # the step-limited chain is already the best plan within the limit on its grid: the ascent of the
-        # per-waypoint objective would pull the waypoints apart against the limit; the polish refines it
-        R, iters = R0, 0
-    else:
-        R, iters = _ascent.ascend(
-            geom_run, R0, norm, settings, lam=smooth, anchor=a_vec, project=project, coarse=coarse
-        )
+    R, iters = _ascent.ascend(geom_run, R0, norm, settings, lam=smooth, anchor=a_vec, project=project, coarse=coarse)
     C = R[:, :, 2].copy()
     cold_or_allowed = opts.warm_polish or not warm
     if geom is not None and opts.polish_deg > 0 and cold_or_allowed:
@@ -511,8 +531,23 @@ def optimize_trajectory(
         limit = max_step
     else:  # Pareto polish: more visible landmarks at the plan's own largest step
         limit = float(step_angles(C, a_vec).max(initial=0.0)) if (N > 1 or a_vec is not None) else None
-    if geom is not None and opts.step_polish_deg > 0 and cold_or_allowed and limit is not None:
-        C = _step_polish(geom, C, alpha, limit, a_vec, constraint, opts)
+    if geom is not None and opts.step_polish_deg > 0 and cold_or_allowed and limit is not None and limit > 0:
+        # at the plan's own largest step the polish keeps the λ trade-off (Φ_hard within the step); under a
+        # hard limit the limit is the smoothness asked for, and the polish maximises the visible weight
+        keep_smooth = smooth if max_step is None else 0.0
+        C = _step_polish(geom, C, alpha, limit, a_vec, constraint, opts, keep_smooth, norm)
+        if seed is not None:
+            # the best plan with this largest step on a grid, polished: kept when it sees more (both stay ≤ limit)
+            nodes = seed
+            sub = _ascent.subsample(geom.take_rows(nodes), lengths[nodes], opts.seed_cap)
+            C_alt = chain.step_limited_directions(sub.points, sub.weights, alpha, nodes, N, limit,
+                                                  resolution_deg=opts.chain_resolution_deg, anchor=a_vec)
+            if constraint is not None:
+                C_alt = constraint.project(C_alt)
+            C_alt = _step_polish(geom, limit_steps(C_alt, limit, anchor=a_vec, constraint=constraint), alpha, limit,
+                                 a_vec, constraint, opts, keep_smooth, norm)
+            if _hard_total(geom, C_alt, alpha) > _hard_total(geom, C, alpha):
+                C = C_alt
         if max_step is not None:
             C = limit_steps(C, max_step, anchor=a_vec, constraint=constraint)  # a no-op: the guarantee
     R = _ascent._turn_to(R, C)
