@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -98,6 +98,7 @@ class PlannerSettings:
     back_window: float = 1.0
     ahead_window: float = 5.0
     max_step: float | None = None
+    cold_polish: bool = False  # step-limited polish of cold starts (the warm replans after them do not polish)
 
     @property
     def alpha(self) -> float:
@@ -243,7 +244,7 @@ class RecedingHorizonPlanner:
             anchor=anchor,
             constraint=self._constraint(quats),
             max_step=st.max_step,
-            options=st.options,
+            options=st.options if st.cold_polish else replace(st.options or TrajectoryOptions(), step_polish_deg=0.0),
         )
         plan = Plan(
             created=time.monotonic(),

@@ -55,7 +55,7 @@ class TrajectoryOptions:
     polish_cap: int = 2048  # ... landmarks per waypoint in its band (strided beyond)
     warm_polish: bool = False  # also polish warm starts (receding-horizon replans)
     step_polish_deg: float = 4.0  # step-limited DP polish of the visible count (pivotd.pivot.polish): radius (0: off)
-    seed_cap: int = 512  # landmarks per node waypoint scoring the step-limited grid chain (a second candidate plan)
+    seed_cap: int = 512  # landmarks per node waypoint scoring the step-limited grid chain (a second candidate; 0: off)
 
 
 @dataclass
@@ -536,8 +536,9 @@ def optimize_trajectory(
         # hard limit the limit is the smoothness asked for, and the polish maximises the visible weight
         keep_smooth = smooth if max_step is None else 0.0
         C = _step_polish(geom, C, alpha, limit, a_vec, constraint, opts, keep_smooth, norm)
-        if seed is not None:
-            # the best plan with this largest step on a grid, polished: kept when it sees more (both stay ≤ limit)
+        if seed is not None and opts.seed_cap > 0 and max_step is not None:
+            # under a hard limit, the best plan within it on a grid, polished, is a second candidate, kept when
+            # it sees more (both stay within the limit): the λ plan may take another route than the limit allows
             nodes = seed
             sub = _ascent.subsample(geom.take_rows(nodes), lengths[nodes], opts.seed_cap)
             C_alt = chain.step_limited_directions(sub.points, sub.weights, alpha, nodes, N, limit,
