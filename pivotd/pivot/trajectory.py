@@ -252,7 +252,18 @@ def spatial_order(points: np.ndarray, retained: Sequence[np.ndarray]) -> list[np
     hi = np.max([p.max(axis=0) for p in nonempty], axis=0)
     out = []
     for r, p in zip(lists, pts, strict=True):
-        out.append(r[np.lexsort((p[:, 2], p[:, 1], p[:, 0], morton_keys(p, lo, hi)))] if r.size > 1 else r)
+        if r.size < 2:
+            out.append(r)
+            continue
+        key = morton_keys(p, lo, hi)
+        order = np.argsort(key)
+        ks = key[order]
+        dup = np.flatnonzero(ks[1:] == ks[:-1])
+        if dup.size:  # landmarks within one key cell (~coincident): by coordinates, within their groups
+            sel = np.union1d(dup, dup + 1)
+            sub = order[sel]
+            order[sel] = sub[np.lexsort((p[sub, 2], p[sub, 1], p[sub, 0], ks[sel]))]
+        out.append(r[order])
     return out
 
 
