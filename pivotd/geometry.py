@@ -93,22 +93,34 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
 
 
 def matrix_to_quat(R: np.ndarray) -> np.ndarray:
-    """Quaternions (..., 4) ordered (x, y, z, w) with w ≥ 0 from rotation matrices (..., 3, 3)."""
+    """Quaternions (..., 4) ordered (x, y, z, w) from rotation matrices (..., 3, 3), canonical: w > 0, or for
+    half-turns (w = 0) the first non-zero component positive (as scipy's ``as_quat(canonical=True)``).
+
+    Shepperd's method: each matrix is converted on the branch of its largest of (trace, R00, R11, R22), so
+    the divisor is at least 1/2 and rotations by 180° (where the off-diagonal differences vanish and carry
+    no sign) come out right.
+    """
     R = np.asarray(R, dtype=float)
-    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
-    q = np.stack(
-        [
-            np.sqrt(np.maximum(0.0, 1 + m00 - m11 - m22)) / 2,
-            np.sqrt(np.maximum(0.0, 1 - m00 + m11 - m22)) / 2,
-            np.sqrt(np.maximum(0.0, 1 - m00 - m11 + m22)) / 2,
-            np.sqrt(np.maximum(0.0, 1 + m00 + m11 + m22)) / 2,
-        ],
-        axis=-1,
-    )
-    q[..., 0] = np.copysign(q[..., 0], R[..., 2, 1] - R[..., 1, 2])
-    q[..., 1] = np.copysign(q[..., 1], R[..., 0, 2] - R[..., 2, 0])
-    q[..., 2] = np.copysign(q[..., 2], R[..., 1, 0] - R[..., 0, 1])
-    return normalize(q)
+    m = R.reshape(-1, 3, 3)
+    m00, m11, m22 = m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]
+    branch = np.argmax(np.stack([m00 + m11 + m22, m00, m11, m22], axis=1), axis=1)
+    d21, d02, d10 = m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]
+    s01, s02, s12 = m[:, 0, 1] + m[:, 1, 0], m[:, 0, 2] + m[:, 2, 0], m[:, 1, 2] + m[:, 2, 1]
+    # Four times the quaternion on each branch: (x, y, z, w) scaled by 4·(the branch's own component).
+    big = np.sqrt(np.maximum(1.0 + np.choose(branch, [m00 + m11 + m22, m00 - m11 - m22, m11 - m00 - m22,
+                                                      m22 - m00 - m11]), 0.0))
+    q = np.choose(branch[:, None], [
+        np.stack([d21, d02, d10, big * big], axis=1),
+        np.stack([big * big, s01, s02, d21], axis=1),
+        np.stack([s01, big * big, s12, d02], axis=1),
+        np.stack([s02, s12, big * big, d10], axis=1),
+    ])
+    q = q / (2.0 * big[:, None])
+    # Canonical sign: the first non-zero of (w, x, y, z) positive.
+    order = q[:, [3, 0, 1, 2]]
+    first = np.argmax(order != 0.0, axis=1)
+    q = np.where(order[np.arange(q.shape[0]), first][:, None] < 0, -q, q)
+    return normalize(q).reshape(*R.shape[:-2], 4)
 
 
 def yaw_to_matrix(yaw: np.ndarray) -> np.ndarray:

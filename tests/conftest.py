@@ -1,4 +1,4 @@
-"""Shared fixtures: repository paths, FIF data."""
+"""Shared fixtures: repository paths, FIF data; the exhaustive-reference tests marked slow."""
 
 from pathlib import Path
 
@@ -6,6 +6,19 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 FIF = REPO / "tests" / "data" / "fif"
+
+# Exhaustive references that take seconds of CPU each; like the subprocess and real-time tests (marked in
+# their modules) they run in `make test` and are left out of `make test-fast`.
+EXHAUSTIVE_REFERENCE_TESTS = {
+    "test_chain_is_the_exhaustive_optimum_on_a_small_grid",
+    "test_reference_respects_the_step_and_bounds_the_free_plan",
+}
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if getattr(item, "originalname", item.name) in EXHAUSTIVE_REFERENCE_TESTS:
+            item.add_marker(pytest.mark.slow)
 
 
 @pytest.fixture

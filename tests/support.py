@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from pivotd.demo import free_port as free_tcp_port  # noqa: F401 - re-exported for the tests
+from pivotd.sim.launch import free_port as free_tcp_port  # noqa: F401 - re-exported for the tests
 
 REPO = Path(__file__).resolve().parent.parent
 PYTHON = sys.executable

@@ -4,8 +4,8 @@ import math
 
 import numpy as np
 
-from pivotd.analysis import setpoint_dynamics, visible_counts
 from pivotd.gimbal.motion import AxisLimits
+from pivotd.sim.analysis import setpoint_dynamics, visible_counts
 
 
 def test_dynamics_of_a_known_cubic():

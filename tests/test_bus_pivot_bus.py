@@ -121,7 +121,7 @@ def test_joint_state_reaches_a_wildcard_ros_subscriber(sessions):
     sub = sessions[1].declare_subscriber(key, lambda s: got.put((str(s.key_expr), s.payload.to_bytes(),
                                                                  s.attachment.to_bytes())))
     try:
-        assert wait_for(bus._joint_pub.matched)
+        assert wait_for(bus.joint_state_publisher.matched)
         before = time.time_ns()
         bus.publish_joint_state(50.25, 0.5, -0.25, 0.1, -0.2)
         bus.publish_joint_state(50.5, 0.6, -0.25, 0.1, -0.2)
@@ -137,7 +137,7 @@ def test_joint_state_reaches_a_wildcard_ros_subscriber(sessions):
         assert js.header.stamp.sec == 50 and js.header.stamp.nanosec == 250_000_000
         a1, a2 = ros.Attachment.decode(att), ros.Attachment.decode(samples[1][2])
         assert (a1.sequence, a2.sequence) == (1, 2)
-        assert a1.gid == a2.gid == bus._joint_pub.gid
+        assert a1.gid == a2.gid == bus.joint_state_publisher.gid
         assert before - 10**9 <= a1.source_time_ns <= a2.source_time_ns
     finally:
         sub.undeclare()
@@ -150,7 +150,7 @@ def test_view_plan_is_a_path_of_camera_poses(sessions):
     sub = sessions[1].declare_subscriber("0/pivot/view_plan/nav_msgs::msg::dds_::Path_/*",
                                          lambda s: got.put(s.payload.to_bytes()))
     try:
-        assert wait_for(bus._plan_pub.matched)
+        assert wait_for(bus.view_plan_publisher.matched)
         dirs = np.array([[1.0, 0, 0], [0, 1.0, 0], [0.6, 0, -0.8]])
         pos = np.array([[0, 0, 1.0], [1, 0, 1], [2, 0, 1]])
         bus.publish_view_plan(9.0, pos, dirs)
@@ -169,7 +169,7 @@ def test_liveliness_tokens_visible_from_another_session_and_withdrawn(sessions):
     bus, _ = make_bus(sessions[0], domain_id=3)
     try:
         zid = str(sessions[0].info.zid())
-        expected_pub = ros.entity_token_key(ros.PUBLISHER, 3, zid, 0, bus._joint_pub.entity_id, "pivotd",
+        expected_pub = ros.entity_token_key(ros.PUBLISHER, 3, zid, 0, bus.joint_state_publisher.entity_id, "pivotd",
                                             "/pivot/joint_states", m.JOINT_STATE, ros.QoS(depth=10))
         node_key = f"@ros2_lv/3/{zid}/0/0/NN/%/%/pivotd"
 
@@ -205,7 +205,7 @@ def test_status_publication_and_queryable(sessions):
         assert wait_for(lambda: len(query()) == 1)
         first = query()[0]
         assert first["state"] == "starting" and "/odom" in first["bus"]
-        assert wait_for(lambda: bus._status_pub.matching_status.matching)
+        assert wait_for(lambda: bus.status_publisher.matching_status.matching)
         bus.publish_status({"state": "tracking", "pose_age_s": np.float64(0.25), "dir": np.array([1.0, 0, 0])})
         pushed = json.loads(drain(got, 1)[0])
         assert pushed["state"] == "tracking" and pushed["pose_age_s"] == 0.25 and pushed["dir"] == [1.0, 0, 0]
@@ -236,7 +236,7 @@ def test_humble_publishers_are_received_and_humble_mode_publishes_without_hash(s
         assert "/nav_msgs::msg::dds_::Odometry_/TypeHashNotSupported/" in odom.token_key
         odom.put(m.encode_odometry(0, "map", "b", [1, 1, 1], [0, 0, 0, 1]))
         np.testing.assert_allclose(drain(events, 1)[0].position, [1, 1, 1])
-        assert bus._joint_pub.key.endswith("/sensor_msgs::msg::dds_::JointState_/TypeHashNotSupported")
+        assert bus.joint_state_publisher.key.endswith("/sensor_msgs::msg::dds_::JointState_/TypeHashNotSupported")
     finally:
         bus.close()
         humble.close()

@@ -27,7 +27,7 @@ def test_probe_records_joint_states_poses_plans_and_status(sessions):
     talker = ros.RosNode(a, "talker", TOPICS.domain_id, node_id=77)
     probe = BusProbe(b, TOPICS)
     try:
-        assert wait_for(bus._joint_pub.matched)  # the probe is the only subscriber
+        assert wait_for(bus.joint_state_publisher.matched)  # the probe is the only subscriber
         bus.publish_joint_state(1.0, 0.25, -0.5, 0.0, 0.0)
         assert wait_for(lambda: probe.joints)
         _, pan, tilt, key, att = probe.joints[-1]

@@ -10,7 +10,7 @@ from firmware_proto.vectors import c_header, load_vectors
 
 C_DIR = Path(__file__).resolve().parent.parent / "firmware_proto" / "c"
 CC = shutil.which("cc") or shutil.which("gcc")
-pytestmark = pytest.mark.skipif(CC is None, reason="no C compiler")
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(CC is None, reason="no C compiler")]
 
 
 def build_and_run(tmp_path: Path, vectors: dict) -> subprocess.CompletedProcess:

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow  # subprocesses / real time
+
 REPO = Path(__file__).resolve().parent.parent
 SHIPPED = sorted((REPO / "config").glob("*.yaml"))
 

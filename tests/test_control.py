@@ -9,10 +9,12 @@ from support import REPO, wait_until
 
 from pivotd.bus.messages import PoseSample
 from pivotd.config import load_config
+from pivotd.daemon.planner import Plan
+from pivotd.daemon.wiring import build_control_loop, build_link_config
 from pivotd.gimbal.kinematics import world_direction_to_joints
 from pivotd.gimbal.link import GimbalLink
-from pivotd.planner import Plan
-from pivotd.runtime import build_control_loop, build_link_config
+
+pytestmark = pytest.mark.slow  # subprocesses / real time
 
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 

@@ -11,9 +11,9 @@ from mcap.reader import make_reader
 from support import PYTHON, REPO, ManagedProcess, child_env, free_tcp_port, wait_until
 
 from pivotd.bus.messages import JOINT_STATE, ODOMETRY, PATH, deserialize
-from pivotd.demo import derive_config
+from pivotd.sim.launch import derive_config
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(120)]
 
 
 def test_notify_watchdog_and_mcap_recording(tmp_path):
@@ -45,6 +45,11 @@ def test_notify_watchdog_and_mcap_recording(tmp_path):
         drain()
         watchdogs = sum("WATCHDOG=1" in m for m in messages)
         assert watchdogs >= 6, messages  # at least every 0.5 s over ~4 s of healthy control
+        # systemctl status shows what the daemon does: a STATUS= line while tracking the simulated robot.
+        statuses = [m for m in messages if m.startswith("STATUS=")]
+        assert any(m.startswith("STATUS=tracking; gimbal link up; ") and "landmarks in view" in m
+                   for m in statuses), statuses
+        assert all("\n" not in m for m in statuses)
         daemon.send_signal(signal.SIGHUP)
         assert wait_until(lambda: drain() or any("RELOADING=1" in m for m in messages), 10), daemon.output()
         assert any("MONOTONIC_USEC=" in m for m in messages if "RELOADING=1" in m)

@@ -75,3 +75,62 @@ def test_angle_between_accuracy():
     b = np.array([np.cos(1e-8), np.sin(1e-8), 0])
     assert abs(g.angle_between(a, b) - 1e-8) < 1e-15
     assert abs(g.angle_between(a, -a) - np.pi) < 1e-12
+
+
+def _axis_rotation(axis: int, angle: float) -> np.ndarray:
+    w = np.zeros(3)
+    w[axis] = angle
+    return g.so3_exp(w)
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+@pytest.mark.parametrize("angle_deg", [0.0, 90.0, 180.0, -90.0, 179.999])
+def test_matrix_to_quat_about_each_axis(axis, angle_deg):
+    """Exact quaternions at 0°, ±90° and 180° about x, y and z (180°: w = 0, the copysign trap)."""
+    angle = np.radians(angle_deg)
+    q = g.matrix_to_quat(_axis_rotation(axis, angle))
+    expected = np.zeros(4)
+    expected[axis] = np.sin(angle / 2)
+    expected[3] = np.cos(angle / 2)
+    if expected[3] < 0 or (expected[3] == 0 and expected[axis] < 0):
+        expected = -expected
+    np.testing.assert_allclose(q, expected, atol=1e-12)
+    np.testing.assert_allclose(g.quat_to_matrix(q), _axis_rotation(axis, angle), atol=1e-12)
+
+
+def test_matrix_to_quat_half_turns_about_oblique_axes():
+    """Every 180° rotation round-trips, whatever its axis (w = 0: only the branch on the diagonal works)."""
+    rng = np.random.default_rng(7)
+    axes = g.normalize(rng.normal(size=(300, 3)))
+    R = g.so3_exp(axes * np.pi)
+    q = g.matrix_to_quat(R)
+    np.testing.assert_allclose(np.abs(q[:, 3]), 0.0, atol=1e-7)
+    np.testing.assert_allclose(g.quat_to_matrix(q), R, atol=1e-9)
+    np.testing.assert_allclose(np.abs(np.sum(q[:, :3] * axes, axis=1)), 1.0, atol=1e-9)
+
+
+def test_optical_frame_quaternion_keeps_the_optical_axis():
+    """The camera frame looking along (0, −1, −0.01) is a near-half-turn; its quaternion must still look there."""
+    c = g.normalize(np.array([0.0, -1.0, -0.01]))
+    R = g.optical_frame_from_direction(c)
+    q = g.matrix_to_quat(R)
+    np.testing.assert_allclose(g.quat_to_matrix(q) @ [0.0, 0.0, 1.0], c, atol=1e-12)
+    np.testing.assert_allclose(g.quat_to_matrix(q), R, atol=1e-12)
+
+
+def test_matrix_to_quat_keeps_batch_shape():
+    R = np.broadcast_to(np.eye(3), (2, 5, 3, 3))
+    q = g.matrix_to_quat(R)
+    assert q.shape == (2, 5, 4)
+    np.testing.assert_allclose(q[..., 3], 1.0)
+
+
+def test_matrix_to_quat_matches_scipy_on_random_and_half_turn_rotations():
+    """scipy's Rotation is the reference (same (x, y, z, w) order and canonical sign)."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3)
+    axes = g.normalize(rng.normal(size=(400, 3)))
+    angles = np.concatenate([rng.uniform(0, np.pi, 200), np.full(100, np.pi), np.pi - rng.uniform(0, 1e-6, 100)])
+    R = g.so3_exp(axes * angles[:, None])
+    np.testing.assert_allclose(g.matrix_to_quat(R), Rotation.from_matrix(R).as_quat(canonical=True), atol=1e-9)

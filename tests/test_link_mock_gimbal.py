@@ -10,6 +10,8 @@ from firmware_proto import codec
 from firmware_proto.messages import FAULT_OVERCURRENT, FAULT_WATCHDOG, MODE_DISABLED, MODE_ENABLED, MODE_FAULT, Hello
 from pivotd.gimbal.link import GimbalLink
 
+pytestmark = pytest.mark.slow  # subprocesses / real time
+
 
 def track(link: GimbalLink, pan: float, tilt: float, timeout: float = 5.0):
     """Stream one setpoint per received STATE until the gimbal is at (pan, tilt); return the final state."""

@@ -9,6 +9,8 @@ from firmware_proto import codec
 from firmware_proto.messages import MODE_ENABLED, Hello, Identity
 from pivotd.gimbal.link import GimbalLink
 
+pytestmark = pytest.mark.slow  # subprocesses / real time
+
 
 def test_importing_the_link_registers_mock_urls() -> None:
     assert "firmware_proto.urlhandler" in serial.protocol_handler_packages

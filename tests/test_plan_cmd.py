@@ -12,6 +12,8 @@ import pytest
 from pivotd.geometry import normalize
 from pivotd.pivot.visibility import hard_count
 
+pytestmark = pytest.mark.slow  # subprocesses / real time
+
 REPO = Path(__file__).resolve().parent.parent
 FIF = REPO / "tests" / "data" / "fif"
 MAP = FIF / "ycorridor_6x20_points_w.txt"

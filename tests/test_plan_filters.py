@@ -5,7 +5,10 @@ import math
 import subprocess
 
 import numpy as np
+import pytest
 from support import PYTHON, REPO, child_env
+
+pytestmark = pytest.mark.slow  # subprocesses / real time
 
 TWO_WALLS = REPO / "tests" / "data" / "fif" / "two_walls_points_w.txt"
 

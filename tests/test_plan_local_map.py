@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pivotd.daemon.planner import PlannerSettings, RecedingHorizonPlanner
 from pivotd.geometry import angle_between, normalize
 from pivotd.gimbal.kinematics import JointLimits, Mount
 from pivotd.maps.filters import RetainedFilter
@@ -20,7 +21,6 @@ from pivotd.maps.store import MapStore
 from pivotd.pivot.scenes import competing_clusters_path, hallway
 from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory, spatial_order
 from pivotd.pivot.view import optimize_view
-from pivotd.planner import PlannerSettings, RecedingHorizonPlanner
 
 REPO = Path(__file__).resolve().parent.parent
 PLAN = TrajectoryOptions(distance_weights=False)

@@ -5,14 +5,14 @@ import math
 import numpy as np
 import pytest
 
+from pivotd.daemon.planner import Plan, PlannerSettings, RecedingHorizonPlanner, slerp_directions
 from pivotd.geometry import angle_between, normalize
 from pivotd.gimbal.kinematics import JointLimits, Mount, world_directions_to_joints
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.formats import LandmarkCloud
 from pivotd.maps.store import MapStore
-from pivotd.paths import Polyline
 from pivotd.pivot.scenes import hallway
-from pivotd.planner import Plan, PlannerSettings, RecedingHorizonPlanner, slerp_directions
+from pivotd.robot_path import Polyline
 
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 

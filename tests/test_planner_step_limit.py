@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from pivotd.config import load_config
+from pivotd.daemon.planner import PlannerSettings, RecedingHorizonPlanner
+from pivotd.daemon.wiring import build_planner
 from pivotd.errors import ConfigError
 from pivotd.gimbal.kinematics import JointLimits, Mount
 from pivotd.maps.filters import RetainedFilter
@@ -13,8 +15,6 @@ from pivotd.maps.formats import LandmarkCloud
 from pivotd.maps.store import MapStore
 from pivotd.pivot.scenes import hallway
 from pivotd.pivot.steps import step_angles
-from pivotd.planner import PlannerSettings, RecedingHorizonPlanner
-from pivotd.runtime import build_planner
 
 MINIMAL = "name: test-node\nmap:\n  allow_empty: true\n"
 

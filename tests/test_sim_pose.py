@@ -13,14 +13,14 @@ from bus_support import drain, free_port, wait_for
 
 from pivotd.bus import messages as m
 from pivotd.bus.pivot_bus import PivotBus
-from pivotd.bus.route import Route, load_route
 from pivotd.bus.session import open_session
-from pivotd.bus.sim_pose import parse_gap
 from pivotd.bus.topics import BusTopics
 from pivotd.errors import InputError
 from pivotd.geometry import quat_to_matrix
-from pivotd.paths import load_path
 from pivotd.pivot.scenes import hallway
+from pivotd.robot_path import load_path
+from pivotd.sim.routes import Route, load_route
+from pivotd.sim.sim_pose import parse_gap
 
 REPO = Path(__file__).resolve().parent.parent
 TOOL = REPO / "tools" / "sim_pose"
@@ -89,6 +89,7 @@ def stop_tool(proc):
             proc.wait()
 
 
+@pytest.mark.slow
 def test_bad_option_exits_2_with_one_line():
     proc = run_tool("--rate", "0", "--quiet")
     try:
@@ -109,6 +110,7 @@ def listener():
         session.close()
 
 
+@pytest.mark.slow
 def test_sim_pose_publishes_odometry_and_path_and_honours_gap(listener):
     session, endpoint = listener
     events = queue.Queue()
@@ -152,6 +154,7 @@ def test_sim_pose_publishes_odometry_and_path_and_honours_gap(listener):
     assert bus.counters()["/odom"].get("dropped_wrong_type", 0) == 0
 
 
+@pytest.mark.slow
 def test_sim_pose_csv_route_as_pose_stamped(listener):
     session, endpoint = listener
     events = queue.Queue()
@@ -173,6 +176,7 @@ def test_sim_pose_csv_route_as_pose_stamped(listener):
     np.testing.assert_allclose(first[0].quat, data.quats[0], atol=1e-9)
 
 
+@pytest.mark.slow
 def test_sim_pose_ends_by_itself_at_the_end_of_the_route(tmp_path):
     route = tmp_path / "short.csv"
     route.write_text("# x,y,z\n0,0,0\n1,0,0\n1,1,0\n")
@@ -186,6 +190,7 @@ def test_sim_pose_ends_by_itself_at_the_end_of_the_route(tmp_path):
     assert len(lines) == 1 and lines[0].startswith("t=0.0s s=0.00m/2.00m poses=1")
 
 
+@pytest.mark.slow
 def test_sim_pose_stops_on_sigint(listener):
     session, endpoint = listener
     events = queue.Queue()
@@ -205,7 +210,7 @@ def test_sim_pose_stops_on_sigint(listener):
 def test_pose_noise_in_process(listener):
     import threading
 
-    from pivotd.bus.sim_pose import build_parser, run
+    from pivotd.sim.sim_pose import build_parser, run
 
     session, endpoint = listener
     events = queue.Queue()

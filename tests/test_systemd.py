@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from pivotd.systemd import Notifier, watchdog_interval
+from pivotd.daemon.systemd import Notifier, watchdog_interval
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -103,10 +103,11 @@ def test_dead_socket_is_reported_not_raised(monkeypatch):
     assert notifier.watchdog() is False
 
 
+@pytest.mark.slow
 def test_child_process_notifies_through_inherited_environment(abstract_socket):
     name, sock = abstract_socket
     env = dict(os.environ, NOTIFY_SOCKET=name, PYTHONPATH=str(REPO))
-    code = "from pivotd.systemd import Notifier; n = Notifier(); n.ready(); n.watchdog(); n.stopping()"
+    code = "from pivotd.daemon.systemd import Notifier; n = Notifier(); n.ready(); n.watchdog(); n.stopping()"
     proc = subprocess.run([sys.executable, "-c", code], env=env, timeout=60, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     assert [receive(sock) for _ in range(3)] == ["READY=1", "WATCHDOG=1", "STOPPING=1"]

@@ -83,6 +83,7 @@ def test_stop_timeout_leaves_room_to_park(unit):
 
 
 @pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze not installed")
+@pytest.mark.slow
 def test_systemd_analyze_verify_is_clean(tmp_path):
     # verify also checks that ExecStart exists; point it at a binary present on this machine.
     text = UNIT.read_text().replace("ExecStart=/opt/pivotd/bin/pivotd", "ExecStart=/bin/true")

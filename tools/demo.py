@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
-"""Main job on the embedded default: pivotd + simulated robot + mock gimbal (see pivotd/demo.py)."""
+"""Main job on the embedded default: pivotd + simulated robot + mock gimbal (see pivotd/sim/demo.py)."""
 
 import sys
 
-from pivotd.demo import main
+from pivotd.sim.demo import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -56,7 +56,7 @@ def _run(config: Path, endpoint: str, duration: float, out: Path) -> dict:
     """Daemon + sim_pose for ``duration`` s of walking; returns the final status and memory."""
     from pivotd.bus.session import open_session
     from pivotd.config import load_config
-    from pivotd.demo import spawn
+    from pivotd.sim.launch import spawn
 
     cfg = load_config(config)
     py = sys.executable
@@ -99,7 +99,7 @@ def _run(config: Path, endpoint: str, duration: float, out: Path) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pivotd.demo import derive_config, free_port
+    from pivotd.sim.launch import derive_config, free_port
 
     results: dict = {}
     with tempfile.TemporaryDirectory(prefix="pivotd-bench-") as tmp_s:

@@ -58,13 +58,13 @@ def far_landmarks(n: int, path: np.ndarray, clearance: float, seed: int = 0) -> 
 
 
 def run(args: argparse.Namespace) -> int:
+    from pivotd.daemon.planner import PlannerSettings, RecedingHorizonPlanner
     from pivotd.gimbal.kinematics import JointLimits, Mount
     from pivotd.maps.filters import RetainedFilter
     from pivotd.maps.formats import LandmarkCloud
     from pivotd.maps.store import MapStore
-    from pivotd.paths import Polyline
     from pivotd.pivot.scenes import hallway
-    from pivotd.planner import PlannerSettings, RecedingHorizonPlanner
+    from pivotd.robot_path import Polyline
 
     n_rich = round(args.landmarks * 0.95)
     sc = hallway(rich_side_points=n_rich, poor_side_points=args.landmarks - n_rich, spacing=0.5)

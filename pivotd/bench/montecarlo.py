@@ -107,8 +107,8 @@ def _print_row(r: dict) -> None:
 def fif_section(repeats: int = 5) -> dict | None:
     """Whole-trajectory plan on the FIF y-corridor: time (median of ``repeats``), max step, visible vs λ = 0."""
     from pivotd.maps.formats import load_landmarks
-    from pivotd.paths import load_path
     from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
+    from pivotd.robot_path import load_path
 
     map_file, path_file = FIF_DIR / "ycorridor_6x20_points_w.txt", FIF_DIR / "ycorridor_6x20.csv"
     if not (map_file.exists() and path_file.exists()):
@@ -146,10 +146,10 @@ def pareto_rows(limits_deg: tuple[float, ...] = (5.0, 10.0), families: bool = Tr
     FoV), the competing-clusters path (60° FoV) and a 40-waypoint path through each hard scene family
     (30° FoV). Also the time of the λ = 0.6 plan next to scoring the 2° grid at every waypoint."""
     from pivotd.maps.formats import load_landmarks
-    from pivotd.paths import load_path
     from pivotd.pivot.brute import best_grid_chain, grid_visibility, sphere_grid
     from pivotd.pivot.scenes import HARD_FAMILIES, competing_clusters_path, hard_path
     from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
+    from pivotd.robot_path import load_path
 
     scenes = []
     map_file, path_file = FIF_DIR / "ycorridor_6x20_points_w.txt", FIF_DIR / "ycorridor_6x20.csv"

@@ -63,10 +63,11 @@ class PivotBus:
                 topic = getattr(topics, layer)
                 self._entities.append(self.node.subscriber(topic, m.POINT_CLOUD2, self._handler(
                     topic, m.POINT_CLOUD2, self._cloud_taker(layer)), QoS(depth=2), any_type=True))
-            self._joint_pub = self.node.publisher(topics.joint_states, m.JOINT_STATE, QoS(depth=10))
-            self._plan_pub = self.node.publisher(topics.view_plan, m.PATH, QoS(depth=1))
-            self._entities += [self._joint_pub, self._plan_pub]
-            self._status_pub = session.declare_publisher(topics.status_key)
+            # Public for observers (liveliness, matching); publish through the methods below.
+            self.joint_state_publisher = self.node.publisher(topics.joint_states, m.JOINT_STATE, QoS(depth=10))
+            self.view_plan_publisher = self.node.publisher(topics.view_plan, m.PATH, QoS(depth=1))
+            self._entities += [self.joint_state_publisher, self.view_plan_publisher]
+            self.status_publisher = session.declare_publisher(topics.status_key)
             self._status_queryable = session.declare_queryable(topics.status_key, self._answer_status, complete=True)
         except Exception:
             self.close()
@@ -140,12 +141,13 @@ class PivotBus:
 
     def publish_joint_state(self, stamp: float, pan: float, tilt: float, pan_rate: float, tilt_rate: float) -> None:
         """Publish the measured gimbal state: angles [rad], rates [rad/s], stamp [s since the epoch]."""
-        self._put(self._joint_pub, m.encode_joint_state(stamp, ["pan", "tilt"], [pan, tilt], [pan_rate, tilt_rate]))
+        payload = m.encode_joint_state(stamp, ["pan", "tilt"], [pan, tilt], [pan_rate, tilt_rate])
+        self._put(self.joint_state_publisher, payload)
 
     def publish_view_plan(self, stamp: float, positions: np.ndarray, directions: np.ndarray) -> None:
         """Publish the view plan: camera positions (N, 3) [m] and unit view directions (N, 3) in the map frame."""
         frame = self.topics.frame_id or "map"
-        self._put(self._plan_pub, m.encode_view_plan(stamp, frame, positions, directions))
+        self._put(self.view_plan_publisher, m.encode_view_plan(stamp, frame, positions, directions))
 
     def _put(self, pub: Any, payload: bytes) -> None:
         # Publishing races with close() at shutdown; a closed bus or session drops the message quietly.
@@ -172,7 +174,7 @@ class PivotBus:
         if self._closed:
             return
         try:
-            self._status_pub.put(payload, encoding=zenoh.Encoding.APPLICATION_JSON)
+            self.status_publisher.put(payload, encoding=zenoh.Encoding.APPLICATION_JSON)
         except zenoh.ZError as exc:
             self._ratelog.warning("put:status", f"{self.topics.status_key}: publish failed: {exc}")
 
@@ -195,7 +197,7 @@ class PivotBus:
         self._closed = True
         for entity in reversed(self._entities):
             entity.close()
-        for attr in ("_status_queryable", "_status_pub"):
+        for attr in ("_status_queryable", "status_publisher"):
             obj = getattr(self, attr, None)
             if obj is not None:
                 with contextlib.suppress(zenoh.ZError):

@@ -3,7 +3,7 @@
 Everything here is pure string/byte formatting except :class:`RosNode`, :class:`RosPublisher` and
 :class:`RosSubscriber`, which declare the matching Zenoh entities on an open session.
 
-Formats (rmw_zenoh ``docs/design.md``, DESIGN.md §6):
+Formats (rmw_zenoh ``docs/design.md``; docs/ROS2.md §7):
 
 * data key: ``<domain_id>/<topic without outer slashes>/<pkg>::msg::dds_::<Type>_/<type hash>``;
   subscribers put ``*`` in the hash position.

@@ -1,10 +1,10 @@
 """Gimbal kinematics: world viewing direction <-> pan/tilt joint angles.
 
 Chain: world --(body attitude, quaternion x,y,z,w)--> body --(mount)--> gimbal base --(pan, tilt)--> optical axis.
-The pan/tilt convention is the one of :mod:`pivotd.geometry` (DESIGN §3): pan about base +z, tilt about the
-panned +y, positive tilt points down, pan = tilt = 0 looks along base +x. The gimbal is modelled as a pure
-rotation about the base origin (the camera's offset from the joint axes is neglected: it is centimetres
-against landmark ranges of metres).
+The pan/tilt convention is the one of :mod:`pivotd.geometry` (docs/ARCHITECTURE.md, Conventions): pan about
+base +z, tilt about the panned +y, positive tilt points down, pan = tilt = 0 looks along base +x. The gimbal
+is modelled as a pure rotation about the base origin (the camera's offset from the joint axes is neglected:
+it is centimetres against landmark ranges of metres).
 
 Joint solutions: a direction has the primary solution (pan, tilt) with |tilt| ≤ π/2 and the "over the top"
 solution (pan + π, π − tilt); each pan value repeats every 2π. :func:`world_direction_to_joints` picks the

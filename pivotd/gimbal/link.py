@@ -40,12 +40,12 @@ from firmware_proto.messages import (
     State,
 )
 from firmware_proto.urlhandler import register as _register_mock_url
+from pivotd.gimbal.interface import GimbalState, LinkState
 
 _register_mock_url()
 
 log = logging.getLogger(__name__)
 
-LINK_STATES = ("connecting", "up", "down", "incompatible", "stopped")
 _TX_QUEUE = 64  # frames waiting for the writer; setpoints beyond this are dropped (port stalled)
 
 
@@ -59,22 +59,6 @@ class LinkConfig:
     ack_timeout_s: float = 0.2  # per attempt
     ack_retries: int = 5  # extra attempts after the first
     reconnect_backoff_s: tuple = (0.1, 2.0)  # (first, max) delay between connection attempts
-
-
-@dataclass(frozen=True)
-class GimbalState:
-    """Latest STATE: joint angles [rad] and rates [rad/s], mode (0 disabled, 1 enabled, 2 holding, 3 fault),
-    fault bits, echoed setpoint seq, device clock [µs, wraps at 2³²], host receive time (time.monotonic())."""
-
-    pan: float
-    tilt: float
-    pan_rate: float
-    tilt_rate: float
-    mode: int
-    faults: int
-    last_setpoint_seq: int
-    device_time_us: int
-    rx_time: float
 
 
 @dataclass
@@ -101,7 +85,8 @@ class _Pending:
 
 
 class GimbalLink:
-    """Serial link to one gimbal (see the module docstring). Thread-safe."""
+    """Serial link to one gimbal speaking pivotd's protocol (see the module docstring); a
+    :class:`~pivotd.gimbal.interface.GimbalInterface`. Thread-safe."""
 
     def __init__(self, url: str, config: LinkConfig, baudrate: int = 115200) -> None:
         self.url = url
@@ -112,7 +97,7 @@ class GimbalLink:
         self._lock = threading.Lock()
         self._changed = threading.Condition(self._lock)
         self._seq_lock = threading.Lock()
-        self._link_state = "stopped"
+        self._link_state = LinkState.STOPPED
         self._state: GimbalState | None = None
         self._identity: Identity | None = None
         self._last_error: str | None = None
@@ -138,23 +123,23 @@ class GimbalLink:
         if self._manager is not None and self._manager.is_alive():
             return
         self._stopping.clear()
-        self._set_link_state("connecting")
+        self._set_link_state(LinkState.CONNECTING)
         self._manager = threading.Thread(target=self._run, name="gimbal-link", daemon=True)
         self._manager.start()
 
     def stop(self, disable: bool = True) -> None:
         """Disable the gimbal (if ``disable`` and the link is up), close the port, stop all threads."""
-        if disable and self.link_state == "up":
+        if disable and self.link_state == LinkState.UP:
             self.set_enabled(False)
         self._stopping.set()
         if self._manager is not None:
             self._manager.join(timeout=5.0)
             self._manager = None
-        self._set_link_state("stopped")
+        self._set_link_state(LinkState.STOPPED)
 
     @property
-    def link_state(self) -> str:
-        """"connecting" | "up" | "down" | "incompatible" | "stopped"."""
+    def link_state(self) -> LinkState:
+        """The connection state (see :class:`~pivotd.gimbal.interface.LinkState`)."""
         return self._link_state
 
     @property
@@ -177,9 +162,9 @@ class GimbalLink:
         """Block until the link is up (True) or ``timeout`` seconds passed / it became incompatible (False)."""
         deadline = time.monotonic() + timeout
         with self._changed:
-            while self._link_state != "up":
+            while self._link_state != LinkState.UP:
                 remaining = deadline - time.monotonic()
-                if remaining <= 0 or self._link_state in ("incompatible", "stopped"):
+                if remaining <= 0 or self._link_state in (LinkState.INCOMPATIBLE, LinkState.STOPPED):
                     return False
                 self._changed.wait(remaining)
             return True
@@ -210,7 +195,7 @@ class GimbalLink:
         """Queue a SETPOINT (pan/tilt [rad], feed-forward rates [rad/s]); return its seq, or None if the link
         is not up. Never blocks; raises ValueError on non-finite values."""
         conn = self._conn
-        if self._link_state != "up" or conn is None:
+        if self._link_state != LinkState.UP or conn is None:
             return None
         seq = self._next_seq()
         host_us = int(time.monotonic() * 1e6) & 0xFFFFFFFF
@@ -224,21 +209,21 @@ class GimbalLink:
     def send_heartbeat(self) -> None:
         """Queue a HEARTBEAT (feeds the device watchdog without moving); no-op if the link is not up."""
         conn = self._conn
-        if self._link_state == "up" and conn is not None:
+        if self._link_state == LinkState.UP and conn is not None:
             self._enqueue(conn, codec.encode(Heartbeat(), self._next_seq()))
 
     def set_enabled(self, on: bool, timeout: float | None = None) -> bool:
         """ENABLE/disable the gimbal; True once ACKed with status ok. Remembered for future handshakes.
         ``timeout`` bounds the total wait [s] (default: ack_timeout_s × (ack_retries + 1))."""
         self._want_enabled = bool(on)
-        if self._link_state != "up":
+        if self._link_state != LinkState.UP:
             return False
         ack = self._request(Enable(1 if on else 0), timeout)
         return ack is not None and ack.status == 0
 
     def clear_fault(self, timeout: float | None = None) -> bool:
         """CLEAR_FAULT; True once ACKed with status ok."""
-        if self._link_state != "up":
+        if self._link_state != LinkState.UP:
             return False
         ack = self._request(ClearFault(), timeout)
         return ack is not None and ack.status == 0
@@ -257,7 +242,7 @@ class GimbalLink:
         return out
 
     # ------------------------------------------------------------------ internals
-    def _set_link_state(self, value: str) -> None:
+    def _set_link_state(self, value: LinkState) -> None:
         with self._changed:
             if self._link_state != value:
                 log.info("gimbal link %s: %s", self.url, value)
@@ -282,28 +267,28 @@ class GimbalLink:
         first, maximum = self.config.reconnect_backoff_s
         delay = first
         while not self._stopping.is_set():
-            if self._link_state != "down":
-                self._set_link_state("connecting")
+            if self._link_state != LinkState.DOWN:
+                self._set_link_state(LinkState.CONNECTING)
             conn = self._open()
             if conn is not None:
                 result = self._handshake(conn)
-                if result == "up":
+                if result is LinkState.UP:
                     delay = first
                     if self._ever_up:
                         self._n["reconnects"] += 1
                     self._ever_up = True
-                    self._set_link_state("up")
+                    self._set_link_state(LinkState.UP)
                     self._monitor(conn)
                     if not self._stopping.is_set():
                         self._n["link_losses"] += 1
                         log.warning("gimbal link %s lost: %s", self.url, conn.error or "closed")
                 self._close(conn)
-                if result == "incompatible":
-                    self._set_link_state("incompatible")
+                if result is LinkState.INCOMPATIBLE:
+                    self._set_link_state(LinkState.INCOMPATIBLE)
                     return
             if self._stopping.is_set():
                 return
-            self._set_link_state("down")
+            self._set_link_state(LinkState.DOWN)
             self._stopping.wait(delay)
             delay = min(maximum, delay * 2)
 
@@ -344,39 +329,39 @@ class GimbalLink:
             self._stopping.wait(0.02)
         self._last_error = conn.error
 
-    def _handshake(self, conn: _Connection) -> str:
-        """HELLO → IDENTITY → CONFIG → (ENABLE); returns "up", "down" or "incompatible"."""
+    def _handshake(self, conn: _Connection) -> LinkState:
+        """HELLO → IDENTITY → CONFIG → (ENABLE); returns the resulting LinkState (UP, DOWN or INCOMPATIBLE)."""
         ident = self._request_identity(conn)
         if ident is None:
             self._last_error = f"gimbal at {self.url} did not answer HELLO"
-            return "down"
+            return LinkState.DOWN
         self._identity = ident
         if ident.version != PROTOCOL_VERSION:
             self._last_error = (f"gimbal at {self.url} speaks protocol version {ident.version}, this host speaks "
                                 f"version {PROTOCOL_VERSION}: refusing to drive it")
             log.error(self._last_error)
-            return "incompatible"
+            return LinkState.INCOMPATIBLE
         expected_crc = zlib.crc32(self._cfg_msg.pack())
         ack = self._request(self._cfg_msg, None, conn, expect_value=expected_crc)
         if ack is None:
             self._last_error = f"gimbal at {self.url} did not acknowledge CONFIG with the right CRC"
-            return "down"
+            return LinkState.DOWN
         if ack.status != 0:
             self._last_error = (f"gimbal at {self.url} rejected CONFIG: {NACK_NAMES.get(ack.status, ack.status)} "
                                 f"(limits {self._cfg_msg})")
             log.error(self._last_error)
-            return "incompatible"
+            return LinkState.INCOMPATIBLE
         if self._want_enabled:
             ack = self._request(Enable(1), None, conn)
             if ack is None:
                 self._last_error = f"gimbal at {self.url} did not acknowledge ENABLE"
-                return "down"
+                return LinkState.DOWN
             if ack.status != 0:
                 log.warning("gimbal at %s refused ENABLE: %s (faults 0x%04x); link up, disabled", self.url,
                             NACK_NAMES.get(ack.status, ack.status), self._state.faults if self._state else 0)
         log.info("gimbal at %s: protocol v%d, firmware %d.%d.%d, serial %08x", self.url, ident.version,
                  ident.fw_major, ident.fw_minor, ident.fw_patch, ident.serial)
-        return "up"
+        return LinkState.UP
 
     def _attempts(self, timeout: float | None) -> tuple[int, float]:
         per = self.config.ack_timeout_s

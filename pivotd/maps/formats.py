@@ -1,4 +1,4 @@
-"""Landmark map files (DESIGN.md §5): ``.npy``, text ``x y z [w]``, PLY and COLMAP models.
+"""Landmark map files (docs/FORMATS.md): ``.npy``, text ``x y z [w]``, PLY and COLMAP models.
 
 :func:`load_landmarks` is the single entry point; it picks the reader by extension (or, for a
 directory, by its COLMAP content) and returns a :class:`LandmarkCloud`.

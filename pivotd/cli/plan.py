@@ -147,8 +147,8 @@ def load_filtered(args: argparse.Namespace, waypoints: np.ndarray):
 
 def run(args: argparse.Namespace) -> int:
     from pivotd.maps.formats import LandmarkCloud, load_landmarks
-    from pivotd.paths import load_path
     from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
+    from pivotd.robot_path import load_path
 
     _check_args(args)
     path = load_path(args.path)

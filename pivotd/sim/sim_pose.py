@@ -20,10 +20,10 @@ import zenoh
 
 from pivotd.bus import messages as m
 from pivotd.bus.ros import QoS, RosNode
-from pivotd.bus.route import Route, load_route
 from pivotd.bus.session import open_session
 from pivotd.errors import InputError, PivotdError
 from pivotd.geometry import quat_to_matrix
+from pivotd.sim.routes import Route, load_route
 
 log = logging.getLogger("sim_pose")
 

@@ -1,4 +1,4 @@
-"""``pivotd [run] --config FILE``: run the daemon (DESIGN.md §4)."""
+"""``pivotd [run] --config FILE``: run the daemon (docs/CLI.md)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pivotd.daemon import Daemon, RunOverrides
+    from pivotd.daemon.daemon import Daemon, RunOverrides
 
     overrides = RunOverrides(port=args.port, connect=tuple(args.connect), listen=tuple(args.listen),
                              record=args.record)

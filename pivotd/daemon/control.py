@@ -11,16 +11,17 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from firmware_proto.messages import MODE_FAULT
 from pivotd.bus.messages import PoseSample
+from pivotd.daemon.planner import Plan, camera_positions
+from pivotd.daemon.states import DaemonState
+from pivotd.gimbal.interface import GimbalInterface, GimbalMode, GimbalState, LinkState
 from pivotd.gimbal.kinematics import JointLimits, Mount, joints_to_world_direction, world_direction_to_joints
-from pivotd.gimbal.link import GimbalState
 from pivotd.gimbal.motion import MotionGenerator
-from pivotd.planner import Plan, camera_positions
 
 
 @dataclass(frozen=True)
@@ -36,10 +37,10 @@ class ControlSettings:
 
 @dataclass(frozen=True)
 class TickResult:
-    """What one tick decided: ``mode`` in {tracking, holding, waiting, link-down, fault};
+    """What one tick decided: ``mode`` (WAITING, TRACKING, HOLDING, LINK_DOWN, FAULT or PARKING);
     ``setpoint`` (pan, tilt, pan_rate, tilt_rate) [rad, rad/s] when one was sent."""
 
-    mode: str
+    mode: DaemonState
     setpoint: tuple[float, float, float, float] | None = None
     clamped: bool = False
 
@@ -55,16 +56,17 @@ class ControlStats:
 
 
 class ControlLoop:
-    """Turns plan + pose into setpoints; ``link`` needs ``send_setpoint``, ``send_heartbeat``,
-    ``link_state`` and ``state`` (see :class:`pivotd.gimbal.link.GimbalLink`)."""
+    """Turns plan + pose into setpoints for ``link``. ``clock`` is the monotonic clock [s] that pose and plan
+    times (``rx_time``, ``created``) come from; tests pass a fake one."""
 
     def __init__(self, settings: ControlSettings, motion: MotionGenerator, mount: Mount, limits: JointLimits,
-                 link) -> None:
+                 link: GimbalInterface, clock: Callable[[], float] = time.monotonic) -> None:
         self.settings = settings
         self.motion = motion
         self.mount = mount
         self.limits = limits
         self.link = link
+        self.clock = clock
         self.stats = ControlStats()
         self.commanded_direction: np.ndarray | None = None  # world direction of the last setpoint
         self.override_target: tuple[float, float] | None = None  # e.g. the park pose
@@ -90,16 +92,24 @@ class ControlLoop:
                 self._speed += 0.3 * (min(v, 10.0) - self._speed)
         self._prev_pose = pose
 
-    def _target(self, pose: PoseSample, plan: Plan) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    def reconfigure(self, settings: ControlSettings, mount: Mount) -> None:
+        """Use ``settings`` and ``mount`` from the next tick on (a reload; the planner gets the same mount).
+        ``settings.rate_hz`` must stay: the motion generator runs at the rate it was built for."""
+        if settings.rate_hz != self.settings.rate_hz:
+            raise ValueError("the control rate cannot change while running")
+        self.settings = settings
+        self.mount = mount
+
+    def _target(self, pose: PoseSample, plan: Plan, mount: Mount) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
         """Joint target (2,), feed-forward rate (2,) and acceleration (2,) from the plan, and a clamped flag.
 
         The derivatives are finite differences of the joint angles along the plan ahead of the robot,
         at its estimated speed, with the latest body attitude held fixed.
         """
-        cam = camera_positions(pose.position[None, :], pose.quat[None, :], self.mount)[0]
+        cam = camera_positions(pose.position[None, :], pose.quat[None, :], mount)[0]
         s = plan.locate(cam)
         prev_pan = float(self.motion.state.position[0])
-        pan, tilt, clamped = world_direction_to_joints(plan.direction_at_s(s), pose.quat, self.mount, self.limits,
+        pan, tilt, clamped = world_direction_to_joints(plan.direction_at_s(s), pose.quat, mount, self.limits,
                                                        prev_pan)
         target = np.array([pan, tilt])
         rate = np.zeros(2)
@@ -109,7 +119,7 @@ class ControlLoop:
             ahead = plan.direction_at_s(s + self._speed * h * np.arange(1, 3))
             joints = [target]
             for d in ahead:
-                p2, t2, c2 = world_direction_to_joints(d, pose.quat, self.mount, self.limits, float(joints[-1][0]))
+                p2, t2, c2 = world_direction_to_joints(d, pose.quat, mount, self.limits, float(joints[-1][0]))
                 if c2:
                     break
                 joints.append(np.array([p2, t2]))
@@ -121,35 +131,36 @@ class ControlLoop:
     def tick(self, now: float, pose: PoseSample | None, plan: Plan | None, faulted: bool = False) -> TickResult:
         """One control period at monotonic time ``now`` [s]."""
         self.stats.ticks += 1
+        mount = self.mount  # one mount for the whole tick, even if a reload swaps it meanwhile
         link_state = self.link.link_state
         state = self.link.state
-        if link_state != "up" or state is None:
+        if link_state != LinkState.UP or state is None:
             self._need_reset = True
-            return TickResult("link-down")
-        if faulted or state.mode == MODE_FAULT:
+            return TickResult(DaemonState.LINK_DOWN)
+        if faulted or state.mode == GimbalMode.FAULT:
             # No motion while faulted; keep the watchdog fed so the fault, not a link loss, is reported.
             self._need_reset = True
             self.link.send_heartbeat()
-            return TickResult("fault")
+            return TickResult(DaemonState.FAULT)
         if self._need_reset:
             self._reset_from(state)
 
         clamped = False
         if self.override_target is not None:
             self.motion.set_target(np.asarray(self.override_target, float), np.zeros(2))
-            mode = "parking"
+            mode = DaemonState.PARKING
         elif pose is None:
             self.motion.hold()
-            mode = "waiting"
+            mode = DaemonState.WAITING
         elif (now - pose.rx_time > self.settings.pose_timeout or plan is None
               or now - plan.created > self.settings.plan_timeout):
             self.motion.hold()
-            mode = "holding"
+            mode = DaemonState.HOLDING
         else:
             self._estimate_speed(pose)
-            target, rate, acc, clamped = self._target(pose, plan)
+            target, rate, acc, clamped = self._target(pose, plan, mount)
             self.motion.set_target(target, rate, acc)
-            mode = "tracking"
+            mode = DaemonState.TRACKING
 
         sample = self.motion.step()
         pan, tilt = float(sample.position[0]), float(sample.position[1])
@@ -158,8 +169,8 @@ class ControlLoop:
         self.stats.setpoints += 1
         self.stats.clamped += int(clamped)
         if pose is not None:
-            if mode == "tracking" and pose.rx_time != self._last_pose_rx:
-                self.stats.pose_latency.append(time.monotonic() - pose.rx_time)
+            if mode == DaemonState.TRACKING and pose.rx_time != self._last_pose_rx:
+                self.stats.pose_latency.append(self.clock() - pose.rx_time)
                 self._last_pose_rx = pose.rx_time
-            self.commanded_direction = joints_to_world_direction(pan, tilt, pose.quat, self.mount)
+            self.commanded_direction = joints_to_world_direction(pan, tilt, pose.quat, mount)
         return TickResult(mode, (pan, tilt, vp, vt), clamped)

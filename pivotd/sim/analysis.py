@@ -1,6 +1,6 @@
 """Offline analysis of a run: the device's message log and per-frame landmark visibility.
 
-Used by the demo, the end-to-end tests and the control benchmark to judge what the gimbal
+Used by the demo, the end-to-end tests and the control benchmark (:func:`analyse_run`) to judge what the gimbal
 actually received and where it actually looked.
 """
 
@@ -9,10 +9,17 @@ from __future__ import annotations
 import csv
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pivotd.gimbal.kinematics import camera_position, joints_to_world_direction
 from pivotd.gimbal.motion import AxisLimits
+from pivotd.maps.formats import load_landmarks
+
+if TYPE_CHECKING:
+    from pivotd.bus.probe import Observations
+    from pivotd.config import Config
 
 
 @dataclass(frozen=True)
@@ -152,3 +159,52 @@ def visible_counts(points: np.ndarray, cameras: np.ndarray, directions: np.ndarr
         ok = (dist >= min_range) & (dist <= max_range) & (dist > 1e-9) & (cos_t >= cos_a)
         out[start:start + chunk] = ok.sum(axis=1)
     return out
+
+
+def analyse_run(cfg: Config, obs: Observations, device_log: Path) -> tuple[dict, dict]:
+    """Per-frame visibility (PIVOT vs forward-facing) and setpoint dynamics; returns (report, series)."""
+    cloud = load_landmarks(cfg.map.file)
+    poses, joints = obs.poses, obs.joints
+    if not poses or not joints:
+        raise RuntimeError("no poses or joint states were received during the demo")
+    pose_t = np.array([p[0] for p in poses])
+    frames = []
+    for t, pan, tilt in joints:
+        i = int(np.searchsorted(pose_t, t, side="right")) - 1
+        if i < 0 or t - pose_t[i] > cfg.control.pose_timeout_s:
+            continue  # no fresh pose at this frame (before the start or after the route ended)
+        frames.append((t, pan, tilt, poses[i][1], poses[i][2]))
+    mount = cfg.gimbal.mount
+    cams = np.array([camera_position(f[3], f[4], mount) for f in frames])
+    piv = np.array([joints_to_world_direction(f[1], f[2], f[4], mount) for f in frames])
+    fwd = np.array([joints_to_world_direction(0.0, 0.0, f[4], mount) for f in frames])
+    flt = cfg.map.filters
+    n_piv = visible_counts(cloud.points, cams, piv, cfg.pivot.half_angle, flt.min_range, flt.max_range)
+    n_fwd = visible_counts(cloud.points, cams, fwd, cfg.pivot.half_angle, flt.min_range, flt.max_range)
+    dev = read_device_log(device_log)
+    dyn = setpoint_dynamics(dev.sp_pos, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt, rates=dev.sp_rate)
+    lim = cfg.gimbal.limits
+    report = {
+        "frames": len(frames),
+        "visible_mean_pivot": float(n_piv.mean()),
+        "visible_mean_forward": float(n_fwd.mean()),
+        "visible_ratio": float(n_piv.mean() / max(n_fwd.mean(), 1e-9)),
+        "frames_pivot_below_10": int((n_piv < 10).sum()),
+        "frames_forward_below_10": int((n_fwd < 10).sum()),
+        "setpoints": int(dev.sp_pos.shape[0]),
+        "max_velocity_deg_s": np.degrees(dyn.max_velocity).round(2).tolist(),
+        "max_acceleration_deg_s2": np.degrees(dyn.max_acceleration).round(2).tolist(),
+        "max_jerk_deg_s3": np.degrees(dyn.max_jerk).round(1).tolist(),
+        "velocity_ratio": dyn.velocity_ratio.round(3).tolist(),
+        "acceleration_ratio": dyn.acceleration_ratio.round(3).tolist(),
+        "jerk_ratio": dyn.jerk_ratio.round(3).tolist(),
+        "within_limits": dyn.within_limits,
+        "jerk_allowance_deg_s3": round(float(np.degrees(dyn.allowance_jerk)), 2),
+        "pan_range_deg": np.degrees([dyn.position_min[0], dyn.position_max[0]]).round(2).tolist(),
+        "tilt_range_deg": np.degrees([dyn.position_min[1], dyn.position_max[1]]).round(2).tolist(),
+        "joint_limits_deg": np.degrees([lim.pan_min, lim.pan_max, lim.tilt_min, lim.tilt_max]).round(1).tolist(),
+    }
+    series = {"t": np.array([f[0] for f in frames]), "cams": cams, "pivot": piv, "forward": fwd,
+              "n_pivot": n_piv, "n_forward": n_fwd, "pan": np.array([f[1] for f in frames]),
+              "tilt": np.array([f[2] for f in frames]), "points": cloud.points}
+    return report, series

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from pivotd.bus.topics import POSE_TYPES, BusTopics, status_key_for
-from pivotd.config_reader import Section, read_yaml
+from pivotd.config.yaml_reader import Section, read_yaml
 from pivotd.errors import ConfigError, InputError
 from pivotd.gimbal.kinematics import JointLimits, Mount
 from pivotd.gimbal.motion import AxisLimits
@@ -109,6 +109,11 @@ class PlannerConfig:
     max_step: float | None = None
 
 
+def _default_limits() -> JointLimits:
+    return JointLimits(pan_min=math.radians(-170.0), pan_max=math.radians(170.0), tilt_min=math.radians(-90.0),
+                       tilt_max=math.radians(90.0))
+
+
 @dataclass(frozen=True)
 class GimbalConfig:
     """Serial link, mount, joint limits [rad], park pose [rad], device watchdog [ms], park timeout [s]."""
@@ -116,7 +121,7 @@ class GimbalConfig:
     port: str = "mock://"
     baud: int = 115200
     mount: Mount = field(default_factory=Mount)
-    limits: JointLimits = field(default_factory=JointLimits)
+    limits: JointLimits = field(default_factory=_default_limits)
     park_pan: float = 0.0
     park_tilt: float = 0.0
     watchdog_ms: int = 250
@@ -378,17 +383,21 @@ def _gimbal(s: Section, control: ControlConfig) -> GimbalConfig:
     baud = s.number("baud", d.baud, min=1, integer=True)
 
     m = s.section("mount")
-    xyz = m.vector("xyz", (0.0, 0.0, 0.0))
-    rpy_deg = m.vector("rpy_deg", (0.0, 0.0, 0.0))
+    xyz = m.vector("xyz", None)
+    rpy_deg = m.vector("rpy_deg", None)
     m.finish()
-    mount = Mount.from_xyz_rpy(xyz, [math.radians(a) for a in rpy_deg])
+    mount = d.mount
+    if xyz is not None or rpy_deg is not None:
+        mount = Mount.from_xyz_rpy(xyz or tuple(d.mount.translation),
+                                   [math.radians(a) for a in (rpy_deg or (0.0, 0.0, 0.0))])  # rpy: none rotates
 
     lim = s.section("limits")
-    continuous = lim.boolean("continuous_pan", False)
-    pan_min = lim.number("pan_min_deg", -170.0, min=-720.0, max=720.0)
-    pan_max = lim.number("pan_max_deg", 170.0, min=-720.0, max=720.0)
-    tilt_min = lim.number("tilt_min_deg", -90.0, min=-180.0, max=180.0)
-    tilt_max = lim.number("tilt_max_deg", 90.0, min=-180.0, max=180.0)
+    dl = d.limits
+    continuous = lim.boolean("continuous_pan", dl.continuous_pan)
+    pan_min = lim.number("pan_min_deg", math.degrees(dl.pan_min), min=-720.0, max=720.0)
+    pan_max = lim.number("pan_max_deg", math.degrees(dl.pan_max), min=-720.0, max=720.0)
+    tilt_min = lim.number("tilt_min_deg", math.degrees(dl.tilt_min), min=-180.0, max=180.0)
+    tilt_max = lim.number("tilt_max_deg", math.degrees(dl.tilt_max), min=-180.0, max=180.0)
     if pan_max <= pan_min:
         raise lim.error("pan_max_deg", f"must be > pan_min_deg ({pan_min:g})")
     if tilt_max <= tilt_min:
@@ -403,8 +412,8 @@ def _gimbal(s: Section, control: ControlConfig) -> GimbalConfig:
     )
 
     park = s.section("park")
-    park_pan = park.number("pan_deg", 0.0)
-    park_tilt = park.number("tilt_deg", 0.0)
+    park_pan = park.number("pan_deg", math.degrees(d.park_pan))
+    park_tilt = park.number("tilt_deg", math.degrees(d.park_tilt))
     if not continuous and not pan_min <= park_pan <= pan_max:
         raise park.error("pan_deg", f"must lie within the pan limits [{pan_min:g}, {pan_max:g}]")
     if not tilt_min <= park_tilt <= tilt_max:
@@ -469,7 +478,7 @@ def _control(s: Section) -> ControlConfig:
 
 
 def _logging(s: Section) -> LoggingConfig:
-    level = s.string("level", "INFO")
+    level = s.string("level", LoggingConfig().level)
     if level.upper() not in LOG_LEVELS:
         raise s.error("level", f"must be one of {', '.join(LOG_LEVELS)}; got {level!r}")
     s.finish()

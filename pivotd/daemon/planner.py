@@ -24,9 +24,9 @@ from pivotd.geometry import normalize, quat_to_matrix
 from pivotd.gimbal.kinematics import JointLimits, Mount, base_from_world
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapSnapshot
-from pivotd.paths import Polyline, project_onto_polyline
 from pivotd.pivot.constraints import PanTiltConstraint
 from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory, spatial_order
+from pivotd.robot_path import Polyline, project_onto_polyline
 
 
 def slerp_directions(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -2,16 +2,18 @@
 
 The optimizer is numpy code that holds the interpreter lock for stretches of a millisecond or more;
 in the daemon's process that shows up directly as control-period jitter. The worker process owns
-the landmark map and the :class:`~pivotd.planner.RecedingHorizonPlanner`; the daemon's planner
+the landmark map and the :class:`~pivotd.daemon.planner.RecedingHorizonPlanner`; the daemon's planner
 thread sends it requests and blocks on the pipe (which releases the lock), so the control thread
 only ever competes with light work. A crash or hang in the optimizer cannot take the control loop
 with it: the daemon restarts the worker.
 
-Messages (tuples over a ``multiprocessing`` pipe, parent → worker):
-``("replan", position, quat, anchor)``, ``("path", positions, quats, version)`` (positions None
-clears it), ``("layer", name, LandmarkCloud, weight_multiplier)``, ``("reload", Config)``,
-``("stop",)``. Worker → parent: ``("ready", MapInfo)``, ``("plan", Plan)``, ``("map", MapInfo)``,
-``("error", message)`` (one line).
+Messages are tuples over a ``multiprocessing`` pipe. Parent → worker: ``(kind, request_id, *args)`` with
+``("replan", id, position, quat, anchor)``, ``("path", id, positions, quats, version)`` (positions None
+clears it; no reply), ``("layer", id, name, LandmarkCloud, weight_multiplier)``, ``("reload", id, Config)``,
+``("stop", id)``. Worker → parent: ``(kind, request_id, payload)`` with ``("ready", 0, MapInfo)``,
+``("plan", id, Plan)``, ``("map", id, MapInfo)``, ``("error", id, message)`` (one line). Every reply
+echoes its request's id, so a reply that arrives after its request timed out is recognised and dropped
+instead of being taken as the answer to a later request.
 """
 
 from __future__ import annotations
@@ -21,14 +23,16 @@ import multiprocessing as mp
 import os
 import signal
 import threading
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.config import Config
+from pivotd.daemon.planner import Plan
 from pivotd.errors import PivotdError
 from pivotd.maps.formats import LandmarkCloud
-from pivotd.planner import Plan
 
 log = logging.getLogger(__name__)
 
@@ -66,15 +70,20 @@ def _worker_main(conn, cfg: Config, log_level: int) -> None:  # pragma: no cover
     # Planning is background work: when the CPU is contended the control thread must win.
     os.nice(WORKER_NICE)
     logging.basicConfig(level=log_level, format="%(asctime)s %(levelname)s %(name)s[worker]: %(message)s")
-    from pivotd.runtime import build_map_store, build_planner, release_free_memory
+    from pivotd.daemon.wiring import build_map_store, build_planner, release_free_memory
 
     try:
         store = build_map_store(cfg)
         planner = build_planner(cfg)
     except PivotdError as exc:
-        conn.send(("error", str(exc)))
+        conn.send(("error", 0, str(exc)))
         return
-    conn.send(("ready", _map_info(store)))
+    except Exception as exc:
+        log.exception("planner worker start-up failed")
+        conn.send(("error", 0, f"start-up failed: {exc!r}"))
+        return
+    conn.send(("ready", 0, _map_info(store)))
+    rl = RateLimitedLog(log)  # a failing replan fails again at every request: one traceback per 5 s
     layers: dict[str, tuple[LandmarkCloud, float]] = {}
     path_args: tuple = (None, None, 0)
     while True:
@@ -82,22 +91,22 @@ def _worker_main(conn, cfg: Config, log_level: int) -> None:  # pragma: no cover
             msg = conn.recv()
         except (EOFError, OSError):
             return
-        kind = msg[0]
+        kind, req_id, args = msg[0], msg[1], msg[2:]
         try:
             if kind == "replan":
-                _, position, quat, anchor = msg
-                conn.send(("plan", planner.replan(store.snapshot(), position, quat, anchor)))
+                position, quat, anchor = args
+                conn.send(("plan", req_id, planner.replan(store.snapshot(), position, quat, anchor)))
             elif kind == "path":
-                path_args = msg[1:]
+                path_args = args
                 planner.set_path(*path_args)
             elif kind == "layer":
-                _, name, cloud, mult = msg
+                name, cloud, mult = args
                 layers[name] = (cloud, mult)
                 store.set_layer(name, cloud, weight_multiplier=mult)
                 release_free_memory()
-                conn.send(("map", _map_info(store)))
+                conn.send(("map", req_id, _map_info(store)))
             elif kind == "reload":
-                new_cfg: Config = msg[1]
+                (new_cfg,) = args
                 new_store = build_map_store(new_cfg)
                 for name, (cloud, _) in layers.items():
                     mult = float(getattr(new_cfg.map.layers, name, 1.0))
@@ -105,15 +114,16 @@ def _worker_main(conn, cfg: Config, log_level: int) -> None:  # pragma: no cover
                 new_planner = build_planner(new_cfg)
                 new_planner.set_path(*path_args)
                 store, planner = new_store, new_planner
-                conn.send(("map", _map_info(store)))
+                conn.send(("map", req_id, _map_info(store)))
             elif kind == "stop":
                 return
             else:
-                conn.send(("error", f"unknown request {kind!r}"))
+                conn.send(("error", req_id, f"unknown request {kind!r}"))
         except PivotdError as exc:
-            conn.send(("error", str(exc)))
+            conn.send(("error", req_id, str(exc)))
         except Exception as exc:  # keep serving: one bad request must not end the worker
-            conn.send(("error", f"{kind}: {exc!r}"))
+            rl.exception(kind, f"planner worker: {kind} request failed: {exc!r}")
+            conn.send(("error", req_id, f"{kind}: {exc!r}"))
 
 
 class PlannerWorker:
@@ -128,6 +138,8 @@ class PlannerWorker:
         self.map_info = MapInfo(0, 0, {})
         self._proc = None
         self._conn = None
+        self._next_id = 0
+        self.stale_replies = 0  # replies that arrived after their request had timed out (dropped)
         self._start(cfg)
 
     def _start(self, cfg: Config) -> None:
@@ -140,7 +152,7 @@ class PlannerWorker:
             proc.kill()
             raise WorkerError(f"planner worker did not start within {START_TIMEOUT_S:.0f} s")
         try:
-            kind, payload = parent.recv()
+            kind, _, payload = parent.recv()
         except EOFError:
             proc.join(1)
             raise WorkerError(f"planner worker exited during start-up (exit code {proc.exitcode})") from None
@@ -154,20 +166,33 @@ class PlannerWorker:
     def pid(self) -> int | None:
         return None if self._proc is None else self._proc.pid
 
-    def _request(self, msg: tuple, timeout: float) -> tuple:
+    def _new_id(self) -> int:
+        self._next_id += 1
+        return self._next_id
+
+    def _request(self, kind: str, *args, timeout: float) -> tuple[str, object]:
+        """Send one request and wait for the reply carrying its id; returns (reply kind, payload)."""
         with self._lock:
+            req_id = self._new_id()
+            deadline = time.monotonic() + timeout
             try:
-                self._conn.send(msg)
-                if not self._conn.poll(timeout):
-                    raise WorkerError(f"planner worker did not answer {msg[0]!r} within {timeout:.1f} s")
-                return self._conn.recv()
+                self._conn.send((kind, req_id, *args))
+                while True:
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0 or not self._conn.poll(remaining):
+                        raise WorkerError(f"planner worker did not answer {kind!r} within {timeout:.1f} s")
+                    reply_kind, reply_id, payload = self._conn.recv()
+                    if reply_id == req_id:
+                        return reply_kind, payload
+                    self.stale_replies += 1
+                    log.warning("planner worker: dropped a late %r reply to request %d", reply_kind, reply_id)
             except (EOFError, OSError, BrokenPipeError) as exc:
                 raise WorkerError(f"planner worker is gone ({exc.__class__.__name__})") from None
 
-    def _send(self, msg: tuple) -> None:
+    def _send(self, kind: str, *args) -> None:
         with self._lock:
             try:
-                self._conn.send(msg)
+                self._conn.send((kind, self._new_id(), *args))
             except (OSError, BrokenPipeError) as exc:
                 raise WorkerError(f"planner worker is gone ({exc.__class__.__name__})") from None
 
@@ -178,25 +203,26 @@ class PlannerWorker:
         self._start(cfg or self._cfg)
 
     def set_path(self, positions: np.ndarray | None, quats: np.ndarray | None, version: int) -> None:
-        self._send(("path", positions, quats, version))
+        self._send("path", positions, quats, version)
 
     def replan(self, position: np.ndarray, quat: np.ndarray, anchor: np.ndarray | None,
                timeout: float = 2.0) -> Plan:
-        kind, payload = self._request(("replan", position, quat, anchor), timeout)
+        kind, payload = self._request("replan", position, quat, anchor, timeout=timeout)
         if kind != "plan":
             raise RequestError(payload)
         return payload
 
     def set_layer(self, name: str, cloud: LandmarkCloud, weight_multiplier: float, timeout: float = 60.0) -> MapInfo:
-        kind, payload = self._request(("layer", name, cloud, weight_multiplier), timeout)
+        kind, payload = self._request("layer", name, cloud, weight_multiplier, timeout=timeout)
         if kind != "map":
             raise RequestError(payload)
         self.map_info = payload
         return payload
 
     def reload(self, cfg: Config, timeout: float = 120.0) -> MapInfo:
-        """Load ``cfg``'s map and planner settings; on error the worker keeps the running ones."""
-        kind, payload = self._request(("reload", cfg), timeout)
+        """Load ``cfg``'s map and planner settings; on a refusal (RequestError) the worker keeps the running
+        ones. On WorkerError (no answer in time) its state is unknown: restart it."""
+        kind, payload = self._request("reload", cfg, timeout=timeout)
         if kind != "map":
             raise RequestError(payload)
         self._cfg = cfg
@@ -208,7 +234,7 @@ class PlannerWorker:
             return
         try:
             with self._lock:
-                self._conn.send(("stop",))
+                self._conn.send(("stop", self._new_id()))
         except (OSError, BrokenPipeError):
             pass
         self._proc.join(timeout)

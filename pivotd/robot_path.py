@@ -1,4 +1,6 @@
-"""Translation path files (DESIGN.md §5): CSV rows ``x,y,z`` or ``timestamp,x,y,z,qw,qx,qy,qz``.
+"""The robot's translation path: path files (docs/FORMATS.md) and :class:`Polyline` (arc length, projection).
+
+Files are CSV rows ``x,y,z`` or ``timestamp,x,y,z,qw,qx,qy,qz``.
 
 The 8-column form is the FIF trajectory format (quaternion stored w first, timestamp in ns);
 in code quaternions are (x, y, z, w).

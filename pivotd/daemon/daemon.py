@@ -1,11 +1,11 @@
-"""The pivotd daemon: wiring, threads, state machine, signals (DESIGN.md §1, §8).
+"""The pivotd daemon: wiring, threads, states, signals (docs/ARCHITECTURE.md, docs/design/daemon.md).
 
-Threads: the main thread (signals, status, supervision: reload, fault clearing, parking), the
-planner thread (receding-horizon PIVOT at ``planner.replan_hz``, computed by the planner process of
-:mod:`pivotd.planner_worker`, which owns the map), the control thread (absolute deadlines at
-``control.rate_hz``: plan -> pan/tilt -> Ruckig -> SETPOINT, systemd watchdog), the serial link's
-reader thread and Zenoh's callback threads. Threads share only immutable objects (pose, path,
-plan) swapped by reference assignment.
+Threads: the main thread (signals, status, supervision: fault clearing, parking), the planner thread
+(receding-horizon PIVOT at ``planner.replan_hz``, computed by the planner process of
+:mod:`pivotd.daemon.worker`, which owns the map; it also applies reloads, so that it alone talks to
+the worker), the control thread (absolute deadlines at ``control.rate_hz``: plan -> pan/tilt ->
+Ruckig -> SETPOINT, systemd watchdog), the gimbal link's threads and Zenoh's callback threads.
+Threads share only immutable objects (pose, path, plan, config) swapped by reference assignment.
 """
 
 from __future__ import annotations
@@ -23,20 +23,22 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_proto.messages import MODE_DISABLED, MODE_FAULT, MODE_NAMES, fault_names
+from firmware_proto.messages import MODE_NAMES, fault_names
 from pivotd.bus.messages import CloudMsg, PathMsg, PoseSample
 from pivotd.bus.pivot_bus import PivotBus
 from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.bus.session import open_session
 from pivotd.config import Config, load_config
-from pivotd.control import ControlLoop
+from pivotd.daemon.control import ControlLoop
+from pivotd.daemon.planner import Plan
+from pivotd.daemon.reload import apply_reload, plan_reload
+from pivotd.daemon.states import DaemonState
+from pivotd.daemon.systemd import Notifier, watchdog_interval
+from pivotd.daemon.wiring import build_control_loop, build_control_settings, build_gimbal, park_joints
+from pivotd.daemon.worker import PlannerWorker, WorkerError
 from pivotd.errors import PivotdError
-from pivotd.gimbal.link import GimbalLink
+from pivotd.gimbal.interface import GimbalInterface, GimbalMode, LinkState
 from pivotd.maps.formats import LandmarkCloud, make_cloud
-from pivotd.planner import Plan
-from pivotd.planner_worker import PlannerWorker, WorkerError
-from pivotd.runtime import build_control_loop, build_link_config, park_joints
-from pivotd.systemd import Notifier, watchdog_interval
 
 log = logging.getLogger("pivotd.daemon")
 
@@ -53,6 +55,15 @@ class RunOverrides:
     record: Path | None = None
 
 
+def status_line(status: dict) -> str:
+    """The one-line summary of a status document sent to systemd as STATUS= (``systemctl status``)."""
+    planner = status.get("planner") or {}
+    visible = planner.get("visible_now")
+    return (f"{status['state']}; gimbal link {status['link']}; "
+            f"{'no plan' if visible is None else f'{visible} landmarks in view'}; "
+            f"map {status['map']['landmarks']} landmarks; {planner.get('plans', 0)} plans")
+
+
 def _percentile_ms(values, q: float) -> float | None:
     return None if not values else round(float(np.percentile(np.asarray(values), q)) * 1e3, 3)
 
@@ -65,10 +76,11 @@ class Daemon:
         self.overrides = overrides or RunOverrides()
         self.cfg: Config = self._load_config()
         self.notifier = Notifier()
-        self.state = "starting"
+        self.state = DaemonState.STARTING
         self._stop = threading.Event()  # shutdown requested: leave the main loop, park
         self._halt = threading.Event()  # threads exit (after parking)
         self._reload = threading.Event()
+        self._planner_wake = threading.Event()  # cuts the planner thread's wait short (reload, stop)
         self._lock = threading.Lock()
         # Latest inputs: immutable objects swapped by reference.
         self.pose: PoseSample | None = None
@@ -77,11 +89,11 @@ class Daemon:
         self._pending_clouds: dict[str, CloudMsg] = {}
         self._bus_layers: dict[str, LandmarkCloud] = {}  # layers received over Zenoh, kept across reloads
         self.plan: Plan | None = None
-        # The map and the optimizer live in the planner process (see pivotd/planner_worker.py).
+        # The map and the optimizer live in the planner process (see pivotd/daemon/worker.py).
         self.worker = PlannerWorker(self.cfg, logging.getLogger().getEffectiveLevel())
         self._sent_path_version = -1
         self._worker_errors = 0
-        self.link: GimbalLink | None = None
+        self.link: GimbalInterface | None = None
         self.bus: PivotBus | None = None
         self.session = None
         self.control: ControlLoop | None = None
@@ -90,6 +102,7 @@ class Daemon:
         self._plans = 0
         self._reloads = 0
         self._reload_errors = 0
+        self._needs_restart: tuple[str, ...] = ()  # changed settings that wait for a restart
         self._last_error = ""
         self._clear_attempts = 0
         self._last_clear = 0.0
@@ -134,10 +147,12 @@ class Daemon:
             log.info("map layer %r replaced from %s: %d points (map version %d)", layer, topic, len(lc), info.version)
 
     def _planner_loop(self) -> None:
-        period = 1.0 / self.cfg.planner.replan_hz
         next_t = time.monotonic()
         while not self._stop.is_set():
             try:
+                if self._reload.is_set():
+                    self._reload.clear()
+                    self._do_reload()
                 self._apply_pending_clouds()
                 self._replan_once()
             except WorkerError as exc:
@@ -150,14 +165,15 @@ class Daemon:
                 self._rl.warning("planner", f"planner: {exc}")
                 self._last_error = f"planner: {exc}"
             except Exception as exc:  # keep planning; never take the daemon down
-                self._rl.warning("planner", f"planner: replan failed: {exc!r}")
+                self._rl.exception("planner", f"planner: replan failed: {exc!r}")
                 self._last_error = f"planner: {exc}"
-            next_t += period
+            next_t += 1.0 / self.cfg.planner.replan_hz
             delay = next_t - time.monotonic()
             if delay < 0:
                 next_t = time.monotonic()
                 delay = 0
-            self._stop.wait(delay)
+            self._planner_wake.wait(delay)
+            self._planner_wake.clear()
 
     def _replan_once(self) -> None:
         pose = self.pose
@@ -222,7 +238,7 @@ class Daemon:
             try:
                 tick = self.control.tick(now, self.pose, self.plan)
             except Exception as exc:
-                self._rl.warning("control", f"control: tick failed: {exc!r}")
+                self._rl.exception("control", f"control: tick failed: {exc!r}")
                 self._last_error = f"control: {exc}"
                 continue
             self.state = tick.mode
@@ -233,7 +249,7 @@ class Daemon:
                 last_wd = now
             if k % js_every == 0 and self.bus is not None:
                 st = self.link.state
-                if st is not None and self.link.link_state == "up":
+                if st is not None and self.link.link_state == LinkState.UP:
                     try:
                         self.bus.publish_joint_state(time.time(), st.pan, st.tilt, st.pan_rate, st.tilt_rate)
                     except Exception as exc:
@@ -244,13 +260,13 @@ class Daemon:
         link = self.link
         if link is not None and link.last_error != self._last_link_error:
             self._last_link_error = link.last_error
-            if link.last_error and link.link_state != "up":
+            if link.last_error and link.link_state != LinkState.UP:
                 log.warning("gimbal link: %s (retrying with backoff)", link.last_error)
-        if link is None or link.link_state != "up" or link.state is None:
+        if link is None or link.link_state != LinkState.UP or link.state is None:
             return
         st = link.state
         now = time.monotonic()
-        if st.mode == MODE_FAULT or st.faults:
+        if st.mode == GimbalMode.FAULT or st.faults:
             if now - self._last_clear >= 1.0:
                 self._last_clear = now
                 self._clear_attempts += 1
@@ -261,7 +277,7 @@ class Daemon:
                     self.control.invalidate()
         else:
             self._clear_attempts = 0
-        if st.mode == MODE_DISABLED and not self._stop.is_set():
+        if st.mode == GimbalMode.DISABLED and not self._stop.is_set():
             log.info("gimbal is disabled: sending ENABLE")
             if link.set_enabled(True) and self.control is not None:
                 self.control.invalidate()
@@ -273,15 +289,15 @@ class Daemon:
         st = link.state if link is not None else None
         plan = self.plan
         state = self.state
-        if st is not None and st.mode == MODE_FAULT:
-            state = "fault"
+        if st is not None and st.mode == GimbalMode.FAULT:
+            state = DaemonState.FAULT
         ctl = self.control.stats if self.control is not None else None
         return {
             "name": self.cfg.name,
             "state": state,
             "time": time.time(),
             "pose_age_s": None if pose is None else round(time.monotonic() - pose.rx_time, 3),
-            "link": link.link_state if link is not None else "stopped",
+            "link": link.link_state if link is not None else LinkState.STOPPED,
             "link_error": link.last_error if link is not None else None,
             "gimbal": None if st is None else {
                 "mode": MODE_NAMES.get(st.mode, str(st.mode)),
@@ -316,24 +332,44 @@ class Daemon:
             "link_counters": link.counters() if link is not None else {},
             "reloads": self._reloads,
             "reload_errors": self._reload_errors,
+            "needs_restart": list(self._needs_restart),
             "last_error": self._last_error,
         }
 
     def _do_reload(self) -> None:
+        """Apply a changed config (planner thread): live settings to the planner process and the control loop
+        together; restart-only settings keep their running values and are logged (see pivotd.daemon.reload)."""
         self.notifier.reloading()
+        running_plan = self.plan
         try:
-            cfg = self._load_config()
-            info = self.worker.reload(cfg)
+            plan = plan_reload(self.cfg, self._load_config())
+            self.plan = None  # the control loop holds until the first plan made with the new settings
+            info = apply_reload(plan, self.worker, self.control)
         except PivotdError as exc:
             self._reload_errors += 1
             self._last_error = f"reload: {exc}"
-            log.error("reload failed, keeping the running config and map: %s", exc)
+            if isinstance(exc, WorkerError):  # no answer in time: the worker's state is unknown
+                log.error("reload failed, keeping the running config: %s; restarting the planner worker", exc)
+                self._restart_worker()
+            else:  # refused: neither the worker nor the control loop changed
+                log.error("reload failed, keeping the running config and map: %s", exc)
+            self.plan = running_plan
+        except Exception as exc:  # a bug: put both sides back on the running config
+            self._reload_errors += 1
+            self._last_error = f"reload: {exc!r}"
+            log.exception("reload failed, keeping the running config; restarting the planner worker")
+            self._restart_worker()
+            if self.control is not None:
+                self.control.reconfigure(build_control_settings(self.cfg), self.cfg.gimbal.mount)
         else:
-            # Gimbal, Zenoh and control settings take effect on restart; map and planner now.
-            self.cfg = cfg
-            self.plan = None
+            self.cfg = plan.config
+            self._needs_restart = plan.needs_restart
             self._reloads += 1
-            log.info("reloaded %s: %d landmarks", self.config_path, info.landmarks)
+            log.info("reloaded %s: %d landmarks; applied: %s", self.config_path, info.landmarks,
+                     ", ".join(plan.applied) or "no setting changed")
+            if plan.needs_restart:
+                log.warning("changed settings that need a restart (running values kept): %s",
+                            ", ".join(plan.needs_restart))
         self.notifier.ready()
 
     def _park(self) -> None:
@@ -341,14 +377,14 @@ class Daemon:
         link, control = self.link, self.control
         if link is None or control is None:
             return
-        self.state = "parking"
+        self.state = DaemonState.PARKING
         target = park_joints(self.cfg)
         control.override_target = target
         deadline = time.monotonic() + self.cfg.gimbal.park_timeout_s
         tol = np.radians(0.5)
         while time.monotonic() < deadline:
             st = link.state
-            if link.link_state != "up":
+            if link.link_state != LinkState.UP:
                 break
             if st is not None and abs(st.pan - target[0]) < tol and abs(st.tilt - target[1]) < tol \
                     and abs(st.pan_rate) < 0.01 and abs(st.tilt_rate) < 0.01:
@@ -361,14 +397,16 @@ class Daemon:
     # ------------------------------------------------------------------ lifecycle
     def request_stop(self) -> None:
         self._stop.set()
+        self._planner_wake.set()
 
     def _install_signals(self) -> None:
         def on_term(signum, _frame):
             log.info("signal %s: parking and stopping", signal.Signals(signum).name)
-            self._stop.set()
+            self.request_stop()
 
         def on_hup(_signum, _frame):
             self._reload.set()
+            self._planner_wake.set()
 
         signal.signal(signal.SIGTERM, on_term)
         signal.signal(signal.SIGINT, on_term)
@@ -380,16 +418,16 @@ class Daemon:
         self.session = open_session(mode=z.mode, connect=z.connect, listen=z.listen, config_file=z.config_file,
                                     multicast_scouting=z.multicast_scouting)
         if self.overrides.record is not None:
-            from pivotd.recorder import Recorder
+            from pivotd.daemon.recorder import Recorder
 
             self._recorder = Recorder(self.overrides.record)
         self.bus = PivotBus(self.session, cfg.topics, node_name=cfg.name, on_pose=self._on_pose,
                             on_path=self._on_path, on_cloud=self._on_cloud,
                             on_raw=self._recorder.write if self._recorder is not None else None)
-        self.link = GimbalLink(cfg.gimbal.port, build_link_config(cfg), baudrate=cfg.gimbal.baud)
+        self.link = build_gimbal(cfg)
         self.link.start()
         self.control = build_control_loop(cfg, self.link)
-        self.state = "waiting"
+        self.state = DaemonState.WAITING
         for name, target in (("planner", self._planner_loop), ("control", self._control_loop)):
             t = threading.Thread(target=target, name=f"pivotd-{name}", daemon=True)
             t.start()
@@ -407,17 +445,21 @@ class Daemon:
         try:
             self._start()
             status_period = 1.0 / self.cfg.control.status_hz
+            last_line = ""
             while not self._stop.is_set():
                 self._stop.wait(status_period)
-                if self._reload.is_set():
-                    self._reload.clear()
-                    self._do_reload()
                 try:
-                    self._supervise_gimbal()
+                    # Publish first: a fault that supervision clears right away is still reported once.
+                    status = self.status()
                     if self.bus is not None:
-                        self.bus.publish_status(self.status())
+                        self.bus.publish_status(status)
+                    line = status_line(status)
+                    if line != last_line:
+                        self.notifier.status(line)
+                        last_line = line
+                    self._supervise_gimbal()
                 except Exception as exc:
-                    self._rl.warning("supervise", f"supervision failed: {exc!r}")
+                    self._rl.exception("supervise", f"supervision failed: {exc!r}")
             self.notifier.stopping()
             self._park()
         finally:
@@ -428,7 +470,7 @@ class Daemon:
             if self.link is not None:
                 self.link.stop(disable=True)
             if self.bus is not None:
-                self.state = "stopped"
+                self.state = DaemonState.STOPPED
                 with contextlib.suppress(Exception):
                     self.bus.publish_status(self.status())
                 self.bus.close()

@@ -9,17 +9,20 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import math
+import time
+from collections.abc import Callable
 
 from firmware_proto.messages import Config as ConfigMessage
 from pivotd.config import Config
-from pivotd.control import ControlLoop, ControlSettings
+from pivotd.daemon.control import ControlLoop, ControlSettings
+from pivotd.daemon.planner import PlannerSettings, RecedingHorizonPlanner
 from pivotd.errors import ConfigError
-from pivotd.gimbal.link import LinkConfig
+from pivotd.gimbal.interface import GimbalInterface
+from pivotd.gimbal.link import GimbalLink, LinkConfig
 from pivotd.gimbal.motion import MotionGenerator
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapStore, load_map_store
 from pivotd.pivot.trajectory import TrajectoryOptions
-from pivotd.planner import PlannerSettings, RecedingHorizonPlanner
 
 
 def build_retained_filter(cfg: Config) -> RetainedFilter:
@@ -101,11 +104,21 @@ def build_motion(cfg: Config) -> MotionGenerator:
                            deadband=cfg.motion.deadband)
 
 
-def build_control_loop(cfg: Config, link) -> ControlLoop:
-    """The control tick for ``link`` (a :class:`~pivotd.gimbal.link.GimbalLink` or compatible)."""
-    settings = ControlSettings(rate_hz=cfg.control.rate_hz, pose_timeout=cfg.control.pose_timeout_s,
-                               plan_timeout=max(1.0, 10.0 / cfg.planner.replan_hz))
-    return ControlLoop(settings, build_motion(cfg), cfg.gimbal.mount, cfg.gimbal.limits, link)
+def build_control_loop(cfg: Config, link: GimbalInterface, clock: Callable[[], float] = time.monotonic) -> ControlLoop:
+    """The control tick for ``link`` on the monotonic ``clock`` [s]."""
+    return ControlLoop(build_control_settings(cfg), build_motion(cfg), cfg.gimbal.mount, cfg.gimbal.limits, link,
+                       clock=clock)
+
+
+def build_control_settings(cfg: Config) -> ControlSettings:
+    """The control tick's timing: rate, stale-pose and stale-plan timeouts (ten replanning periods, ≥ 1 s)."""
+    return ControlSettings(rate_hz=cfg.control.rate_hz, pose_timeout=cfg.control.pose_timeout_s,
+                           plan_timeout=max(1.0, 10.0 / cfg.planner.replan_hz))
+
+
+def build_gimbal(cfg: Config) -> GimbalInterface:
+    """The gimbal named by ``cfg.gimbal`` (pivotd's serial protocol on ``gimbal.port``), not yet started."""
+    return GimbalLink(cfg.gimbal.port, build_link_config(cfg), baudrate=cfg.gimbal.baud)
 
 
 def park_joints(cfg: Config) -> tuple[float, float]:

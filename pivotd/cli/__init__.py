@@ -15,9 +15,9 @@ from pivotd.errors import PivotdError
 
 # command name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
-    "run": ("pivotd.daemon_cmd", "run the daemon (the default command)"),
-    "check": ("pivotd.check_cmd", "validate a config, load its map, print a summary"),
-    "plan": ("pivotd.plan_cmd", "optimize viewing directions offline for a map and a path"),
+    "run": ("pivotd.cli.run", "run the daemon (the default command)"),
+    "check": ("pivotd.cli.check", "validate a config, load its map, print a summary"),
+    "plan": ("pivotd.cli.plan", "optimize viewing directions offline for a map and a path"),
     "bench": ("pivotd.bench", "run a benchmark"),
 }
 

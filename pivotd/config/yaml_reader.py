@@ -196,7 +196,7 @@ class Section:
         """A list of ``length`` finite numbers -> tuple of floats."""
         value, given = self._raw(key, default)
         if not given:
-            return tuple(value)
+            return None if value is None else tuple(value)
         if not isinstance(value, list) or len(value) != length:
             raise self.error(key, f"must be a list of {length} numbers, got {_render(value)}")
         out = []

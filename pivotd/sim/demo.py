@@ -14,7 +14,6 @@ import json
 import logging
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -23,57 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
-from pivotd.analysis import read_device_log, setpoint_dynamics, visible_counts
-from pivotd.bus.probe import BusProbe, Observations
+from pivotd.bus.probe import BusProbe
 from pivotd.config import Config, load_config
-from pivotd.gimbal.kinematics import camera_position, joints_to_world_direction
-from pivotd.maps.formats import load_landmarks
+from pivotd.sim.analysis import analyse_run
+from pivotd.sim.launch import REPO, free_port, spawn
 
 log = logging.getLogger("pivotd.demo")
-REPO = Path(__file__).resolve().parent.parent
-
-
-def derive_config(base: Path, out: Path, changes: dict[str, object]) -> Path:
-    """Write a copy of config ``base`` to ``out`` with dotted-key ``changes`` (``"gimbal.port": "mock://"``).
-
-    Relative paths of the base config (``map.file``, ``map.filters.occupancy_file``, ``zenoh.config_file``)
-    are made absolute so the copy can live anywhere.
-    """
-    import yaml
-
-    doc = yaml.safe_load(Path(base).read_text())
-    for dotted in ("map.file", "map.filters.occupancy_file", "zenoh.config_file"):
-        node = doc
-        keys = dotted.split(".")
-        for k in keys[:-1]:
-            node = node.get(k) or {}
-        value = node.get(keys[-1]) if isinstance(node, dict) else None
-        if value:
-            node[keys[-1]] = str((Path(base).parent / value).resolve())
-    for dotted, value in changes.items():
-        node = doc
-        keys = dotted.split(".")
-        for k in keys[:-1]:
-            node = node.setdefault(k, {})
-        node[keys[-1]] = value
-    out.write_text(yaml.safe_dump(doc, sort_keys=False))
-    return out
-
-
-def free_port() -> int:
-    """A TCP port on 127.0.0.1 that was free a moment ago."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def spawn(args: list[str], log_path: Path) -> subprocess.Popen:
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
-    env.pop("NOTIFY_SOCKET", None)
-    fh = open(log_path, "w")  # noqa: SIM115 - owned by the child for its lifetime
-    return subprocess.Popen(args, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env,
-                            cwd=str(REPO), start_new_session=True)
 
 
 def _status_line(elapsed: float, st: dict) -> str:
@@ -98,55 +52,6 @@ class DemoSummary:
     within_limits: bool
     daemon_exit: int | None
     report: dict
-
-
-def analyse(cfg: Config, obs: Observations, device_log: Path) -> tuple[dict, dict]:
-    """Per-frame visibility (PIVOT vs forward-facing) and setpoint dynamics; returns (report, series)."""
-    cloud = load_landmarks(cfg.map.file)
-    poses, joints = obs.poses, obs.joints
-    if not poses or not joints:
-        raise RuntimeError("no poses or joint states were received during the demo")
-    pose_t = np.array([p[0] for p in poses])
-    frames = []
-    for t, pan, tilt in joints:
-        i = int(np.searchsorted(pose_t, t, side="right")) - 1
-        if i < 0 or t - pose_t[i] > cfg.control.pose_timeout_s:
-            continue  # no fresh pose at this frame (before the start or after the route ended)
-        frames.append((t, pan, tilt, poses[i][1], poses[i][2]))
-    mount = cfg.gimbal.mount
-    cams = np.array([camera_position(f[3], f[4], mount) for f in frames])
-    piv = np.array([joints_to_world_direction(f[1], f[2], f[4], mount) for f in frames])
-    fwd = np.array([joints_to_world_direction(0.0, 0.0, f[4], mount) for f in frames])
-    flt = cfg.map.filters
-    n_piv = visible_counts(cloud.points, cams, piv, cfg.pivot.half_angle, flt.min_range, flt.max_range)
-    n_fwd = visible_counts(cloud.points, cams, fwd, cfg.pivot.half_angle, flt.min_range, flt.max_range)
-    dev = read_device_log(device_log)
-    dyn = setpoint_dynamics(dev.sp_pos, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt, rates=dev.sp_rate)
-    lim = cfg.gimbal.limits
-    report = {
-        "frames": len(frames),
-        "visible_mean_pivot": float(n_piv.mean()),
-        "visible_mean_forward": float(n_fwd.mean()),
-        "visible_ratio": float(n_piv.mean() / max(n_fwd.mean(), 1e-9)),
-        "frames_pivot_below_10": int((n_piv < 10).sum()),
-        "frames_forward_below_10": int((n_fwd < 10).sum()),
-        "setpoints": int(dev.sp_pos.shape[0]),
-        "max_velocity_deg_s": np.degrees(dyn.max_velocity).round(2).tolist(),
-        "max_acceleration_deg_s2": np.degrees(dyn.max_acceleration).round(2).tolist(),
-        "max_jerk_deg_s3": np.degrees(dyn.max_jerk).round(1).tolist(),
-        "velocity_ratio": dyn.velocity_ratio.round(3).tolist(),
-        "acceleration_ratio": dyn.acceleration_ratio.round(3).tolist(),
-        "jerk_ratio": dyn.jerk_ratio.round(3).tolist(),
-        "within_limits": dyn.within_limits,
-        "jerk_allowance_deg_s3": round(float(np.degrees(dyn.allowance_jerk)), 2),
-        "pan_range_deg": np.degrees([dyn.position_min[0], dyn.position_max[0]]).round(2).tolist(),
-        "tilt_range_deg": np.degrees([dyn.position_min[1], dyn.position_max[1]]).round(2).tolist(),
-        "joint_limits_deg": np.degrees([lim.pan_min, lim.pan_max, lim.tilt_min, lim.tilt_max]).round(1).tolist(),
-    }
-    series = {"t": np.array([f[0] for f in frames]), "cams": cams, "pivot": piv, "forward": fwd,
-              "n_pivot": n_piv, "n_forward": n_fwd, "pan": np.array([f[1] for f in frames]),
-              "tilt": np.array([f[2] for f in frames]), "points": cloud.points}
-    return report, series
 
 
 def plot(series: dict, path: Path) -> None:
@@ -236,7 +141,7 @@ def run_demo(config_path: Path, out_dir: Path, speed: float = 1.2, timeout: floa
         if probe is not None:
             probe.close()
     obs = probe.observations()
-    report, series = analyse(cfg, obs, device_log)
+    report, series = analyse_run(cfg, obs, device_log)
     report["daemon_exit_code"] = exit_code
     report["final_status"] = obs.status
     png = out_dir / "demo.png"

@@ -1,4 +1,4 @@
-"""Constant-speed motion along a waypoint route (for the pose simulator), on :class:`pivotd.paths.Polyline`."""
+"""Constant-speed motion along a waypoint route (for the pose simulator), on :class:`pivotd.robot_path.Polyline`."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pivotd.errors import InputError
-from pivotd.paths import PathData, Polyline, load_path
 from pivotd.pivot.scenes import hallway
+from pivotd.robot_path import PathData, Polyline, load_path
 
 
 def load_route(spec: str) -> PathData:
