@@ -26,6 +26,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from pivotd.pivot import _ascent
+
 Reachable = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
@@ -130,6 +132,48 @@ def _ring_candidates(C: np.ndarray, radius: float) -> np.ndarray:
     return np.concatenate([C[:, None, :], ring], axis=1)
 
 
+def _best_sequence(val: np.ndarray, pen: np.ndarray) -> np.ndarray:
+    """Candidate index per waypoint (N,) maximising Σ_i val[i, k_i] + Σ_i pen[i − 1, k_i, k_{i−1}] (Viterbi).
+
+    val (N, K) candidate values, pen (N − 1, K to, K from) transition values (−inf: forbidden). Ties go
+    to the lowest index (candidate 0, the current axis). One small (K, K) step per waypoint; the
+    backtrack runs on Python lists.
+    """
+    N, K = val.shape
+    back = np.empty((N, K), dtype=np.intp)
+    cols = np.arange(K)
+    score = val[0]
+    for i in range(1, N):
+        tot = pen[i - 1] + score  # (to, from)
+        b = tot.argmax(axis=1)
+        back[i] = b
+        score = tot[cols, b] + val[i]
+    pick = [int(score.argmax())]
+    rows = back.tolist()
+    for i in range(N - 1, 0, -1):
+        pick.append(rows[i][pick[-1]])
+    return np.array(pick[::-1], dtype=np.intp)
+
+
+def _narrow(B: np.ndarray, Wa: np.ndarray, C: np.ndarray, alpha: float, reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """The part of a band (B (N, L, 3) unit bearings, Wa (N, L)) within α ± reach [rad] of the axes C (N, 3)."""
+    geom = _ascent.Geometry(B, np.zeros((B.shape[0], 3), np.float32), None, Wa, _no_exact)
+    cos_lo = float(np.cos(min(np.pi, alpha + reach)))
+    cos_hi = float(np.cos(alpha - reach)) if alpha > reach else 2.0
+    return _ascent._active(geom, C, cos_lo, cos_hi, max(B.shape[1], 1))
+
+
+def _no_exact(rows: np.ndarray, cols: np.ndarray, C: np.ndarray) -> np.ndarray:
+    raise AssertionError("band geometries are never evaluated exactly")
+
+
+def _score(cand: np.ndarray, B: np.ndarray, Wa: np.ndarray, cos_a: np.float32) -> np.ndarray:
+    """Hard visible weight (N, K) float64 of candidate axes cand (N, K, 3) over the band B (N, L, 3), Wa (N, L)."""
+    x = np.matmul(cand.astype(np.float32), B.transpose(0, 2, 1))  # (N, K, L) cosines
+    np.greater_equal(x, cos_a, out=x, casting="unsafe")  # 1.0 inside, 0.0 outside, in place
+    return np.matmul(x, Wa[:, :, None])[..., 0].astype(float)
+
+
 def step_limited_polish(
     band: Callable[[np.ndarray, float], tuple[np.ndarray, np.ndarray]],
     C: np.ndarray,
@@ -149,47 +193,44 @@ def step_limited_polish(
     within α ± reach [rad] of each axis C (N, 3): the only ones whose state a move of at most ``reach``
     can change (the others add the same to every candidate of their waypoint). C (N, 3): unit axes whose
     steps are ≤ ``max_step`` [rad]; one DP per radius r = radius, radius/2, … ≥ tol [rad] over the
-    rings r and r/2 (recentred on each result, band re-selected); ``reachable`` as in
+    rings r and r/2, recentred on each result. ``band`` is called once, with the reach 2.02 × radius of
+    all levels together (the axes move by < 2 × radius in all); each level narrows the previous level's
+    band to α ± 2.02 r around its axes (it held α ± 4.04 r around axes that have moved ≤ 2 r since) and
+    scores all waypoints × candidates in one batched product. ``reachable`` as in
     :func:`polish_trajectory`. With ``smooth`` = λκ > 0 it maximises Φ_hard (visible weight / ``norm``
     (N,) plus λκ Σ c_{i+1}·c_i) within the limit instead of the visible weight alone.
     """
     C = np.array(C, dtype=float)
     N = C.shape[0]
-    if N == 0:
+    if N == 0 or radius < tol:
         return C
     cos_a = np.float32(np.cos(alpha) - 1e-7)
     cos_s = float(np.cos(max_step)) - 1e-12
+    inv = 1.0 / np.maximum(norm, 1e-12) if smooth > 0 else None
+    B, Wa = band(C, 2.02 * radius)
     r = radius
     while r >= tol:
-        B, Wa = band(C, 1.01 * r)
+        if r < radius:
+            B, Wa = _narrow(B, Wa, C, alpha, 2.02 * r)
         if B.shape[1] == 0:
             break
         cand = _ring_candidates(C, r)  # (N, K, 3)
-        inside = np.matmul(cand.astype(np.float32), B.transpose(0, 2, 1)) >= cos_a  # (N, K, L)
-        val = np.matmul(inside.astype(np.float32), Wa[:, :, None])[..., 0].astype(float)  # (N, K)
-        if smooth > 0:
-            val /= np.maximum(norm, 1e-12)[:, None]
+        val = _score(cand, B, Wa, cos_a)  # (N, K)
+        if inv is not None:
+            val *= inv[:, None]
         if reachable is not None:
             val[:, 1:][~reachable(np.arange(N), cand[:, 1:])] = -np.inf
         if anchor is not None:
             far = cand[0] @ anchor < cos_s
             far[0] = False  # the current axis stays a choice whatever the rounding
             val[0, far] = -np.inf
-        cos_pairs = np.einsum("nkj,nlj->nkl", cand[1:], cand[:-1])  # (N − 1, K to, K from)
+        cos_pairs = np.matmul(cand[1:], cand[:-1].transpose(0, 2, 1))  # (N − 1, K to, K from)
         ok = cos_pairs >= cos_s
         ok[:, 0, 0] = True  # the current plan is always feasible
         pen = np.where(ok, smooth * cos_pairs if smooth > 0 else 0.0, -np.inf)
         if smooth > 0 and anchor is not None:
             val[0] += smooth * (cand[0] @ anchor)
-        scores = np.empty_like(val)
-        scores[0] = val[0]
-        for i in range(1, N):  # forward: best total of a feasible sequence ending in each candidate
-            scores[i] = np.max(pen[i - 1] + scores[i - 1], axis=1) + val[i]
-        pick = np.empty(N, dtype=np.intp)
-        pick[-1] = int(np.argmax(scores[-1]))
-        for i in range(N - 1, 0, -1):  # backward: the predecessor that realised it
-            pick[i - 1] = int(np.argmax(pen[i - 1, pick[i]] + scores[i - 1]))
-        C = cand[np.arange(N), pick]
+        C = cand[np.arange(N), _best_sequence(val, pen)]
         C /= np.linalg.norm(C, axis=1, keepdims=True)
         r *= 0.5
     return C
