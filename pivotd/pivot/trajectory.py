@@ -9,7 +9,7 @@ J_i = J_vis,i/W_i + λ c_i × (c_{i−1} + c_{i+1}) (eqs. 12, 18–20; one neigh
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -131,56 +131,32 @@ def _dense_geometry(points: np.ndarray, waypoints: np.ndarray, fw: np.ndarray, d
     return _ascent.Geometry(P, T, inv, W, exact, valid_all), W.sum(axis=1, dtype=np.float64)
 
 
-def _ragged_geometry(points, waypoints, fw, dist_w, retained: Sequence[np.ndarray]):
-    """Geometry from per-waypoint index arrays, padded to the longest; returns (geometry, W_i totals).
+def _ragged_geometry(pairs: _Pairs, waypoints: np.ndarray, dist_w: bool):
+    """Geometry of the retained pairs (padded per waypoint); returns (geometry, W_i totals).
 
-    The retained pairs are few compared with M × N, so each pair's bearing is computed once in float64
-    (exact, no cancellation) and stored as a float32 unit vector: later passes are plain dot products.
+    Each pair's offset is computed in float64 (exact, no cancellation however far the scene is from the
+    origin) and stored as a float32 unit bearing: later passes are plain dot products.
     """
-    N = waypoints.shape[0]
-    if len(retained) != N:
-        raise ValueError(f"retained must have one index array per waypoint ({N}), got {len(retained)}")
-    lists = [np.asarray(r).ravel() for r in retained]
-    lens = np.array([r.size for r in lists], dtype=np.intp)
-    flat = np.concatenate(lists).astype(np.intp, copy=False) if lists else np.zeros(0, np.intp)
-    M = points.shape[0]
-    if flat.size and (flat.min() < 0 or flat.max() >= M):
-        bad = int(np.searchsorted(np.cumsum(lens), int(np.argmax((flat < 0) | (flat >= M))), side="right"))
-        raise ValueError(f"retained[{bad}] indexes outside 0..{M - 1}")
-    L = max(int(lens.max(initial=0)), 1)
-    idx = np.zeros((N, L), dtype=np.intp)  # padding points at landmark 0 and is masked out
-    for i, r in enumerate(lists):
-        idx[i, : r.size] = r
+    P, lens = pairs.points, pairs.lengths
+    N, L = P.shape[0], P.shape[1]
     pad = np.arange(L)[None, :] < lens[:, None]  # (N, L): real entries
-    # float32 around the waypoints' centroid, one plane per coordinate (3, N, L): element-wise work then
-    # runs along L instead of over a trailing axis of length 3 (several times faster); pairs closer than
-    # 1 % of the scene scale (where float32 rounding of the positions would show) are redone in float64
-    centre = waypoints.mean(axis=0)
-    PT = np.empty((3, points.shape[0]), np.float32)  # points: only the retained landmarks (see _local_map)
+    # one float32 plane per coordinate (3, N, L): element-wise work then runs along L instead of over a
+    # trailing axis of length 3 (several times faster)
+    D = np.empty((3, N, L), np.float32)
     for k in range(3):
-        np.subtract(points[:, k], centre[k], out=PT[k], casting="same_kind")
-    T = (waypoints - centre).astype(np.float32)
-    D = PT.take(idx, axis=1)  # (3, N, L)
-    D -= T.T[:, :, None]
+        np.subtract(P[:, :, k], waypoints[:, k, None], out=D[k], casting="same_kind")
     d = np.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
-    scale = float(max(np.abs(PT).max(initial=0.0), np.abs(T).max(), 1.0))
-    rows, cols = _ascent._nonzero2d((d < np.float32(1e-2 * scale)) & pad)
-    if rows.size:
-        exact = points[idx[rows, cols]] - waypoints[rows]
-        d[rows, cols] = np.sqrt(np.square(exact) @ np.ones(3))
+    scale = float(max(d.max(initial=0.0), np.abs(waypoints).max(), 1.0))
     valid = pad & (d > np.float32(1e-9 * scale))  # a landmark at the sensor has no bearing: weight 0, never counts
     inv = np.zeros_like(d)
     np.divide(np.float32(1.0), d, out=inv, where=valid)
-    D *= inv[None]
-    if rows.size:
-        D[:, rows, cols] = (exact * inv[rows, cols, None]).T
     U = np.empty((N, L, 3), np.float32)
     for k in range(3):
-        U[:, :, k] = D[k]
-    W = _weights(d, valid, fw.astype(np.float32).take(idx), dist_w)
+        np.multiply(D[k], inv, out=U[:, :, k])
+    W = _weights(d, valid, pairs.weights.astype(np.float32), dist_w)
 
     def exact(r: np.ndarray, c: np.ndarray, C: np.ndarray) -> np.ndarray:
-        v = points[idx[r, c]] - waypoints[r]
+        v = P[r, c].astype(float) - waypoints[r]
         return np.einsum("ij,ij->i", v, C[r]) / np.maximum(np.linalg.norm(v, axis=1), 1e-300)
 
     geom = _ascent.Geometry(U, np.zeros((N, 3), np.float32), None, W, exact, valid=valid)
@@ -214,24 +190,33 @@ def _weights(d: np.ndarray, valid: np.ndarray | None, fw: np.ndarray, dist_w: bo
     return s.astype(np.float32, copy=False)
 
 
+def _spread_table() -> np.ndarray:
+    """(256,) uint64: the bits of each byte moved to every third bit (bit b to bit 3b)."""
+    v = np.arange(256, dtype=np.uint64)
+    out = np.zeros(256, np.uint64)
+    for b in range(8):
+        out |= ((v >> np.uint64(b)) & np.uint64(1)) << np.uint64(3 * b)
+    out.flags.writeable = False
+    return out
+
+
+_SPREAD = _spread_table()
+
+
 def morton_keys(P: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Z-order (Morton) keys (M,) uint64 of points P (M, 3) [m] in the box [lo, hi] (21 bits per axis).
+    """Z-order (Morton) keys (M,) uint64 of points P (M, 3) [m] in the box [lo, hi] (16 bits per axis).
 
     Sorting landmarks by them lays them out along a space-filling curve: every strided subsample
     (active-set thinning, the chain's scoring sample, the planner's cap) is then spread over space
-    evenly and depends on the landmarks only, not on their order in the map.
+    evenly and depends on the landmarks only, not on their order in the map. Two table look-ups per
+    axis (bytes spread to every third bit).
     """
+    lo = np.asarray(lo, float)
     span = np.maximum(np.asarray(hi, float) - lo, 1e-12)
-    q = ((np.asarray(P, float) - lo) * ((2**21 - 1) / span)).clip(0, 2**21 - 1).astype(np.uint64)
-    key = np.zeros(q.shape[0], np.uint64)
+    key = np.zeros(P.shape[0], np.uint64)
     for k in range(3):
-        v = q[:, k]
-        v = (v | (v << np.uint64(32))) & np.uint64(0x1F00000000FFFF)  # spread 21 bits to every third bit
-        v = (v | (v << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
-        v = (v | (v << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)
-        v = (v | (v << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
-        v = (v | (v << np.uint64(2))) & np.uint64(0x1249249249249249)
-        key |= v << np.uint64(k)
+        q = ((P[:, k] - lo[k]) * ((2**16 - 1) / span[k])).clip(0, 2**16 - 1).astype(np.uint32)
+        key |= (_SPREAD.take(q & 255) | (_SPREAD.take(q >> 8) << np.uint64(24))) << np.uint64(k)
     return key
 
 
@@ -248,8 +233,9 @@ def spatial_order(points: np.ndarray, retained: Sequence[np.ndarray]) -> list[np
         return lists
     pts = [points.take(r, axis=0) for r in lists]
     nonempty = [p for p in pts if p.size]
-    lo = np.min([p.min(axis=0) for p in nonempty], axis=0).astype(float)
-    hi = np.max([p.max(axis=0) for p in nonempty], axis=0).astype(float)
+    # the box, one coordinate column at a time (reductions along axis 0 of an (n, 3) array are much slower)
+    lo = np.array([min(float(p[:, k].min()) for p in nonempty) for k in range(3)])
+    hi = np.array([max(float(p[:, k].max()) for p in nonempty) for k in range(3)])
     out = []
     for r, p in zip(lists, pts, strict=True):
         if r.size < 2:
@@ -267,14 +253,28 @@ def spatial_order(points: np.ndarray, retained: Sequence[np.ndarray]) -> list[np
     return out
 
 
+@dataclass
+class _Pairs:
+    """The retained (waypoint, landmark) pairs, padded per waypoint: points (N, L, 3) in the map's dtype
+    (padding repeats a retained landmark), weights (N, L) float32 or float64 (0 for padding), lengths (N,)."""
+
+    points: np.ndarray
+    weights: np.ndarray
+    lengths: np.ndarray
+
+    def waypoint(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Landmarks (n, 3) and weights (n,) of waypoint i."""
+        n = int(self.lengths[i])
+        return self.points[i, :n], self.weights[i, :n]
+
+
 def _gather_pairs(
     points: np.ndarray, weights: np.ndarray | None, retained: Sequence[np.ndarray], N: int
-) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-    """The retained (waypoint, landmark) pairs only: points (R, 3) (float32 or float64 as the map) and
-    weights (R,) of every pair, in retained order, and per-waypoint index arrays into them.
+) -> _Pairs:
+    """The retained pairs only, gathered once from the map in retained order (:class:`_Pairs`).
 
-    Everything here costs O(R): the map itself is only indexed, never converted, checked or copied as a
-    whole (NaN/inf coordinates and bad weights are reported with their row in the map).
+    Everything here costs O(N × longest retained set): the map itself is only indexed, never converted,
+    checked or copied as a whole (NaN/inf coordinates and bad weights are reported with their row in the map).
     """
     if len(retained) != N:
         raise ValueError(f"retained must have one index array per waypoint ({N}), got {len(retained)}")
@@ -287,44 +287,56 @@ def _gather_pairs(
         if r.size and r.dtype.kind not in "iu":
             raise ValueError(f"retained[{i}] must hold integer indices, got {r.dtype}")
     lens = np.array([r.size for r in lists], dtype=np.intp)
-    flat = np.concatenate(lists).astype(np.intp, copy=False) if lists else np.zeros(0, np.intp)
-    if flat.size and (flat.min() < 0 or flat.max() >= M):
-        bad = int(np.searchsorted(np.cumsum(lens), int(np.argmax((flat < 0) | (flat >= M))), side="right"))
+    L = max(int(lens.max(initial=0)), 1)
+    if not lens.any():  # nothing retained anywhere (possibly an empty map)
+        return _Pairs(np.zeros((N, L, 3)), np.zeros((N, L)), lens)
+    first = next(r[0] for r in lists if r.size)
+    idx = np.full((N, L), first, dtype=np.intp)  # padding repeats a retained landmark (masked out later)
+    for i, r in enumerate(lists):
+        idx[i, : r.size] = r
+    if lens.sum() and (idx.min() < 0 or idx.max() >= M):
+        bad = int(np.argmax(((idx < 0) | (idx >= M)).any(axis=1)))
         raise ValueError(f"retained[{bad}] indexes outside 0..{M - 1}")
+    flat = idx.reshape(-1)
     P = pts.take(flat, axis=0)
     if P.dtype not in (np.float32, np.float64):
         P = P.astype(float)
     if not np.isfinite(P).all():
         finite_array("points", P, rows=flat)  # raises, naming the row in the map
     if weights is None:
-        fw = np.ones(flat.size)
+        fw = np.ones((N, L))
     else:
         w = weights if isinstance(weights, np.ndarray) else np.asarray(weights)
         if w.shape != (M,):
             raise ValueError(f"weights must have shape ({M},), got {w.shape}")
-        fw = feature_weights(w.take(flat), flat.size, rows=flat)
-    return P, fw, np.split(np.arange(flat.size), np.cumsum(lens)[:-1])
+        fw = w.take(flat)
+        if fw.dtype not in (np.float32, np.float64):
+            fw = fw.astype(float)
+        if not (np.isfinite(fw).all() and (fw >= 0).all()):
+            feature_weights(fw, flat.size, rows=flat)  # raises, naming the row in the map
+        fw = fw.reshape(N, L)
+    fw[np.arange(L)[None, :] >= lens[:, None]] = 0.0
+    return _Pairs(P.reshape(N, L, 3), fw, lens)
 
 
 def _independent_views(
-    P: np.ndarray,
+    landmarks: Callable[[int], tuple[np.ndarray, np.ndarray]],
     T: np.ndarray,
-    fw: np.ndarray,
-    retained: list[np.ndarray] | None,
     alpha: float,
     init: np.ndarray | None,
     dist_w: bool,
 ) -> TrajectoryResult:
     """λ = 0 without joint limits: every waypoint is its own single-pose problem, solved by
-    :func:`pivotd.pivot.view.optimize_view` (init[i] joins its multi-start set); objective Σ F_i/W_i."""
+    :func:`pivotd.pivot.view.optimize_view` (init[i] joins its multi-start set); objective Σ F_i/W_i.
+    ``landmarks(i)`` returns waypoint i's landmarks (n, 3) [m] and weights (n,)."""
     N = T.shape[0]
     dirs, rots, visible = np.empty((N, 3)), np.empty((N, 3, 3)), np.zeros(N, dtype=int)
     obj, iters = 0.0, 0
-    scale = max(float(np.abs(P).max(initial=0.0)), float(np.abs(T).max()), 1.0)
     for i in range(N):
-        Pi, wi = (P, fw) if retained is None else (P[retained[i]], fw[retained[i]])
+        Pi, wi = landmarks(i)
         d = Pi - T[i]
         n = np.sqrt(np.square(d) @ np.ones(3))
+        scale = max(float(n.max(initial=0.0)), float(np.abs(T).max()), 1.0)
         ok = n > 1e-9 * scale  # a landmark at the sensor has no bearing
         B, w, n = d[ok] / n[ok, None], wi[ok], n[ok]
         if dist_w and n.size:
@@ -380,6 +392,22 @@ def _polish(
         reachable=_reachable_fn(constraint),
     )
     return C_new
+
+
+def _visible_fraction(geom: _ascent.Geometry, row: int, D: np.ndarray, alpha: float) -> np.ndarray:
+    """Hard visible fraction of the weight of all of waypoint ``row``'s landmarks (m,) for axes D (m, 3)."""
+    D32 = D.astype(np.float32)
+    W = geom.weights[row] if geom.weights.ndim == 2 else geom.weights
+    if geom.shared:
+        x = D32 @ geom.points.T
+        if geom.inv_dist is not None:
+            x -= (D32 @ geom.origins[row])[:, None]
+            x *= geom.inv_dist[row][None, :]
+    else:
+        x = D32 @ geom.points[row].T
+    np.greater_equal(x, np.float32(np.cos(alpha)), out=x, casting="unsafe")
+    total = float(np.sum(W, dtype=np.float64))
+    return (x @ W).astype(float) / (total if total > 0 else 1.0)
 
 
 def _hard_total(geom: _ascent.Geometry, C: np.ndarray, alpha: float) -> float:
@@ -456,9 +484,9 @@ def optimize_trajectory(
         if P.shape[0] > 1:  # every landmark is used: lay them out along a space-filling curve (spatial_order)
             order = spatial_order(P, [np.arange(P.shape[0])])[0]
             P, fw = P[order], fw[order]
-        local = None
+        pairs = None
     else:
-        P, fw, local = _gather_pairs(points, weights, retained, N)
+        pairs = _gather_pairs(points, weights, retained, N)
     if constraint is not None and len(constraint) != N:
         raise ValueError(f"constraint has {len(constraint)} waypoints, the path has {N}")
     a_vec = None if anchor is None else unit_vector("anchor", anchor)
@@ -474,15 +502,17 @@ def optimize_trajectory(
     else:
         C0 = path_directions(T)
     if lam == 0.0 and constraint is None and max_step is None:
-        return _independent_views(P, T, fw, local, alpha, C0 if warm else None, opts.distance_weights)
+        views = (lambda i: (P, fw)) if pairs is None else pairs.waypoint
+        return _independent_views(views, T, alpha, C0 if warm else None, opts.distance_weights)
     R0 = optical_frame_from_direction(C0)
 
-    if P.shape[0] == 0:
+    lengths = np.full(N, P.shape[0]) if pairs is None else pairs.lengths
+    if not lengths.any():
         geom, norm = None, np.zeros(N)
-    elif local is None:
+    elif pairs is None:
         geom, norm = _dense_geometry(P, T, fw, opts.distance_weights)
     else:
-        geom, norm = _ragged_geometry(P, T, fw, opts.distance_weights, local)
+        geom, norm = _ragged_geometry(pairs, T, opts.distance_weights)
 
     rad = np.radians
     if warm:
@@ -520,7 +550,6 @@ def optimize_trajectory(
     seed = None  # node waypoints of the chain initialisation, for the step-limited seed
     smooth = lam * opts.smooth_scale
     if geom is not None and (len(stages) > 1 or (opts.chain_init and not warm)):
-        lengths = np.full(N, P.shape[0]) if local is None else np.array([r.size for r in local])
         if opts.chain_init and not warm:  # the chain scores its node waypoints only
             linked = smooth > 0 or max_step is not None
             nodes = chain.node_indices(N, opts.chain_nodes) if linked else np.arange(N)
@@ -556,8 +585,11 @@ def optimize_trajectory(
             # it sees more (both stay within the limit): the λ plan may take another route than the limit allows
             nodes = seed
             sub = _ascent.subsample(geom.take_rows(nodes), lengths[nodes], opts.seed_cap)
-            C_alt = chain.step_limited_directions(sub.points, sub.weights, alpha, nodes, N, limit,
-                                                  resolution_deg=opts.chain_resolution_deg, anchor=a_vec)
+            C_alt = chain.step_limited_directions(
+                sub.points, sub.weights, alpha, nodes, N, limit, resolution_deg=opts.chain_resolution_deg,
+                anchor=a_vec, exact=lambda k, D: _visible_fraction(geom, int(nodes[k]), D, alpha),
+                full_sizes=lengths[nodes],
+            )
             if constraint is not None:
                 C_alt = constraint.project(C_alt)
             C_alt = _step_polish(geom, limit_steps(C_alt, limit, anchor=a_vec, constraint=constraint), alpha, limit,
