@@ -14,7 +14,11 @@ import argparse
 import json
 import logging
 import math
+import time
+from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -38,6 +42,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--poses", type=int, default=None, help="poses per level (a fixed spread subset; default 400)")
     parser.add_argument("--fov-deg", type=float, default=30.0, help="full FoV opening angle (default 30)")
     parser.add_argument("--resolution-deg", type=float, default=2.0, help="brute-force grid resolution")
+    parser.add_argument(
+        "--pareto", action="store_true",
+        help="only the trajectory plans against the exact step-limited grid plan (FIF, competing clusters, a "
+             "path through each hard family): own largest step and hard step limits 5 and 10 deg",
+    )
     parser.add_argument(
         "--replan", action="store_true",
         help="only the warm-started replanning regime: 40 waypoints, 20k landmarks, anchor + pan/tilt limits",
@@ -129,6 +138,107 @@ def fif_section(repeats: int = 5) -> dict | None:
     }
 
 
+def _steps_deg(C: np.ndarray) -> np.ndarray:
+    return np.degrees(np.arctan2(np.linalg.norm(np.cross(C[1:], C[:-1]), axis=1), np.sum(C[1:] * C[:-1], axis=1)))
+
+
+def interleaved_grid_speed(
+    points: np.ndarray, waypoints: np.ndarray, alpha: float, grid: np.ndarray,
+    plans: dict[str, Callable[[], Any]], chunks: int = 8,
+) -> tuple[np.ndarray, float, dict[str, float], dict[str, Any]]:
+    """Scoring the grid at every waypoint against plans, side by side on a shared machine.
+
+    The grid is scored in ``chunks`` slices of waypoints, and every plan in ``plans`` runs once after each
+    slice (after one warm-up call), so both see the same load. Times are CPU seconds of this process.
+    Returns (V (N, G) grid visibility, total grid seconds, median seconds per plan, last result per plan).
+    """
+    from pivotd.pivot.brute import grid_visibility
+
+    results = {name: fn() for name, fn in plans.items()}  # warm-up
+    times: dict[str, list[float]] = {name: [] for name in plans}
+    parts, grid_s = [], 0.0
+    for sl in np.array_split(np.arange(waypoints.shape[0]), chunks):
+        if sl.size == 0:
+            continue
+        t0 = time.process_time()
+        parts.append(grid_visibility(points, waypoints[sl], alpha, grid))
+        grid_s += time.process_time() - t0
+        for name, fn in plans.items():
+            t0 = time.process_time()
+            results[name] = fn()
+            times[name].append(time.process_time() - t0)
+    return np.concatenate(parts), grid_s, {k: median(v) for k, v in times.items()}, results
+
+
+def pareto_rows(limits_deg: tuple[float, ...] = (5.0, 10.0), families: bool = True) -> list[dict]:
+    """Trajectory plans against the exact step-limited plan on the 2° grid (hard counts, `pivotd plan`'s
+    objective): the λ = 0.6 plan against the best grid plan with its own largest step, and plans with a hard
+    step limit S (``max_step``) against the best grid plan with steps ≤ S. Scenes: the FIF corridor (30°
+    FoV), the competing-clusters path (60° FoV) and a 40-waypoint path through each hard scene family
+    (30° FoV). Also the CPU time of the λ = 0.6 plan, with and without the step-limited polish, next to
+    scoring the 2° grid at every waypoint, interleaved (:func:`interleaved_grid_speed`)."""
+    from pivotd.maps.formats import load_landmarks
+    from pivotd.pivot.brute import best_grid_chain, sphere_grid
+    from pivotd.pivot.scenes import HARD_FAMILIES, competing_clusters_path, hard_path
+    from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
+    from pivotd.robot_path import load_path
+
+    scenes = []
+    map_file, path_file = FIF_DIR / "ycorridor_6x20_points_w.txt", FIF_DIR / "ycorridor_6x20.csv"
+    if map_file.exists() and path_file.exists():
+        scenes.append(("fif", load_landmarks(map_file).points, load_path(path_file).positions, 15.0))
+    cc = competing_clusters_path()
+    scenes.append(("competing_clusters", cc.points, cc.path, 30.0))
+    if families:
+        for fam in HARD_FAMILIES:
+            hp = hard_path(fam, 0)
+            scenes.append((f"path_{fam}", hp.points, hp.path, 15.0))
+    grid = sphere_grid(2.0)
+    opts = TrajectoryOptions(distance_weights=False)
+    rows = []
+    for name, pts, way, half_deg in scenes:
+        alpha = math.radians(half_deg)
+        variants = {
+            "polish": lambda pts=pts, way=way, alpha=alpha: optimize_trajectory(pts, way, alpha, 0.6, options=opts),
+            "bare": lambda pts=pts, way=way, alpha=alpha: optimize_trajectory(
+                pts, way, alpha, 0.6, options=replace(opts, step_polish_deg=0.0)),
+        }
+        V, grid_s, plan_s, plans = interleaved_grid_speed(pts, way, alpha, grid, variants)
+        plan, bare = plans["polish"], plans["bare"]
+        idx = np.arange(V.shape[0])
+        own = float(_steps_deg(plan.directions).max()) if len(way) > 1 else 0.0
+        row = {
+            "scene": name, "landmarks": int(pts.shape[0]), "waypoints": int(way.shape[0]),
+            "optimize_ms": 1e3 * plan_s["polish"], "grid_scoring_ms": 1e3 * grid_s,
+            "speedup_vs_grid": grid_s / plan_s["polish"],
+            "max_step_deg": own, "visible_sum": int(plan.visible.sum()),
+            "grid_own_step_sum": float(V[idx, best_grid_chain(V, grid, own)].sum()),
+        }
+        row["own_step_pct"] = 100.0 * row["visible_sum"] / max(row["grid_own_step_sum"], 1e-12)
+        # the same plan without the step-limited polish: what the polish costs and buys
+        bare_step = float(_steps_deg(bare.directions).max()) if len(way) > 1 else 0.0
+        row["no_polish_ms"] = 1e3 * plan_s["bare"]
+        row["no_polish_speedup_vs_grid"] = grid_s / plan_s["bare"]
+        row["no_polish_max_step_deg"] = bare_step
+        row["no_polish_own_step_pct"] = 100.0 * float(bare.visible.sum()) / max(
+            float(V[idx, best_grid_chain(V, grid, bare_step)].sum()), 1e-12)
+        for lim in limits_deg:
+            hard = optimize_trajectory(pts, way, alpha, 0.6, max_step=math.radians(lim), options=opts)
+            ref = float(V[idx, best_grid_chain(V, grid, lim)].sum())
+            row[f"limit_{lim:g}_max_step_deg"] = float(_steps_deg(hard.directions).max()) if len(way) > 1 else 0.0
+            row[f"limit_{lim:g}_pct"] = 100.0 * float(hard.visible.sum()) / max(ref, 1e-12)
+        rows.append(row)
+        lims = "  ".join(f"S={lim:g}: {row[f'limit_{lim:g}_pct']:.2f} % (max {row[f'limit_{lim:g}_max_step_deg']:.2f})"
+                         for lim in limits_deg)
+        print(f"{name:>20} {row['landmarks']:>6} lm {row['waypoints']:>4} wp  lambda 0.6: "
+              f"{row['optimize_ms']:8.1f} CPU ms ({row['speedup_vs_grid']:5.1f}x scoring the 2 deg grid at every "
+              f"waypoint, interleaved), max step {own:5.2f} deg, "
+              f"{row['own_step_pct']:.2f} % of the grid optimum at that step;  {lims};  without the polish "
+              f"{row['no_polish_ms']:.1f} ms ({row['no_polish_speedup_vs_grid']:.1f}x), "
+              f"{row['no_polish_own_step_pct']:.2f} % at {row['no_polish_max_step_deg']:.2f} deg", flush=True)
+    return rows
+
+
 def _grid_reference(points: np.ndarray, waypoints: np.ndarray, alpha: float, plan_step_deg: float) -> dict:
     """Exact best plans on the 2° direction grid (pivotd.pivot.brute.best_grid_chain): without a step limit,
     with the λ = 0.6 plan's own largest step, and with the 10° goal; visible means."""
@@ -198,6 +308,11 @@ def run(args: argparse.Namespace) -> int:
 
     if not steady_heap():
         log.warning("could not fix the allocator's thresholds (not glibc?): timings include page faults")
+    if args.pareto:
+        rows = pareto_rows(families=not args.quick)
+        if args.json:
+            Path(args.json).write_text(json.dumps({"pareto": rows}, indent=2) + "\n")
+        return 0
     if args.replan:
         out = []
         for nearest in (None, 5000):

@@ -19,6 +19,7 @@ from pivotd.config.yaml_reader import Section, read_yaml
 from pivotd.errors import ConfigError, InputError
 from pivotd.gimbal.kinematics import JointLimits, Mount
 from pivotd.gimbal.motion import AxisLimits
+from pivotd.pivot.steps import MAX_STEP_RANGE_DEG
 
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
 ZENOH_MODES = ("peer", "client")
@@ -104,12 +105,14 @@ class PivotConfig:
 
 @dataclass(frozen=True)
 class PlannerConfig:
-    """Receding horizon: waypoint spacing [m], horizon [waypoints], replanning rate [Hz]."""
+    """Receding horizon: waypoint spacing [m], horizon [waypoints], replanning rate [Hz], optional hard
+    limit on the turn between consecutive planned directions [rad] (None: no limit)."""
 
     waypoint_spacing: float = 0.5
     horizon: int = 20
     replan_hz: float = 5.0
     max_landmarks_per_waypoint: int = 2000
+    max_step: float | None = None
 
 
 def _default_limits() -> JointLimits:
@@ -400,6 +403,10 @@ def _pivot(s: Section) -> PivotConfig:
     return out
 
 
+def _radians_or_none(deg: float | None) -> float | None:
+    return None if deg is None else math.radians(deg)
+
+
 def _planner(s: Section, control: ControlConfig) -> PlannerConfig:
     d = PlannerConfig()
     out = PlannerConfig(
@@ -409,6 +416,7 @@ def _planner(s: Section, control: ControlConfig) -> PlannerConfig:
         max_landmarks_per_waypoint=s.number(
             "max_landmarks_per_waypoint", d.max_landmarks_per_waypoint, min=1, integer=True
         ),
+        max_step=_radians_or_none(s.number("max_step_deg", None, min=MAX_STEP_RANGE_DEG[0], max=MAX_STEP_RANGE_DEG[1])),
     )
     s.finish()
     return out

@@ -8,6 +8,8 @@ ring closes), so neighbouring grid directions are at most ``resolution`` apart. 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from pivotd.pivot._checks import feature_weights, finite_array, half_angle
@@ -143,3 +145,147 @@ def brute_force_trajectory(
     V = grid_visibility(points, waypoints, alpha, grid, weights)
     path = best_grid_chain(V, grid, max_step_deg)
     return grid[path], V[np.arange(V.shape[0]), path].astype(float)
+
+
+def grid_covering_radius(resolution_deg: float = 2.0) -> float:
+    """Covering radius [rad] of :func:`sphere_grid`: every unit direction lies within it of a grid direction.
+
+    Measured, not assumed: the largest distance to the nearest grid direction over a dense sample
+    (40 elevations per ring gap × azimuths at 1/40 of the coarser ring's step) between every pair of
+    neighbouring rings, the nearest candidates taken on both rings, plus 2 % (the sample's spacing).
+    """
+    grid = sphere_grid(resolution_deg)
+    el = np.arcsin(np.clip(grid[:, 2], -1.0, 1.0))
+    rings = np.unique(np.round(el, 12))
+    counts = np.array([np.count_nonzero(np.abs(el - r) < 1e-9) for r in rings])
+    worst = 0.0
+    for k in range(rings.size - 1):
+        e = np.linspace(rings[k], rings[k + 1], 41)
+        step = 2 * np.pi / min(counts[k], counts[k + 1])
+        az = np.arange(0.0, step + 1e-12, step / 40)
+        E, A = np.meshgrid(e, az, indexing="ij")
+        best = np.full(E.shape, np.pi)
+        for r, n in ((rings[k], counts[k]), (rings[k + 1], counts[k + 1])):
+            d_az = 2 * np.pi / n
+            node = np.round(A / d_az) * d_az
+            for off in (-d_az, 0.0, d_az):
+                cosd = np.sin(E) * np.sin(r) + np.cos(E) * np.cos(r) * np.cos(A - node - off)
+                best = np.minimum(best, np.arccos(np.clip(cosd, -1.0, 1.0)))
+        worst = max(worst, float(best.max()))
+    return 1.02 * worst
+
+
+@dataclass(frozen=True)
+class RefinedView:
+    """The refined reference of one pose: ``direction`` (3,) unit, ``value`` its hard visible weight (a
+    lower bound on the optimum), ``bound`` an upper bound on the hard visible weight of any direction,
+    ``exact`` False when the cell cap cut the search (``bound`` then covers only the cells kept)."""
+
+    direction: np.ndarray
+    value: float
+    bound: float
+    exact: bool
+
+
+def _tangent_basis(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangent vectors (P, 3) at each unit axis C (P, 3)."""
+    t1 = np.cross(C, np.array([0.0, 0.0, 1.0]))
+    polar = np.linalg.norm(t1, axis=1) < 0.3
+    t1[polar] = np.cross(C[polar], np.array([1.0, 0.0, 0.0]))
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    return t1, np.cross(C, t1)
+
+
+def refined_view(
+    bearings: np.ndarray,
+    weights: np.ndarray | None,
+    alpha: float,
+    resolution_deg: float = 2.0,
+    fine_deg: float = 0.25,
+    *,
+    max_cells: int = 2048,
+) -> RefinedView:
+    """The reference single-pose optimum: the ``resolution_deg`` grid, then branch-and-bound refinement.
+
+    Every grid direction g stands for the cell of directions within ρ (the grid's covering radius) of it;
+    no direction of that cell sees more than the weight within α + ρ of g (the cell's bound). Cells
+    whose bound exceeds the best hard weight found so far are split into 3 × 3 children (a tangent-plane
+    lattice at spacing ρ/√2 mapped onto S², each child a cell of radius ρ/2) and scored the same way,
+    until the cells are spaced at most ``fine_deg`` (2° → 1.02° → 0.51° → 0.26° → 0.13° from the 2° grid);
+    at most ``max_cells`` cells (highest bounds) are kept per level. Only landmarks in the band α ± 3ρ of a
+    parent can change state among its children: the rest are counted once per parent. Hard weights in
+    float32 (as :func:`brute_force_view`); ``exact`` True means no cell was dropped for the cap.
+    """
+    alpha = half_angle(alpha)
+    B = finite_array("bearings", bearings)
+    w = feature_weights(weights, B.shape[0])
+    nrm = np.linalg.norm(B, axis=1)
+    keep = nrm > 1e-12  # a landmark at the sensor has no bearing
+    B, w = B[keep] / nrm[keep, None], w[keep]
+    grid = sphere_grid(resolution_deg)
+    if B.shape[0] == 0:
+        return RefinedView(grid[0].copy(), 0.0, 0.0, True)
+    rho = grid_covering_radius(resolution_deg)
+    B32, w32 = B.astype(np.float32), w.astype(np.float32)
+    uniform = weights is None
+
+    def weigh(mask: np.ndarray) -> np.ndarray:  # hard weight per row of a (k, m) mask over ``cols``
+        return np.count_nonzero(mask, axis=1).astype(np.float64) if uniform else (mask @ w_cols).astype(np.float64)
+
+    cos_a = np.float32(np.cos(alpha))
+    vals, bounds = [], []
+    w_cols = w32
+    cos_rho = np.float32(np.cos(min(np.pi, alpha + rho)))
+    for s in range(0, grid.shape[0], 1024):
+        cos = grid[s : s + 1024].astype(np.float32) @ B32.T
+        vals.append(weigh(cos >= cos_a))
+        bounds.append(weigh(cos >= cos_rho))
+    val, ub = np.concatenate(vals), np.concatenate(bounds)
+    i = int(np.argmax(val))
+    best_dir, best = grid[i].copy(), float(val[i])
+    cells, cell_ub = grid, ub
+    exact = True
+    fine = np.radians(fine_deg)
+    bound_out = best
+    cell_spacing = np.radians(resolution_deg)
+    off = np.array([(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)], dtype=float)  # (9, 2) lattice offsets
+    while True:
+        live = np.flatnonzero(cell_ub > best)
+        if live.size > max_cells:
+            exact = False
+            live = np.sort(live[np.argsort(-cell_ub[live], kind="stable")[:max_cells]])
+        if live.size == 0:
+            break
+        if cell_spacing <= fine * 1.0001:  # the live cells are as fine as asked: their bounds stand
+            bound_out = max(bound_out, float(cell_ub[live].max()))
+            break
+        spacing = rho / np.sqrt(2.0)
+        P = cells[live]
+        child_rho = 0.5 * rho * 1.01  # 1 %: the tangent-plane lattice mapped onto S² (distortion ~ρ²/6)
+        t1, t2 = _tangent_basis(P)
+        v = spacing * (off[None, :, 0:1] * t1[:, None, :] + off[None, :, 1:2] * t2[:, None, :])  # (P, 9, 3)
+        ang = np.linalg.norm(v, axis=2, keepdims=True)
+        kids = np.cos(ang) * P[:, None, :] + np.sinc(ang / np.pi) * v  # exp map: sin|v|/|v| · v
+        kids /= np.linalg.norm(kids, axis=2, keepdims=True)
+        reach = rho + child_rho  # a child's cell lies within this of its parent
+        cos_in = np.float32(np.cos(max(0.0, alpha - reach)))
+        cos_out = np.float32(np.cos(min(np.pi, alpha + reach + child_rho)))
+        cos_ub = np.float32(np.cos(min(np.pi, alpha + child_rho)))
+        kid_val, kid_ub = [], []
+        for s in range(0, live.size, 64):  # parents in index order: neighbours, so their bands overlap
+            w_cols = w32
+            cp = P[s : s + 64].astype(np.float32) @ B32.T  # (p, n)
+            base = weigh(cp >= cos_in)  # inside every child's cone and bound
+            band = (cp >= cos_out) & (cp < cos_in)
+            cols = np.flatnonzero(band.any(axis=0))
+            w_cols = w32.take(cols)
+            in_band = np.repeat(band[:, cols], 9, axis=0)  # (9p, m): only each parent's own band counts
+            c = kids[s : s + 64].reshape(-1, 3).astype(np.float32) @ B32.take(cols, axis=0).T  # (9p, m)
+            kid_val.append(np.repeat(base, 9) + weigh((c >= cos_a) & in_band))
+            kid_ub.append(np.repeat(base, 9) + weigh((c >= cos_ub) & in_band))
+        kid_v, kid_u = np.concatenate(kid_val), np.concatenate(kid_ub)
+        k = int(np.argmax(kid_v))
+        if kid_v[k] > best:
+            best, best_dir = float(kid_v[k]), kids.reshape(-1, 3)[k].copy()
+        cells, cell_ub, rho, cell_spacing = kids.reshape(-1, 3), kid_u, child_rho, spacing
+    return RefinedView(best_dir, best, max(bound_out, best), exact)
