@@ -35,10 +35,15 @@ class ViewOptions:
     step_max_deg: float = 15.0
     tol_deg: float = 0.25
     sample: int = 1024  # landmarks (strided) used to rank the multi-start candidates
-    seeds: int = 48  # landmark-seeded candidates
+    seeds: int = 32  # landmark-seeded candidates
     mean_shift: int = 2  # mean-shift steps applied to every candidate before ranking
-    refine: int = 3  # candidates refined after ranking and pruning
-    final_candidates: int = 2  # at most this many go on to the full-resolution stage at α
+    coarse_ratio: float = 1.0  # global seed: a direction lattice spaced ≈ ratio · α scored on the subsample
+    coarse_peaks: int = 4  # its best directions (non-maximum suppressed) join the multi-start set (0: off)
+    refine: int = 6  # distinct candidates kept after the subsample ranking
+    distinct_ratio: float = 0.5  # candidates closer than ratio · α count as duplicates
+    full_shift: int = 1  # mean-shift steps of those candidates on all landmarks, each scored by full hard count
+    reach_ratio: float = 0.25  # a candidate is refined when its weight within α(1 + ratio) can beat the best
+    final_candidates: int = 2  # at most this many go on to the refinement at α
     keep_ratio: float = 0.5  # refine only candidates scoring ≥ ratio · best
     active_cap: int = 1024
     final_cap: int = 8192
@@ -103,6 +108,8 @@ def _candidates(
         C = np.concatenate([C, Bs.take(_spread(Bs.shape[0], k), axis=0)])
     cos_a = np.float32(np.cos(alpha))
     BsT = np.ascontiguousarray(Bs.T)  # (3, s): (K, 3) @ (3, s) is the fast layout
+    if opts.coarse_peaks > 0:  # on every other landmark of the subsample: the lattice is only a seed
+        C = np.concatenate([C, _coarse_peaks(BsT[:, ::2], ws[::2], alpha, opts, uniform)])
     raw = C
     raw_score = None
     for _ in range(opts.mean_shift):  # mean shift with a flat conical kernel
@@ -121,7 +128,7 @@ def _candidates(
     order = np.argsort(-score, kind="stable")
     order = order[score[order] >= opts.keep_ratio * score[order[0]]]
     Co = C[order]
-    near = (Co @ Co.T) >= cos_a  # near-duplicates: closer than α
+    near = (Co @ Co.T) >= np.float32(np.cos(opts.distinct_ratio * alpha))  # near-duplicates
     remaining = np.ones(order.size, dtype=bool)
     kept = []  # positions in ``order``, best first
     for _ in range(max(1, opts.refine)):
@@ -131,6 +138,37 @@ def _candidates(
         kept.append(int(left[0]))
         remaining &= ~near[left[0]]
     return Co[kept].astype(float)
+
+
+def fibonacci_sphere(n: int) -> np.ndarray:
+    """n near-uniform unit directions (n, 3) (Fibonacci lattice; neighbours ≈ √(4π/n) rad apart)."""
+    i = np.arange(n, dtype=np.float64) + 0.5
+    z = 1.0 - 2.0 * i / n
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    phi = i * (np.pi * (3.0 - np.sqrt(5.0)))
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+def _coarse_peaks(BsT: np.ndarray, ws: np.ndarray, alpha: float, opts: ViewOptions, uniform: bool) -> np.ndarray:
+    """The global seed: hard visible weight of the subsample (BsT (3, s), ws (s,)) for every direction of a
+    Fibonacci lattice spaced ≈ coarse_ratio · α, and its ``coarse_peaks`` best directions (k, 3) float32,
+    each at least α/2 from the better ones (greedy non-maximum suppression)."""
+    n_dirs = int(np.clip(4.0 * np.pi / (opts.coarse_ratio * alpha) ** 2, 32, 4096))
+    D = fibonacci_sphere(n_dirs).astype(np.float32)
+    inside = (D @ BsT) >= np.float32(np.cos(alpha))
+    score = np.count_nonzero(inside, axis=1).astype(np.float32) if uniform else inside @ ws
+    order = np.argsort(-score, kind="stable")[: 8 * opts.coarse_peaks]
+    Do = D[order]
+    near = (Do @ Do.T) >= np.float32(np.cos(0.5 * alpha))
+    free = np.ones(order.size, dtype=bool)
+    picks = []
+    for _ in range(opts.coarse_peaks):
+        left = np.flatnonzero(free)
+        if left.size == 0:
+            break
+        picks.append(int(left[0]))
+        free &= ~near[left[0]]
+    return Do[picks]
 
 
 def optimize_view(
@@ -162,11 +200,22 @@ def optimize_view(
     iters = 0
     if len(stages) > 1:  # widened stages on a strided subsample with weights scaled to the same total
         C, iters = _widened(BT.T, w, C, stages, alpha, opts)
+    C, cos_c, score, bound = _full_shift(C, BT, w32, alpha, opts, weights is None)
     cos_a32 = np.float32(np.cos(alpha))
-    cos_c = C.astype(np.float32) @ BT  # (K, n)
-    score = (cos_c >= cos_a32) @ w32
-    # refine only the candidates whose full hard visible weight is within 2 % of the best
-    keep = np.flatnonzero(score >= 0.98 * score.max())[: max(1, opts.final_candidates)]
+    # refine the candidates that could still win: those whose bound (the weight within α(1 + reach_ratio),
+    # more than any direction that close to them can see) reaches the best full hard weight: the best one
+    # first, then by highest bound, skipping those the mean shift brought within distinct_ratio · α of one
+    # already chosen (a greedy pick for the winner so far, optimistic picks for the basins it may miss)
+    order = np.argsort(-bound, kind="stable")
+    order = order[bound[order] >= score.max()]
+    order = np.concatenate([[int(np.argmax(score))], order])
+    cos_d = np.cos(opts.distinct_ratio * alpha)
+    keep: list[int] = []
+    for k in order:
+        if len(keep) >= max(1, opts.final_candidates):
+            break
+        if all(float(C[k] @ C[j]) < cos_d for j in keep):
+            keep.append(int(k))
     dirs, cos_rows, scores, steps = [], [], [], 0
     for k in keep:
         c_r, n_it = _refine_one(BT, w32, C[k], cos_c[k], alpha, opts)
@@ -205,6 +254,39 @@ def optimize_view(
     wb = w32.take(band)
     f = 0.5 * float(wb.sum(dtype=np.float64) + x @ wb) + float(w32 @ (cos_f >= hi))
     return ViewResult(c_best, _frame(c_best), visible, f, iters)
+
+
+def _full_shift(
+    C: np.ndarray, BT: np.ndarray, w32: np.ndarray, alpha: float, opts: ViewOptions, uniform: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Mean-shift steps of the candidate axes C (K, 3) on all landmarks (float32 BT (3, n), weights w32 (n,)).
+
+    Each candidate keeps the position with the highest full hard weight among its start and its shifted
+    positions. Returns those axes (K, 3), their cos rows (K, n) float32, their hard weights (K,) and
+    bounds (K,): the weight within α(1 + reach_ratio) of each kept axis. ``uniform``: all weights equal.
+    """
+    cos_a = np.float32(np.cos(alpha))
+    cos_b = np.float32(np.cos(min(np.pi, alpha * (1.0 + opts.reach_ratio))))
+
+    def weigh(mask: np.ndarray) -> np.ndarray:
+        return np.count_nonzero(mask, axis=1).astype(np.float32) if uniform else mask @ w32
+
+    best_C = C.astype(float)
+    best_cos = C.astype(np.float32) @ BT
+    inside = best_cos >= cos_a
+    best_score = weigh(inside)
+    for _ in range(opts.full_shift):
+        moved = (inside.astype(np.float32) if uniform else inside * w32) @ BT.T  # (K, 3) sums inside each cone
+        nrm = np.sqrt(np.einsum("ij,ij->i", moved, moved))
+        ok = nrm > 1e-12
+        C = np.where(ok[:, None], moved / np.where(ok, nrm, 1.0)[:, None], C).astype(float)
+        cos_c = C.astype(np.float32) @ BT
+        inside = cos_c >= cos_a
+        score = weigh(inside)
+        better = score > best_score
+        if np.any(better):
+            best_C[better], best_cos[better], best_score[better] = C[better], cos_c[better], score[better]
+    return best_C, best_cos, best_score, weigh(best_cos >= cos_b)
 
 
 def _widened(
