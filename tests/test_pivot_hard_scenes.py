@@ -61,3 +61,16 @@ def test_hard_path_runs_through_the_scene(family):
 def test_unknown_family_is_rejected():
     with pytest.raises(ValueError, match="unknown scene family"):
         hard_scene("cave")
+
+
+def test_bench_hard_rows_judge_both_methods_against_the_reference(capsys):
+    from pivotd.bench.montecarlo import hard_rows
+
+    rows = hard_rows(seeds=1, poses=1, alpha=np.radians(15.0), res=2.0)
+    assert [r["family"] for r in rows] == list(HARD_FAMILIES)
+    for r in rows:
+        assert r["poses"] == 1 and r["ref_exact"] == 1
+        assert 95.0 <= r["ref_min_pct"] <= 100.0 + r["ref_bound_gap_max_pct"]  # the bound holds for PIVOT too
+        assert r["grid_min_pct"] <= 100.0  # the 2° grid is where the reference's search starts
+        assert r["ref_bound_gap_max_pct"] >= 0.0 and r["speedup"] > 0
+    assert "clusters" in capsys.readouterr().out
