@@ -1,10 +1,12 @@
 """Single-pose PIVOT: the viewing direction that keeps the most (weighted) landmarks in a conical FoV.
 
 Practical enhancements of the paper (§IV-C): multi-start initialisation (centroid, orthogonal and
-tangent directions and landmark-seeded directions, each moved by two mean-shift steps, ranked by hard
-visible weight on a strided subsample, near-duplicates pruned, the top few refined together), a FoV
-schedule that starts wide and narrows to α with k_s recomputed from a target transition width, and
-normalised, clipped, adaptively scaled steps (see :func:`pivotd.pivot._ascent.ascend`).
+tangent directions, landmark-seeded directions and the best directions of a coarse lattice scored on a
+strided subsample, each moved by two mean-shift steps, ranked on the subsample, near-duplicates pruned),
+ranking of the survivors by their hard visible weight on all landmarks after one more mean-shift step,
+refinement of the best one and of those whose widened-cone bound could still beat it, a hard-count
+polish, an optional FoV schedule that starts wide and narrows to α with k_s recomputed from a target
+transition width, and normalised, clipped, adaptively scaled steps (see :func:`pivotd.pivot._ascent.ascend`).
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ class ViewOptions:
     full_shift: int = 1  # mean-shift steps of those candidates on all landmarks, each scored by full hard count
     reach_ratio: float = 0.25  # a candidate is refined when its weight within α(1 + ratio) can beat the best
     final_candidates: int = 2  # at most this many go on to the refinement at α
-    keep_ratio: float = 0.5  # refine only candidates scoring ≥ ratio · best
+    keep_ratio: float = 0.5  # drop candidates whose subsample score is < ratio · best
     active_cap: int = 1024
     final_cap: int = 8192
     drift_deg: float = 5.0
@@ -76,7 +78,7 @@ _AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), (-1.0, 0.0, 0.0), (0
 def _candidates(
     B: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, init: np.ndarray | None, uniform: bool
 ) -> np.ndarray:
-    """Multi-start directions (K, 3), best first, near-duplicates (closer than α) removed.
+    """Multi-start directions (K ≤ refine, 3), best subsample score first, none closer than distinct_ratio · α.
 
     ``uniform``: all weights ``w`` are equal (saves a weighted product per mean-shift step).
     """
