@@ -158,7 +158,7 @@ def _coarse_peaks(BsT: np.ndarray, ws: np.ndarray, alpha: float, opts: ViewOptio
     n_dirs = int(np.clip(4.0 * np.pi / (opts.coarse_ratio * alpha) ** 2, 32, 4096))
     D = fibonacci_sphere(n_dirs).astype(np.float32)
     inside = (D @ BsT) >= np.float32(np.cos(alpha))
-    score = np.count_nonzero(inside, axis=1).astype(np.float32) if uniform else inside @ ws
+    score = inside.view(np.int8).sum(axis=1, dtype=np.int32).astype(np.float32) if uniform else inside @ ws
     order = np.argsort(-score, kind="stable")[: 8 * opts.coarse_peaks]
     Do = D[order]
     near = (Do @ Do.T) >= np.float32(np.cos(0.5 * alpha))
@@ -220,16 +220,17 @@ def optimize_view(
             keep.append(int(k))
     dirs, cos_rows, scores, steps = [], [], [], 0
     for k in keep:
+        if dirs and bound[k] <= max(scores):  # the refinements so far already see more than it can
+            continue
         c_r, n_it = _refine_one(BT, w32, C[k], cos_c[k], alpha, opts)
         steps = max(steps, n_it)
-        dirs.append(c_r)
+        cos_r = c_r.astype(np.float32) @ BT
+        s_r = float(np.count_nonzero(cos_r >= cos_a32)) if weights is None else float((cos_r >= cos_a32) @ w32)
+        # never worse than its starting candidate
+        dirs += [c_r, C[k]]
+        cos_rows += [cos_r, cos_c[k]]
+        scores += [s_r, float(score[k])]
     iters += steps
-    if dirs:
-        cos_r = np.stack(dirs).astype(np.float32) @ BT
-        s_r = (cos_r >= cos_a32) @ w32
-        dirs += [C[k] for k in keep]  # never worse than a starting candidate
-        cos_rows = [*cos_r, *cos_c[keep]]
-        scores = [*s_r, *score[keep]]
     best = int(np.argmax(scores))
     c_best, cos_best = dirs[best], cos_rows[best]
     if opts.polish_deg > 0:
@@ -270,8 +271,8 @@ def _full_shift(
     cos_a = np.float32(np.cos(alpha))
     cos_b = np.float32(np.cos(min(np.pi, alpha * (1.0 + opts.reach_ratio))))
 
-    def weigh(mask: np.ndarray) -> np.ndarray:
-        return np.count_nonzero(mask, axis=1).astype(np.float32) if uniform else mask @ w32
+    def weigh(mask: np.ndarray) -> np.ndarray:  # per-row counts: a loop over the few long rows is fastest
+        return np.array([np.count_nonzero(r) for r in mask], np.float32) if uniform else mask @ w32
 
     best_C = C.astype(float)
     best_cos = C.astype(np.float32) @ BT
