@@ -1,11 +1,12 @@
-"""``pivotd bench montecarlo``: the paper's Monte Carlo evaluation (§V-A.2) and the FIF y-corridor plan.
+"""``pivotd bench montecarlo``: the paper's Monte Carlo evaluation (§V-A.2), the FIF y-corridor plan and
+(``--scenes hard|all``) single pose on the hard scene families against the refined reference.
 
 Per feature-count level: PIVOT (single-pose optimizer) and the 2° brute force on the same bearings of
-each pose, timed separately (median ms per pose), their ratio, and the retained visibility
-100·V_PIVOT/V_BF (mean, 5th percentile, min), next to the paper's figures. The FIF section times the
-whole-trajectory optimisation of tests/data/fif/ycorridor (30° FoV, λ = 0.6) and compares it with the
-λ = 0 plan and with the exact best plans on a 2° direction grid with and without a step limit (the
-visibility any plan with that largest step can reach, up to the grid's resolution).
+each pose, timed back to back in alternating order (median ms per pose), the ratio of the medians, and
+the retained visibility 100·V_PIVOT/V_BF (mean, 5th percentile, min), next to the paper's figures. The
+FIF section times the whole-trajectory optimisation of tests/data/fif/ycorridor (30° FoV, λ = 0.6) and
+compares it with the λ = 0 plan and with the exact best plans on a 2° direction grid with and without a
+step limit (the visibility any plan with that largest step can reach, up to the grid's resolution).
 """
 
 from __future__ import annotations
@@ -48,6 +49,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
              "path through each hard family): own largest step and hard step limits 5 and 10 deg",
     )
     parser.add_argument(
+        "--scenes", choices=("paper", "hard", "all"), default="paper",
+        help="paper: the Monte Carlo levels and the FIF plan (default); hard: single pose on every hard scene "
+        "family against the refined reference; all: both",
+    )
+    parser.add_argument(
+        "--scene-seeds", type=int, default=None, help="hard scenes: seeded instances per family (default 3, quick 2)"
+    )
+    parser.add_argument(
+        "--scene-poses", type=int, default=None, help="hard scenes: sensor poses per instance (default 20, quick 6)"
+    )
+    parser.add_argument(
         "--replan", action="store_true",
         help="only the warm-started replanning regime: 40 waypoints, 20k landmarks, anchor + pan/tilt limits",
     )
@@ -67,8 +79,12 @@ def _level_rows(levels: list[int], pose_idx: np.ndarray, alpha: float, res: floa
         for t in poses:
             diff = pts - t
             bearings = diff / np.linalg.norm(diff, axis=1, keepdims=True)
-            r, dt = timed(optimize_view, bearings, None, alpha)
-            (d, best), db = timed(brute_force_view, bearings, None, alpha, res)
+            if len(t_piv) % 2 == 0:  # alternate which side runs first
+                r, dt = timed(optimize_view, bearings, None, alpha)
+                (d, best), db = timed(brute_force_view, bearings, None, alpha, res)
+            else:
+                (d, best), db = timed(brute_force_view, bearings, None, alpha, res)
+                r, dt = timed(optimize_view, bearings, None, alpha)
             t_piv.append(dt)
             t_bf.append(db)
             ratio.append(100.0 * r.visible / best if best > 0 else 100.0)
@@ -90,6 +106,82 @@ def _level_rows(levels: list[int], pose_idx: np.ndarray, alpha: float, res: floa
         log.info("level %d (%d features) done", level, counts[level])
         _print_row(row)
     return rows, detail
+
+
+def hard_rows(seeds: int, poses: int, alpha: float, res: float, repeats: int = 3) -> list[dict]:
+    """Single pose on every hard scene family (pivotd.pivot.scenes.HARD_FAMILIES): ``seeds`` instances of
+    ``poses`` random sensor positions each. Per pose: the refined reference (pivotd.pivot.brute.refined_view,
+    not timed) first, then ``repeats`` rounds of PIVOT and the ``res`` grid timed back to back on the same
+    bearings, in alternating order (neither side always runs right after the reference or after the other);
+    each side's time for the pose is the median of its rounds. Both answers are scored against the
+    reference. Speedup: the ratio of the median times, and the median of the per-pose ratios (less exposed
+    to the host's load drifting during the run)."""
+    from pivotd.pivot.brute import brute_force_view, refined_view
+    from pivotd.pivot.scenes import HARD_FAMILIES, hard_scene
+    from pivotd.pivot.view import optimize_view
+
+    rows = []
+    for family in HARD_FAMILIES:
+        t_piv, t_grid, ratio, grid_ratio, gap, exact, sizes = [], [], [], [], [], 0, []
+        for seed in range(seeds):
+            scene = hard_scene(family, seed, poses)
+            sizes.append(scene.points.shape[0])
+            for t in scene.path:
+                diff = scene.points - t
+                bearings = diff / np.linalg.norm(diff, axis=1, keepdims=True)
+                ref = refined_view(bearings, None, alpha, res)
+                dts, dgs = [], []
+                for k in range(max(1, repeats)):
+                    if (len(t_piv) + k) % 2 == 0:
+                        r, dt = timed(optimize_view, bearings, None, alpha)
+                        (_, grid_best), dg = timed(brute_force_view, bearings, None, alpha, res)
+                    else:
+                        (_, grid_best), dg = timed(brute_force_view, bearings, None, alpha, res)
+                        r, dt = timed(optimize_view, bearings, None, alpha)
+                    dts.append(dt)
+                    dgs.append(dg)
+                t_piv.append(median(dts))
+                t_grid.append(median(dgs))
+                ratio.append(100.0 * r.visible / ref.value if ref.value > 0 else 100.0)
+                grid_ratio.append(100.0 * grid_best / ref.value if ref.value > 0 else 100.0)
+                gap.append(100.0 * (ref.bound - ref.value) / ref.value if ref.value > 0 else 0.0)
+                exact += int(ref.exact)
+        row = {
+            "family": family,
+            "landmarks": int(np.median(sizes)),
+            "poses": len(ratio),
+            "pivot_ms": 1e3 * median(t_piv),
+            "grid_ms": 1e3 * median(t_grid),
+            "speedup": median(t_grid) / median(t_piv),
+            "speedup_per_pose": median(list(np.array(t_grid) / np.array(t_piv))),
+            "ref_mean_pct": float(np.mean(ratio)),
+            "ref_p5_pct": percentile(ratio, 5),
+            "ref_min_pct": float(np.min(ratio)),
+            "grid_mean_pct": float(np.mean(grid_ratio)),
+            "grid_min_pct": float(np.min(grid_ratio)),
+            "ref_bound_gap_max_pct": float(np.max(gap)),
+            "ref_exact": exact,
+        }
+        rows.append(row)
+        _print_hard_row(row)
+    return rows
+
+
+def _print_hard_header() -> None:
+    print(
+        f"{'family':>9} {'lmks':>6} {'poses':>5} {'PIVOT ms':>9} {'grid ms':>8} {'speedup':>8} {'per pose':>8} "
+        f"{'ref mean%':>9} {'ref p5%':>8} {'ref min%':>8} {'grid mean%':>10} {'grid min%':>9} {'bound gap%':>10}"
+    )
+
+
+def _print_hard_row(r: dict) -> None:
+    print(
+        f"{r['family']:>9} {r['landmarks']:>6} {r['poses']:>5} {r['pivot_ms']:>9.3f} {r['grid_ms']:>8.1f} "
+        f"{r['speedup']:>7.0f}x {r['speedup_per_pose']:>7.0f}x "
+        f"{r['ref_mean_pct']:>9.2f} {r['ref_p5_pct']:>8.2f} {r['ref_min_pct']:>8.2f} "
+        f"{r['grid_mean_pct']:>10.2f} {r['grid_min_pct']:>9.2f} {r['ref_bound_gap_max_pct']:>10.2f}",
+        flush=True,
+    )
 
 
 def _print_header() -> None:
@@ -332,6 +424,11 @@ def run(args: argparse.Namespace) -> int:
     if not (0 < args.fov_deg < 180):
         raise InputError(f"--fov-deg must be in (0, 180), got {args.fov_deg}")
     alpha = math.radians(args.fov_deg) / 2
+    hard = _hard_section(args, alpha) if args.scenes != "paper" else None
+    if args.scenes == "hard":
+        if args.json:
+            Path(args.json).write_text(json.dumps({"fov_deg": args.fov_deg, "hard": hard}, indent=2) + "\n")
+        return 0
     levels = [0, 4, 9] if args.quick else list(range(10))
     n_poses = args.poses if args.poses else (40 if args.quick else 400)
     if n_poses < 1:
@@ -364,12 +461,27 @@ def run(args: argparse.Namespace) -> int:
             f"with steps <= 10 deg"
         )
     result = {"fov_deg": args.fov_deg, "resolution_deg": args.resolution_deg, "levels": rows, "paper": PAPER,
-              "fif": fif}
+              "fif": fif, "hard": hard}
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
     if args.plot:
         _plot(Path(args.plot), rows, detail, pose_idx)
     return 0
+
+
+def _hard_section(args: argparse.Namespace, alpha: float) -> list[dict]:
+    """The hard-scene table (``--scenes hard|all``), printed; returns its rows."""
+    from pivotd.errors import InputError
+
+    seeds = args.scene_seeds if args.scene_seeds is not None else (2 if args.quick else 3)
+    poses = args.scene_poses if args.scene_poses is not None else (6 if args.quick else 20)
+    if seeds < 1 or poses < 1:
+        raise InputError(f"--scene-seeds and --scene-poses must be ≥ 1, got {seeds} and {poses}")
+    print(f"Hard scenes: {seeds} instances x {poses} poses per family, FoV {args.fov_deg:g} deg; % of the refined "
+          f"reference ({args.resolution_deg:g} deg grid + branch and bound to 0.25 deg), speedup vs scoring the "
+          f"{args.resolution_deg:g} deg grid, single thread")
+    _print_hard_header()
+    return hard_rows(seeds, poses, alpha, args.resolution_deg)
 
 
 def _plot(out: Path, rows: list[dict], detail: dict, pose_idx: np.ndarray) -> None:

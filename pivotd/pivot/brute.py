@@ -203,18 +203,20 @@ def refined_view(
     resolution_deg: float = 2.0,
     fine_deg: float = 0.25,
     *,
-    max_cells: int = 2048,
+    max_expansions: int = 16384,
 ) -> RefinedView:
-    """The reference single-pose optimum: the ``resolution_deg`` grid, then branch-and-bound refinement.
+    """The reference single-pose optimum: the ``resolution_deg`` grid, then best-first branch and bound.
 
     Every grid direction g stands for the cell of directions within ρ (the grid's covering radius) of it;
-    no direction of that cell sees more than the weight within α + ρ of g (the cell's bound). Cells
-    whose bound exceeds the best hard weight found so far are split into 3 × 3 children (a tangent-plane
-    lattice at spacing ρ/√2 mapped onto S², each child a cell of radius ρ/2) and scored the same way,
-    until the cells are spaced at most ``fine_deg`` (2° → 1.02° → 0.51° → 0.26° → 0.13° from the 2° grid);
-    at most ``max_cells`` cells (highest bounds) are kept per level. Only landmarks in the band α ± 3ρ of a
-    parent can change state among its children: the rest are counted once per parent. Hard weights in
-    float32 (as :func:`brute_force_view`); ``exact`` True means no cell was dropped for the cap.
+    no direction of that cell sees more than the weight within α + ρ of g (the cell's bound). The cells
+    with the highest bounds above the best hard weight found so far are split, 128 at a time, into 3 × 3
+    children (a tangent-plane lattice at spacing ρ/√2 mapped onto S², each child a cell of radius ρ/2),
+    which are scored the same way; cells spaced at most ``fine_deg`` apart are not split further (2° →
+    1.02° → 0.51° → 0.26° → 0.13° from the 2° grid). The search ends when no cell's bound exceeds the
+    best weight (``exact``: the optimum at that resolution is found and ``bound`` is the largest bound of
+    the finest cells) or after ``max_expansions`` splits (``bound`` is then the largest open bound).
+    Only landmarks in the band α ± 3ρ of a parent can change state among its children: the rest are
+    counted once per parent. Hard weights in float32, as :func:`brute_force_view`.
     """
     alpha = half_angle(alpha)
     B = finite_array("bearings", bearings)
@@ -225,67 +227,69 @@ def refined_view(
     grid = sphere_grid(resolution_deg)
     if B.shape[0] == 0:
         return RefinedView(grid[0].copy(), 0.0, 0.0, True)
-    rho = grid_covering_radius(resolution_deg)
+    rho0 = grid_covering_radius(resolution_deg)
     B32, w32 = B.astype(np.float32), w.astype(np.float32)
     uniform = weights is None
 
-    def weigh(mask: np.ndarray) -> np.ndarray:  # hard weight per row of a (k, m) mask over ``cols``
-        return np.count_nonzero(mask, axis=1).astype(np.float64) if uniform else (mask @ w_cols).astype(np.float64)
+    def weigh(mask: np.ndarray, wc: np.ndarray) -> np.ndarray:  # hard weight per row of a (k, m) mask
+        return np.count_nonzero(mask, axis=1).astype(np.float64) if uniform else (mask @ wc).astype(np.float64)
 
     cos_a = np.float32(np.cos(alpha))
     vals, bounds = [], []
-    w_cols = w32
-    cos_rho = np.float32(np.cos(min(np.pi, alpha + rho)))
+    cos_rho = np.float32(np.cos(min(np.pi, alpha + rho0)))
     for s in range(0, grid.shape[0], 1024):
         cos = grid[s : s + 1024].astype(np.float32) @ B32.T
-        vals.append(weigh(cos >= cos_a))
-        bounds.append(weigh(cos >= cos_rho))
+        vals.append(weigh(cos >= cos_a, w32))
+        bounds.append(weigh(cos >= cos_rho, w32))
     val, ub = np.concatenate(vals), np.concatenate(bounds)
     i = int(np.argmax(val))
     best_dir, best = grid[i].copy(), float(val[i])
-    cells, cell_ub = grid, ub
-    exact = True
-    fine = np.radians(fine_deg)
-    bound_out = best
-    cell_spacing = np.radians(resolution_deg)
+    # the open cells: direction, bound, covering radius, lattice spacing
+    live = ub > best
+    dirs, cell_ub = grid[live], ub[live]
+    rho = np.full(dirs.shape[0], rho0)
+    spacing = np.full(dirs.shape[0], np.radians(resolution_deg))
+    fine = np.radians(fine_deg) * 1.0001
     off = np.array([(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)], dtype=float)  # (9, 2) lattice offsets
+    expansions = 0
     while True:
-        live = np.flatnonzero(cell_ub > best)
-        if live.size > max_cells:
-            exact = False
-            live = np.sort(live[np.argsort(-cell_ub[live], kind="stable")[:max_cells]])
-        if live.size == 0:
+        open_ = np.flatnonzero((cell_ub > best) & (spacing > fine))
+        if open_.size == 0 or expansions >= max_expansions:
             break
-        if cell_spacing <= fine * 1.0001:  # the live cells are as fine as asked: their bounds stand
-            bound_out = max(bound_out, float(cell_ub[live].max()))
-            break
-        spacing = rho / np.sqrt(2.0)
-        P = cells[live]
-        child_rho = 0.5 * rho * 1.01  # 1 %: the tangent-plane lattice mapped onto S² (distortion ~ρ²/6)
+        take = open_[np.argsort(-cell_ub[open_], kind="stable")[: min(128, max_expansions - expansions)]]
+        expansions += take.size
+        P, r = dirs[take], rho[take][:, None]
+        step = r / np.sqrt(2.0)
+        child_rho = 0.5 * r * 1.01  # 1 %: the tangent-plane lattice mapped onto S² (distortion ~ρ²/6)
         t1, t2 = _tangent_basis(P)
-        v = spacing * (off[None, :, 0:1] * t1[:, None, :] + off[None, :, 1:2] * t2[:, None, :])  # (P, 9, 3)
+        v = step[:, :, None] * (off[None, :, 0:1] * t1[:, None, :] + off[None, :, 1:2] * t2[:, None, :])
         ang = np.linalg.norm(v, axis=2, keepdims=True)
-        kids = np.cos(ang) * P[:, None, :] + np.sinc(ang / np.pi) * v  # exp map: sin|v|/|v| · v
-        kids /= np.linalg.norm(kids, axis=2, keepdims=True)
-        reach = rho + child_rho  # a child's cell lies within this of its parent
-        cos_in = np.float32(np.cos(max(0.0, alpha - reach)))
-        cos_out = np.float32(np.cos(min(np.pi, alpha + reach + child_rho)))
-        cos_ub = np.float32(np.cos(min(np.pi, alpha + child_rho)))
-        kid_val, kid_ub = [], []
-        for s in range(0, live.size, 64):  # parents in index order: neighbours, so their bands overlap
-            w_cols = w32
-            cp = P[s : s + 64].astype(np.float32) @ B32.T  # (p, n)
-            base = weigh(cp >= cos_in)  # inside every child's cone and bound
-            band = (cp >= cos_out) & (cp < cos_in)
-            cols = np.flatnonzero(band.any(axis=0))
-            w_cols = w32.take(cols)
-            in_band = np.repeat(band[:, cols], 9, axis=0)  # (9p, m): only each parent's own band counts
-            c = kids[s : s + 64].reshape(-1, 3).astype(np.float32) @ B32.take(cols, axis=0).T  # (9p, m)
-            kid_val.append(np.repeat(base, 9) + weigh((c >= cos_a) & in_band))
-            kid_ub.append(np.repeat(base, 9) + weigh((c >= cos_ub) & in_band))
-        kid_v, kid_u = np.concatenate(kid_val), np.concatenate(kid_ub)
+        kids = np.cos(ang) * P[:, None, :] + np.sinc(ang / np.pi) * v  # exp map: sin|v|/|v| · v  (p, 9, 3)
+        kids = (kids / np.linalg.norm(kids, axis=2, keepdims=True)).reshape(-1, 3)
+        reach = r + child_rho  # a child's cell lies within this of its parent
+        cos_in = np.cos(np.maximum(0.0, alpha - reach)).astype(np.float32)
+        cos_out = np.cos(np.minimum(np.pi, alpha + reach + child_rho)).astype(np.float32)
+        cos_ub = np.repeat(np.cos(np.minimum(np.pi, alpha + child_rho)).astype(np.float32), 9, axis=0)
+        cp = P.astype(np.float32) @ B32.T  # (p, n)
+        base = np.repeat(weigh(cp >= cos_in, w32), 9)  # inside every child's cone and bound
+        band = (cp >= cos_out) & (cp < cos_in)
+        cols = np.flatnonzero(band.any(axis=0))
+        wc = w32.take(cols)
+        in_band = np.repeat(band[:, cols], 9, axis=0)  # (9p, m): only each parent's own band counts
+        c = kids.astype(np.float32) @ B32.take(cols, axis=0).T  # (9p, m)
+        kid_v = base + weigh((c >= cos_a) & in_band, wc)
+        kid_u = base + weigh((c >= cos_ub) & in_band, wc)
         k = int(np.argmax(kid_v))
         if kid_v[k] > best:
-            best, best_dir = float(kid_v[k]), kids.reshape(-1, 3)[k].copy()
-        cells, cell_ub, rho, cell_spacing = kids.reshape(-1, 3), kid_u, child_rho, spacing
-    return RefinedView(best_dir, best, max(bound_out, best), exact)
+            best, best_dir = float(kid_v[k]), kids[k].copy()
+        rest = np.ones(dirs.shape[0], dtype=bool)
+        rest[take] = False
+        rest &= cell_ub > best
+        new = kid_u > best
+        dirs = np.concatenate([dirs[rest], kids[new]])
+        cell_ub = np.concatenate([cell_ub[rest], kid_u[new]])
+        rho = np.concatenate([rho[rest], np.repeat(child_rho[:, 0], 9)[new]])
+        spacing = np.concatenate([spacing[rest], np.repeat(step[:, 0], 9)[new]])
+    still_open = bool(np.any((cell_ub > best) & (spacing > fine)))
+    bound = max(best, float(cell_ub.max(initial=best)))
+    return RefinedView(best_dir, best, bound, not still_open)
