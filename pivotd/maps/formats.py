@@ -12,12 +12,13 @@ would shift every landmark index the user may refer to. An empty map is an error
 
 from __future__ import annotations
 
-import io
+import array
 import logging
 import re
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from tokenize import TokenError
 
 import numpy as np
 
@@ -103,13 +104,46 @@ def _no_weight_property(path: Path, weight_property: str | None, what: str) -> N
 
 
 def _read_npy(path: Path) -> np.ndarray:
+    """The array of a ``.npy`` file, memory-mapped; its header is checked against the file size first."""
+    shape, dtype, offset = _npy_header(path)
+    if len(shape) != 2 or shape[1] not in (3, 4) or not (
+        np.issubdtype(dtype, np.integer) or np.issubdtype(dtype, np.floating)
+    ):
+        raise InputError(f"{path}: expected a numeric (N,3) or (N,4) array, got {dtype} {shape}")
+    need = shape[0] * shape[1] * dtype.itemsize  # Python ints: no overflow
+    have = path.stat().st_size - offset
+    if need > have:
+        raise InputError(f"{path}: header claims a {dtype} {shape} array of {need} bytes, the file holds {have}")
+    if shape[0] == 0:
+        return np.zeros((0, shape[1]), dtype)
     try:
-        arr = np.load(path, allow_pickle=False, mmap_mode="r")
+        return np.load(path, allow_pickle=False, mmap_mode="r")
     except (ValueError, OSError, EOFError) as exc:
-        raise InputError(f"{path}: not a readable .npy array ({exc})") from None
-    if arr.ndim != 2 or arr.shape[1] not in (3, 4) or not np.issubdtype(arr.dtype, np.number):
-        raise InputError(f"{path}: expected a numeric (N,3) or (N,4) array, got {arr.dtype} {arr.shape}")
-    return arr
+        raise InputError(f"{path}: not a readable .npy array ({' '.join(str(exc).split())})") from None
+
+
+def _npy_header(path: Path) -> tuple[tuple[int, ...], np.dtype, int]:
+    """(shape, dtype, data offset) from a ``.npy`` header; any malformed header is an InputError."""
+    try:
+        with open(path, "rb") as fh:
+            version = np.lib.format.read_magic(fh)
+            if version == (1, 0):
+                shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
+            elif version in ((2, 0), (3, 0)):
+                shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
+            else:
+                raise ValueError(f"unsupported .npy version {version}")
+            offset = fh.tell()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc})") from None
+    # A corrupt header is Python literal syntax parsed by numpy: it surfaces as any of these.
+    except (ValueError, SyntaxError, TokenError, OverflowError, TypeError, KeyError, EOFError,
+            UnicodeDecodeError, RecursionError, MemoryError) as exc:
+        detail = " ".join(str(exc).split())[:120]
+        raise InputError(f"{path}: not a readable .npy array (bad header: {type(exc).__name__}: {detail})") from None
+    if not all(isinstance(d, int) and d >= 0 for d in shape):
+        raise InputError(f"{path}: not a readable .npy array (bad shape {shape})")
+    return tuple(shape), np.dtype(dtype), offset
 
 
 def first_nonfinite_row(arr: np.ndarray) -> int | None:
@@ -171,6 +205,7 @@ def cloud_from_array(path: Path, arr: np.ndarray) -> LandmarkCloud:
 
 
 _SPLIT = re.compile(r"[,\s]+")
+_TEXT_BLOCK = 1 << 20  # characters of lines parsed per block (memory stays ~ the parsed numbers)
 
 
 def read_numeric_text(path: Path, columns: tuple[int, ...], what: str) -> np.ndarray:
@@ -178,55 +213,76 @@ def read_numeric_text(path: Path, columns: tuple[int, ...], what: str) -> np.nda
 
     Every row must have one of ``columns`` fields (the first data row fixes the count) and be
     finite. Returns an (N, C) float64 array; errors name the file and 1-based line number.
+    The file is read in blocks of lines, so memory is the parsed numbers plus one block.
     """
+    values = array.array("d")
+    ncols: int | None = None
+    delimiter: str | None = None
+    lineno = 0
     try:
-        text = path.read_text()
+        with open(path) as fh:
+            while True:
+                lines = fh.readlines(_TEXT_BLOCK)
+                if not lines:
+                    break
+                if ncols is None:
+                    first = next((ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")), None)
+                    if first is not None:
+                        delimiter = "," if "," in first else None
+                        ncols = _column_count(path, lineno + 1 + lines.index(first), first, columns, what)
+                if ncols is not None:
+                    block = _parse_clean_lines(lines, ncols, delimiter)
+                    if block is None:
+                        block = _parse_lines(path, lines, lineno, ncols)
+                    values.frombytes(block.tobytes())
+                lineno += len(lines)
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read ({exc})") from None
-    fast = _parse_clean_text(text, columns)
-    if fast is not None:
-        return fast
-    rows: list[list[float]] = []
-    ncols = None
-    for lineno, raw in enumerate(text.splitlines(), start=1):
+    if ncols is None:
+        return np.zeros((0, columns[0]))
+    return np.frombuffer(values, dtype=np.float64).reshape(-1, ncols)
+
+
+def _column_count(path: Path, lineno: int, line: str, columns: tuple[int, ...], what: str) -> int:
+    n = len([f for f in _SPLIT.split(line.strip()) if f])
+    if n not in columns:
+        raise InputError(
+            f"{path}:{lineno}: expected {' or '.join(map(str, columns))} columns in a {what} row, got {n}"
+        )
+    return n
+
+
+def _parse_lines(path: Path, lines: list[str], lineno: int, ncols: int) -> np.ndarray:
+    """Line-by-line parse of one block (lines after ``lineno``); errors name the offending line."""
+    out = array.array("d")
+    for k, raw in enumerate(lines, start=lineno + 1):
         line = raw.strip()
         if not line or line.startswith("#"):
             continue
         fields = [f for f in _SPLIT.split(line) if f]
-        if ncols is None:
-            if len(fields) not in columns:
-                raise InputError(
-                    f"{path}:{lineno}: expected {' or '.join(map(str, columns))} columns in a {what} row, "
-                    f"got {len(fields)}"
-                )
-            ncols = len(fields)
-        elif len(fields) != ncols:
-            raise InputError(f"{path}:{lineno}: expected {ncols} columns, got {len(fields)}")
+        if len(fields) != ncols:
+            raise InputError(f"{path}:{k}: expected {ncols} columns, got {len(fields)}")
         try:
-            values = [float(f) for f in fields]
+            row = [float(f) for f in fields]
         except ValueError:
-            raise InputError(f"{path}:{lineno}: not a number in {line!r}") from None
-        if not all(np.isfinite(values)):
-            raise InputError(f"{path}:{lineno}: value is not finite (NaN or inf)")
-        rows.append(values)
-    if ncols is None:
-        return np.zeros((0, columns[0]))
-    return np.asarray(rows, dtype=np.float64)
+            raise InputError(f"{path}:{k}: not a number in {line[:80]!r}") from None
+        if not all(np.isfinite(row)):
+            raise InputError(f"{path}:{k}: value is not finite (NaN or inf)")
+        out.extend(row)
+    return np.frombuffer(out, dtype=np.float64)
 
 
-def _parse_clean_text(text: str, columns: tuple[int, ...]) -> np.ndarray | None:
-    """Fast path for well-formed files (numpy's C parser); None when anything is off, so that the
+def _parse_clean_lines(lines: list[str], ncols: int, delimiter: str | None) -> np.ndarray | None:
+    """Fast path for a well-formed block (numpy's C parser); None when anything is off, so that the
     line-by-line parser can name the offending line."""
-    first = next((ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")), None)
-    if first is None:
-        return None
-    delimiter = "," if "," in first else None
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            arr = np.loadtxt(io.StringIO(text), dtype=np.float64, comments="#", delimiter=delimiter, ndmin=2)
+            arr = np.loadtxt(lines, dtype=np.float64, comments="#", delimiter=delimiter, ndmin=2)
     except ValueError:
         return None
-    if arr.shape[1] not in columns or first_nonfinite_row(arr) is not None:
+    if arr.size == 0:
+        return arr.reshape(0)
+    if arr.shape[1] != ncols or first_nonfinite_row(arr) is not None:
         return None
     return arr
