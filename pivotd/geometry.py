@@ -178,6 +178,9 @@ def optical_frame_from_direction(c: np.ndarray, up: np.ndarray | None = None) ->
     return np.stack([x, y, z], axis=-1)
 
 
+MAX_COORDINATE = 1e7  # [m]: positions beyond this (10 000 km) are refused as out of range (maps, paths, poses)
+
+
 def safe_unit_quats(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(unit quaternions (N, 4), usable (N,) bool) of quaternions ``q`` (N, 4), scaled by their largest
     component first so that finite values of any magnitude (1e300 or 1e-300) normalise without overflow;

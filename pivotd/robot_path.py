@@ -14,10 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from pivotd.errors import InputError
-from pivotd.geometry import matrix_to_quat, normalize, safe_unit_quats, yaw_to_matrix
+from pivotd.geometry import MAX_COORDINATE, matrix_to_quat, normalize, safe_unit_quats, yaw_to_matrix
 from pivotd.maps.formats import read_numeric_text
-
-MAX_COORDINATE = 1e7  # [m]: path and pose positions beyond this (10 000 km) are refused as out of range
 
 
 @dataclass(frozen=True)

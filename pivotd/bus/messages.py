@@ -26,8 +26,7 @@ from pivotd.bus.topics import ODOMETRY as ODOMETRY
 from pivotd.bus.topics import POSE_STAMPED as POSE_STAMPED
 from pivotd.bus.topics import POSE_TYPES as POSE_TYPES
 from pivotd.errors import PivotdError
-from pivotd.geometry import matrix_to_quat, optical_frame_from_direction, safe_unit_quats
-from pivotd.robot_path import MAX_COORDINATE
+from pivotd.geometry import MAX_COORDINATE, matrix_to_quat, optical_frame_from_direction, safe_unit_quats
 
 PATH = "nav_msgs/msg/Path"
 POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from pivotd.errors import InputError
-from pivotd.geometry import quat_to_matrix
+from pivotd.geometry import MAX_COORDINATE, quat_to_matrix, safe_unit_quats
 from pivotd.maps.formats import LandmarkCloud, make_cloud
 
 log = logging.getLogger(__name__)
@@ -73,11 +73,12 @@ def load_colmap(path: Path) -> LandmarkCloud:
         xyz, lengths, track_img = read_points3d_bin(points_file, with_tracks=images_file is not None)
     else:
         xyz, lengths, track_img = read_points3d_txt(points_file)
-    directions = None
-    if images_file is not None:
-        ids, centers = read_images_bin(images_file) if images_file.suffix == ".bin" else read_images_txt(images_file)
-        directions = observation_directions(xyz, lengths, track_img, ids, centers)
-    return make_cloud(points_file, xyz, None, directions, row_name="point")
+    cloud = make_cloud(points_file, xyz, None, None, row_name="point")  # validated before any arithmetic
+    if images_file is None:
+        return cloud
+    ids, centers = read_images_bin(images_file) if images_file.suffix == ".bin" else read_images_txt(images_file)
+    directions = observation_directions(cloud.points, lengths, track_img, ids, centers)
+    return LandmarkCloud(cloud.points, cloud.weights, directions)
 
 
 # --- points3D ---------------------------------------------------------------------------------
@@ -220,8 +221,8 @@ def read_points3d_txt(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def camera_centers(qwxyz: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Camera centres (K, 3) = -R(q)ᵀ t from world-to-camera quaternions (K, 4) (w, x, y, z) and t (K, 3)."""
-    R = quat_to_matrix(np.asarray(qwxyz, dtype=float)[:, [1, 2, 3, 0]])
-    return -np.einsum("kji,kj->ki", R, np.asarray(t, dtype=float))
+    q, _ = safe_unit_quats(np.asarray(qwxyz, dtype=float)[:, [1, 2, 3, 0]])
+    return -np.einsum("kji,kj->ki", quat_to_matrix(q), np.asarray(t, dtype=float))
 
 
 def read_images_bin(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -293,9 +294,13 @@ def read_images_txt(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _check_poses(path: Path, ids: np.ndarray, poses: np.ndarray, what: str) -> None:
-    bad = ~np.isfinite(poses).all(axis=1) | (np.linalg.norm(poses[:, :4], axis=1) < 1e-9)
+    _, usable = safe_unit_quats(poses[:, :4])
+    bad = ~np.isfinite(poses).all(axis=1) | ~usable
     if bad.any():
         raise InputError(f"{path}: {what} {int(ids[np.argmax(bad)])} has a non-finite pose or zero quaternion")
+    far = np.abs(poses[:, 4:]).max(axis=1, initial=0.0) > MAX_COORDINATE
+    if far.any():
+        raise InputError(f"{path}: {what} {int(ids[np.argmax(far)])} has a translation beyond ±{MAX_COORDINATE:g} m")
     if ids.size and ids.min() < 0:
         raise InputError(f"{path}: {what} id {int(ids.min())} is negative")
 

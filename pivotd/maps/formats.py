@@ -23,6 +23,7 @@ from tokenize import TokenError
 import numpy as np
 
 from pivotd.errors import InputError
+from pivotd.geometry import MAX_COORDINATE
 
 log = logging.getLogger(__name__)
 
@@ -151,10 +152,19 @@ def first_nonfinite_row(arr: np.ndarray) -> int | None:
     if arr.shape[0] == 0:
         return None
     # Column sums in float64 propagate NaN/inf and cannot overflow for float32 data: one fast pass.
-    if all(np.isfinite(arr[:, k].sum(dtype=np.float64)) for k in range(arr.shape[1])):
+    with np.errstate(over="ignore", invalid="ignore"):
+        clean = all(np.isfinite(arr[:, k].sum(dtype=np.float64)) for k in range(arr.shape[1]))
+    if clean:
         return None
     bad = ~np.isfinite(arr).all(axis=1)
     return int(np.argmax(bad)) if bad.any() else None
+
+
+def first_far_row(points: np.ndarray) -> int | None:
+    """Index of the first row of finite ``points`` (N, 3) with a coordinate beyond ±MAX_COORDINATE, or None."""
+    if points.shape[0] == 0 or all(np.abs(points[:, k]).max() <= MAX_COORDINATE for k in range(3)):
+        return None
+    return int(np.argmax((np.abs(points) > MAX_COORDINATE).any(axis=1)))
 
 
 def make_cloud(
@@ -179,14 +189,19 @@ def make_cloud(
     for name, arr, shape in (("weights", weights, (n,)), ("directions", directions, (n, 3))):
         if arr is not None and np.shape(arr) != shape:
             raise InputError(f"{path}: expected {name} of shape {shape}, got {np.shape(arr)}")
-    points = np.ascontiguousarray(points, dtype=POINT_DTYPE)
+    with np.errstate(over="ignore", invalid="ignore"):  # values beyond float32 become inf: reported below
+        points = np.ascontiguousarray(points, dtype=POINT_DTYPE)
     bad = first_nonfinite_row(points)
     if bad is not None:
-        raise InputError(f"{path}: {row_name} {bad + row_base} is not finite (NaN or inf)")
+        raise InputError(f"{path}: {row_name} {bad + row_base} is not finite (NaN, inf or beyond ±3.4e38)")
+    far = first_far_row(points)
+    if far is not None:
+        raise InputError(f"{path}: {row_name} {far + row_base} lies beyond ±{MAX_COORDINATE:g} m")
     if weights is None:
         weights = np.ones(points.shape[0], POINT_DTYPE)
     else:
-        weights = np.ascontiguousarray(weights, dtype=POINT_DTYPE)
+        with np.errstate(over="ignore", invalid="ignore"):
+            weights = np.ascontiguousarray(weights, dtype=POINT_DTYPE)
         bad = first_nonfinite_row(weights[:, None])
         if bad is not None:
             raise InputError(f"{path}: {row_name} {bad + row_base} has a non-finite weight")

@@ -25,7 +25,8 @@ def load_ply(path: Path, *, weight_property: str | None = None) -> LandmarkCloud
         with open(path, "rb") as fh:
             _check_counts(path, fh)
             fh.seek(0)
-            ply = plyfile.PlyData.read(fh, mmap=False)
+            with np.errstate(all="ignore"):  # out-of-range values become inf / wrap; make_cloud rejects them
+                ply = plyfile.PlyData.read(fh, mmap=False)
     except plyfile.PlyElementParseError as exc:
         where = f"vertex {exc.row}" if exc.row is not None else "data"
         raise InputError(f"{path}: corrupt or truncated PLY at {where} ({exc.message})") from None
