@@ -198,12 +198,13 @@ def test_text_fast_and_line_parsers_agree(tmp_path, fif_dir):
 
     mixed = tmp_path / "mixed.txt"
     mixed.write_text("# header\n1 2 3\n\n4,5,6\n7\t8 9\n")
-    assert _parse_clean_lines(mixed.read_text().splitlines(True), 3, None) is None  # mixed separators
+    assert _parse_clean_lines(mixed.read_text(), 3, None) is None  # mixed separators
     np.testing.assert_array_equal(read_numeric_text(mixed, (3, 4), "landmark"), [[1, 2, 3], [4, 5, 6], [7, 8, 9]])
-    lines = (fif_dir / "ycorridor_6x20_points_w.txt").read_text().splitlines(True)
-    fast = _parse_clean_lines(lines, 3, None)
+    text = (fif_dir / "ycorridor_6x20_points_w.txt").read_text()
+    lines = text.splitlines(True)
+    fast = _parse_clean_lines(text, 3, None)
     assert fast is not None and fast.shape[0] > 900
-    np.testing.assert_array_equal(_parse_lines(Path("x"), lines, 0, 3).reshape(-1, 3), fast)
+    np.testing.assert_array_equal(_parse_lines(Path("x"), text, 0, 3).reshape(-1, 3), fast)
     slow = tmp_path / "slow.txt"
     slow.write_text("".join(lines).rstrip("\n") + "\n1 2 x\n")  # one bad trailing line forces the line parser
     with pytest.raises(InputError, match=rf"slow\.txt:{len(lines) + 1}: not a number"):

@@ -13,6 +13,7 @@ would shift every landmark index the user may refer to. An empty map is an error
 from __future__ import annotations
 
 import array
+import io
 import logging
 import re
 import warnings
@@ -84,7 +85,7 @@ def load_landmarks(
         cloud = cloud_from_array(path, _read_npy(path))
     elif suffix in TEXT_SUFFIXES:
         _no_weight_property(path, weight_property, "text maps")
-        cloud = cloud_from_array(path, read_numeric_text(path, (3, 4), what="landmark"))
+        cloud = cloud_from_array(path, read_numeric_text(path, (3, 4), what="landmark", dtype=POINT_DTYPE))
     else:
         raise InputError(
             f"{path}: unknown map format '{suffix or path.name}' "
@@ -220,42 +221,54 @@ def cloud_from_array(path: Path, arr: np.ndarray) -> LandmarkCloud:
 
 
 _SPLIT = re.compile(r"[,\s]+")
-_TEXT_BLOCK = 1 << 20  # characters of lines parsed per block (memory stays ~ the parsed numbers)
+_TEXT_BLOCK = 1 << 18  # characters parsed per block (memory stays ~ the parsed numbers)
 
 
-def read_numeric_text(path: Path, columns: tuple[int, ...], what: str) -> np.ndarray:
+def read_numeric_text(path: Path, columns: tuple[int, ...], what: str, dtype: type = np.float64) -> np.ndarray:
     """Parse rows of numbers separated by spaces, tabs or commas; ``#`` starts a comment line.
 
     Every row must have one of ``columns`` fields (the first data row fixes the count) and be
-    finite. Returns an (N, C) float64 array; errors name the file and 1-based line number.
-    The file is read in blocks of lines, so memory is the parsed numbers plus one block.
+    finite. Returns an (N, C) array of ``dtype`` (float64 or float32; values beyond float32 become inf);
+    errors name the file and 1-based line number. The file is read in blocks of about _TEXT_BLOCK
+    characters, so memory is the parsed numbers plus one block.
     """
-    values = array.array("d")
+    values = array.array("d" if np.dtype(dtype) == np.float64 else "f")
     ncols: int | None = None
     delimiter: str | None = None
     lineno = 0
     try:
         with open(path) as fh:
             while True:
-                lines = fh.readlines(_TEXT_BLOCK)
-                if not lines:
+                block = fh.read(_TEXT_BLOCK)
+                if not block:
                     break
+                if not block.endswith("\n"):
+                    block += fh.readline()  # complete the last line
                 if ncols is None:
-                    first = next((ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")), None)
-                    if first is not None:
-                        delimiter = "," if "," in first else None
-                        ncols = _column_count(path, lineno + 1 + lines.index(first), first, columns, what)
+                    found = _first_data_line(block)
+                    if found is not None:
+                        delimiter = "," if "," in found[1] else None
+                        ncols = _column_count(path, lineno + found[0], found[1], columns, what)
                 if ncols is not None:
-                    block = _parse_clean_lines(lines, ncols, delimiter)
-                    if block is None:
-                        block = _parse_lines(path, lines, lineno, ncols)
-                    values.frombytes(block.tobytes())
-                lineno += len(lines)
+                    parsed = _parse_clean_lines(block, ncols, delimiter)
+                    if parsed is None:
+                        parsed = _parse_lines(path, block, lineno, ncols)
+                    with np.errstate(over="ignore"):
+                        values.frombytes(parsed.astype(dtype, copy=False).tobytes())
+                lineno += block.count("\n")
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read ({exc})") from None
     if ncols is None:
-        return np.zeros((0, columns[0]))
-    return np.frombuffer(values, dtype=np.float64).reshape(-1, ncols)
+        return np.zeros((0, columns[0]), dtype)
+    return np.frombuffer(values, dtype=dtype).reshape(-1, ncols)
+
+
+def _first_data_line(block: str) -> tuple[int, str] | None:
+    """(1-based line number within ``block``, line) of its first non-blank, non-comment line."""
+    for k, line in enumerate(io.StringIO(block), start=1):
+        if line.strip() and not line.lstrip().startswith("#"):
+            return k, line
+    return None
 
 
 def _column_count(path: Path, lineno: int, line: str, columns: tuple[int, ...], what: str) -> int:
@@ -267,10 +280,10 @@ def _column_count(path: Path, lineno: int, line: str, columns: tuple[int, ...], 
     return n
 
 
-def _parse_lines(path: Path, lines: list[str], lineno: int, ncols: int) -> np.ndarray:
-    """Line-by-line parse of one block (lines after ``lineno``); errors name the offending line."""
+def _parse_lines(path: Path, block: str, lineno: int, ncols: int) -> np.ndarray:
+    """Line-by-line parse of one block of text (lines after ``lineno``); errors name the offending line."""
     out = array.array("d")
-    for k, raw in enumerate(lines, start=lineno + 1):
+    for k, raw in enumerate(io.StringIO(block), start=lineno + 1):
         line = raw.strip()
         if not line or line.startswith("#"):
             continue
@@ -287,13 +300,13 @@ def _parse_lines(path: Path, lines: list[str], lineno: int, ncols: int) -> np.nd
     return np.frombuffer(out, dtype=np.float64)
 
 
-def _parse_clean_lines(lines: list[str], ncols: int, delimiter: str | None) -> np.ndarray | None:
+def _parse_clean_lines(block: str, ncols: int, delimiter: str | None) -> np.ndarray | None:
     """Fast path for a well-formed block (numpy's C parser); None when anything is off, so that the
     line-by-line parser can name the offending line."""
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            arr = np.loadtxt(lines, dtype=np.float64, comments="#", delimiter=delimiter, ndmin=2)
+            arr = np.loadtxt(io.StringIO(block), dtype=np.float64, comments="#", delimiter=delimiter, ndmin=2)
     except ValueError:
         return None
     if arr.size == 0:
