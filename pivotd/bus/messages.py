@@ -89,8 +89,10 @@ def stamp_to_seconds(stamp: object) -> float:
 
 
 def seconds_to_stamp(t: float) -> object:
-    """Seconds -> builtin_interfaces/Time (floor to whole nanoseconds; negative times clamp to 0)."""
-    ns = min(max(0, round(float(t) * 1e9)), _MAX_STAMP_NS)  # builtin_interfaces/Time: int32 sec
+    """Seconds -> builtin_interfaces/Time (rounded to whole nanoseconds; clamped to [0, 2³¹ s − 1 ns])."""
+    t = float(t)
+    t = min(max(t, 0.0), 2.0**31) if t == t else 0.0  # builtin_interfaces/Time holds int32 sec; NaN -> 0
+    ns = min(round(t * 1e9), _MAX_STAMP_NS)
     return _t("builtin_interfaces/msg/Time")(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
