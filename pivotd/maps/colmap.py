@@ -38,7 +38,7 @@ log = logging.getLogger(__name__)
 
 _POINT_HEAD = 51  # id, xyz, rgb, error, track_length
 _TRACK_ELEM = 8
-_BLOCK = 1 << 18  # landmarks per vectorised block of direction averaging
+_BLOCK = 1 << 13  # landmarks per vectorised block of direction averaging (temporaries ~40 B per observation)
 _HEAD_BLOCK = 1 << 14  # records per block when reading heads (a multiple of 8; ~1 MB of file stays cached)
 _TRACK_BLOCK = 1 << 12  # records per block when reading tracks (a multiple of 4)
 _IMAGE_HEAD = struct.Struct("<idddddddi")  # 64 bytes
