@@ -109,6 +109,16 @@ def test_tiny_occlusion_voxel_is_refused(tmp_path):
     assert ":5: map.filters.occlusion_voxel: 1e-06 m makes a 20 m ray 2e+07 voxels long, more than 4096" in _error(f)
 
 
+def test_check_builds_the_occupancy_grid_the_daemon_builds(tmp_path, capsys):
+    # 0.01 m passes the ray bound (20 m / 4096) but a 2 km map is 200 000 voxels across.
+    (tmp_path / "m.txt").write_text("0 0 0\n2000 0 0\n")
+    f = _write(tmp_path, "map:\n  file: m.txt\n  filters:\n    occlusion_voxel: 0.01\n")
+    load_config(f)
+    assert main(["check", "--config", str(f)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and f"{f}: map.filters.occlusion_voxel: occlusion voxel 0.01 m is too small" in err
+
+
 @pytest.mark.parametrize("content", ["garbage {{{", "{mode: 'peer', bogus_key: 3}", "{listen: {endpoints: 5}}"])
 def test_garbage_zenoh_config_file_fails_check(tmp_path, content):
     (tmp_path / "z.json5").write_text(content)
