@@ -112,6 +112,33 @@ def test_npy_header_errors_are_one_line_input_errors(tmp_path, header, what):
     assert peak < MB
 
 
+@pytest.mark.parametrize("version", [b"\x02\x00", b"\x03\x00"])
+def test_npy_header_length_beyond_the_file_reads_nothing_big(tmp_path, version):
+    # A flipped version byte turns the 2-byte header length into a 4-byte one of ~660 MB: formerly read(n)
+    # allocated all of it before finding the file short.
+    f = tmp_path / "m.npy"
+    np.save(f, np.zeros((4, 3), np.float32))
+    f.write_bytes(f.read_bytes()[:6] + version + f.read_bytes()[8:])
+    err, peak = _peak(lambda: load_landmarks(f))
+    assert isinstance(err, InputError) and str(err).startswith(f"{f}: not a readable .npy array (bad header")
+    assert peak < MB
+
+
+def test_ply_list_length_beyond_the_file_reads_nothing_big(tmp_path):
+    v = np.zeros(3, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
+    face = np.empty(1, dtype=[("vertex_indices", "i4", (3,))])
+    face["vertex_indices"] = [[0, 1, 2]]
+    f = tmp_path / "l.ply"
+    plyfile.PlyData([plyfile.PlyElement.describe(v, "vertex"),
+                     plyfile.PlyElement.describe(face, "face", len_types={"vertex_indices": "u4"})]).write(str(f))
+    data = f.read_bytes()
+    at = data.index(b"end_header\n") + 11 + 36  # the face's list length, after three vertices
+    f.write_bytes(data[:at] + struct.pack("<I", 0xFFFFFFF0) + data[at + 4:])
+    err, peak = _peak(lambda: load_landmarks(f))
+    assert isinstance(err, InputError) and "l.ply: corrupt or truncated PLY at face 0" in str(err)
+    assert peak < MB
+
+
 @pytest.mark.parametrize(("points", "images", "pattern"), [
     ("1 0 0 0 1 2 3 0.5 99999999999 0\n", None, r"points3D\.txt:1: image id 99999999999 is out of range"),
     ("1 1e400 0 0 1 2 3 0.5\n", None, r"points3D\.txt:1: coordinate is not finite"),

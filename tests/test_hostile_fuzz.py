@@ -86,15 +86,19 @@ def test_check_on_mutated_configs_never_tracebacks(corpus, ops):
     _check(_run(corpus, "config", data), data)
 
 
+BINARY_SEEDS = ["npy4", "npy3", "ply_le", "ply_be", "colmap_bin_points", "colmap_bin_images"]
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("name", [*MAP_SEEDS, "path3", "path8", "config"])
 def test_every_header_count_and_extreme_token(corpus, name):
-    """Deterministic sweep: each of the first numbers / aligned words of every seed replaced by each huge
-    count, and each numeric token position replaced by each extreme value (bounded by 40 positions)."""
+    """Deterministic sweep: numbers of the header / aligned words replaced by each huge count, numeric tokens
+    by extreme values, and (binary files) every bit of the first 12 bytes flipped (magic, version, lengths)."""
     data = corpus[0][name].files[0].read_bytes()
-    for pos in range(8):
-        for value in range(12):
-            mutated = mutate(data, "count", pos * 977, value)
-            _check(_run(corpus, name, mutated), mutated)
-    for pos in range(40):
-        mutated = mutate(data, "token", pos, pos % len(EXTREMES))
+    cases = [("count", pos * 977, value) for pos in range(8) for value in range(6)]
+    cases += [("token", pos, pos % len(EXTREMES)) for pos in range(12)]
+    if name in BINARY_SEEDS:
+        cases += [("flip", pos, bit) for pos in range(12) for bit in range(8)]
+    for op, pos, value in cases:
+        mutated = mutate(data, op, pos, value)
         _check(_run(corpus, name, mutated), mutated)

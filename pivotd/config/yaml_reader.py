@@ -38,9 +38,17 @@ MAX_BYTES = 1 << 20  # size of a config file
 
 
 class _BoundedLoader(yaml.SafeLoader):
-    """SafeLoader whose composer refuses documents nested deeper than MAX_DEPTH (it recurses per level)."""
+    """SafeLoader refusing documents nested deeper than MAX_DEPTH: flow collections in the scanner, any node
+    in the composer (which recurses per level)."""
 
     _depth = 0
+
+    def fetch_flow_collection_start(self, TokenClass: type) -> None:
+        # The scanner looks ahead to the end of a flow collection (it may be a key), quadratically in its
+        # depth: refuse deep flow nesting while scanning, before the composer sees anything.
+        if self.flow_level >= MAX_DEPTH:
+            raise _LimitError(self.line + 1, f"nesting deeper than {MAX_DEPTH} levels")
+        super().fetch_flow_collection_start(TokenClass)
 
     def compose_node(self, parent: yaml.Node | None, index: Any) -> yaml.Node | None:
         if self._depth >= MAX_DEPTH:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import array
 import io
 import logging
+import os
 import re
 import warnings
 from dataclasses import dataclass
@@ -105,6 +106,23 @@ def _no_weight_property(path: Path, weight_property: str | None, what: str) -> N
         )
 
 
+class CappedReader(io.BufferedReader):
+    """A binary file whose ``read(n)`` never asks for more than the bytes left: a length field read from a
+    corrupt file cannot make a reader allocate more than the file holds (``BufferedReader.read(n)``
+    allocates n bytes before reading)."""
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(io.FileIO(path, "r"))
+        self._size = os.fstat(self.fileno()).st_size
+
+    def read(self, size: int | None = -1) -> bytes:
+        if size is not None and size > 0:
+            size = min(size, max(0, self._size - self.tell()))
+            if size == 0:
+                return b""
+        return super().read(size)
+
+
 def _read_npy(path: Path) -> np.ndarray:
     """The array of a ``.npy`` file, memory-mapped; its header is checked against the file size first."""
     shape, dtype, offset = _npy_header(path)
@@ -127,7 +145,7 @@ def _read_npy(path: Path) -> np.ndarray:
 def _npy_header(path: Path) -> tuple[tuple[int, ...], np.dtype, int]:
     """(shape, dtype, data offset) from a ``.npy`` header; any malformed header is an InputError."""
     try:
-        with open(path, "rb") as fh:
+        with CappedReader(path) as fh:
             version = np.lib.format.read_magic(fh)
             if version == (1, 0):
                 shape, _, dtype = np.lib.format.read_array_header_1_0(fh)

@@ -14,7 +14,7 @@ import numpy as np
 import plyfile
 
 from pivotd.errors import InputError
-from pivotd.maps.formats import LandmarkCloud, make_cloud
+from pivotd.maps.formats import CappedReader, LandmarkCloud, make_cloud
 
 DEFAULT_WEIGHT_PROPERTY = "weight"
 
@@ -22,13 +22,13 @@ DEFAULT_WEIGHT_PROPERTY = "weight"
 def load_ply(path: Path, *, weight_property: str | None = None) -> LandmarkCloud:
     """Read vertex x, y, z (and a weight) from a PLY file; errors name the file and the vertex row."""
     try:
-        with open(path, "rb") as fh:
+        with CappedReader(path) as fh:  # list lengths read from the file cannot over-allocate
             _check_counts(path, fh)
             fh.seek(0)
             with np.errstate(all="ignore"):  # out-of-range values become inf / wrap; make_cloud rejects them
                 ply = plyfile.PlyData.read(fh, mmap=False)
     except plyfile.PlyElementParseError as exc:
-        where = f"vertex {exc.row}" if exc.row is not None else "data"
+        where = f"{exc.element.name} {exc.row}" if exc.row is not None else "data"
         raise InputError(f"{path}: corrupt or truncated PLY at {where} ({exc.message})") from None
     except plyfile.PlyHeaderParseError as exc:
         raise InputError(f"{path}: bad PLY header ({exc})") from None
