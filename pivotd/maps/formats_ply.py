@@ -26,7 +26,7 @@ def load_ply(path: Path, *, weight_property: str | None = None) -> LandmarkCloud
             _check_counts(path, fh)
             fh.seek(0)
             with np.errstate(all="ignore"):  # out-of-range values become inf / wrap; make_cloud rejects them
-                ply = plyfile.PlyData.read(fh, mmap=False)
+                ply = plyfile.PlyData.read(fh, mmap="c")  # binary scalar elements: one vectorised copy
     except plyfile.PlyElementParseError as exc:
         where = f"{exc.element.name} {exc.row}" if exc.row is not None else "data"
         raise InputError(f"{path}: corrupt or truncated PLY at {where} ({exc.message})") from None
