@@ -3,17 +3,19 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+BACKEND ?= pivot
 
 .PHONY: demo test test-fast lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test,plot,record]'
+	$(BIN)/pip install --quiet -e '.[test,plot,record,bench,mavlink,dynamixel]'
 	touch $(STAMP)
 
+# `make demo BACKEND=mavlink` (or dynamixel): the same run against that backend's simulator.
 demo: $(STAMP)
-	$(BIN)/python tools/demo.py
+	$(BIN)/python tools/demo.py --backend $(BACKEND)
 
 test: $(STAMP)
 	$(BIN)/ruff check .

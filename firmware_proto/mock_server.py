@@ -194,6 +194,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fault-at", type=parse_fault_at, action="append", default=[], metavar="SECONDS:BIT",
                    help="latch fault BIT at SECONDS after start (repeatable)")
     p.add_argument("--disconnect-after", type=float, metavar="SECONDS", help="close the port after SECONDS")
+    p.add_argument("--from-first-frame", action="store_true",
+                   help="count --fault-at and --disconnect-after from the host's first frame, not from start")
     p.add_argument("--reconnect-after", type=float, metavar="SECONDS",
                    help="reopen the port SECONDS after the disconnect")
     p.add_argument("--protocol-version", type=int, default=1, help="protocol version the device speaks")
@@ -228,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(exc))
     msg_log = CsvMessageLog(args.log) if args.log else None
     model = DeviceModel(state_hz=args.state_hz, info=DeviceInfo(version=args.protocol_version), on_message=msg_log)
-    device = RealTimeDevice(model, injector, args.fault_at)
+    device = RealTimeDevice(model, injector, args.fault_at, faults_from_first_frame=args.from_first_frame)
     transport = make_transport(args)
 
     stop = threading.Event()
@@ -249,7 +251,8 @@ def main(argv: list[str] | None = None) -> int:
             if data:
                 device.write(data)
             now = device.elapsed()
-            if disconnect_at is not None and now >= disconnect_at:
+            t0 = device.first_frame_at if args.from_first_frame else 0.0
+            if disconnect_at is not None and t0 is not None and now - t0 >= disconnect_at:
                 log.info("disconnecting at t=%.2f s", now)
                 device.sink = None
                 transport.close()

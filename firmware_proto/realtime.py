@@ -78,6 +78,20 @@ class CsvMessageLog:
             self._csv.writerow(row)
             self._file.flush()
 
+    def note(self, direction: str, name: str, now: float, detail: str = "") -> None:
+        """A row for a message of another protocol that has no angles (e.g. a MAVLink command): type and detail."""
+        with self._lock:
+            self._csv.writerow((f"{now:.6f}", direction, name, "", "", "", "", "", "", "", "", "", detail))
+            self._file.flush()
+
+    def angles(self, direction: str, name: str, now: float, pan: float, tilt: float, pan_rate: float,
+               tilt_rate: float, host_time_us: int | str = "") -> None:
+        """A row of angles [rad] and rates [rad/s] of another protocol (``nan``: not on that wire)."""
+        with self._lock:
+            self._csv.writerow((f"{now:.6f}", direction, name, "", f"{pan:.6f}", f"{tilt:.6f}", f"{pan_rate:.6f}",
+                                f"{tilt_rate:.6f}", "", "", "", host_time_us, ""))
+            self._file.flush()
+
     def close(self) -> None:
         with self._lock:
             self._file.close()
@@ -93,16 +107,23 @@ def split_frames(buffer: bytes, data: bytes) -> tuple[list[bytes], bytes]:
 class RealTimeDevice:
     """A :class:`DeviceModel` stepped in real time by a background thread.
 
-    ``faults_at`` is a list of (seconds after start, fault bit number) to inject. The device clock
-    starts at 0 when :meth:`start` is called.
+    ``faults_at`` is a list of (seconds after start, fault bit number) to inject; with
+    ``faults_from_first_frame`` the seconds count from the host's first frame instead (what a test
+    wants when the host may take a while to start). The device clock starts at 0 when :meth:`start`
+    is called; :attr:`first_frame_at` is the device time of the host's first frame (None before).
     """
 
     def __init__(self, model: DeviceModel, injector: FaultInjector | None = None,
                  faults_at: list[tuple[float, int]] | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, *,
+                 faults_from_first_frame: bool = False) -> None:
         self.model = model
         self.injector = injector or FaultInjector()
-        self.faults_at = sorted(faults_at or [])
+        # with faults_from_first_frame the faults wait in _faults_after_first_frame until the host speaks
+        faults = sorted(faults_at or [])
+        self._faults_after_first_frame = faults if faults_from_first_frame else []
+        self.faults_at = [] if faults_from_first_frame else faults
+        self.first_frame_at: float | None = None
         self.sink: Callable[[bytes], None] | None = None
         self._clock = clock
         self._t0 = clock()
@@ -135,7 +156,12 @@ class RealTimeDevice:
         """Bytes from the host (any chunking); faults are applied per frame."""
         with self._cond:
             frames, self._rx_rest = split_frames(self._rx_rest, bytes(data))
-            due = self.elapsed() + self.injector.latency_s
+            now = self.elapsed()
+            if frames and self.first_frame_at is None:
+                self.first_frame_at = now
+                self.faults_at = sorted(self.faults_at + [(t + now, bit) for t, bit in self._faults_after_first_frame])
+                self._faults_after_first_frame = []
+            due = now + self.injector.latency_s
             for frame in frames:
                 frame = self.injector.apply(frame)
                 if frame is not None:
@@ -165,11 +191,13 @@ class RealTimeDevice:
                 arrived = []
                 while self._incoming and self._incoming[0][0] <= now:
                     arrived.append(heapq.heappop(self._incoming)[2])
+                due_faults = []
+                while self.faults_at and self.faults_at[0][0] <= now:
+                    due_faults.append(self.faults_at.pop(0)[1])
             out = b""
             if arrived:
                 out += model.feed(b"".join(arrived), now)
-            while self.faults_at and self.faults_at[0][0] <= now:
-                _, bit = self.faults_at.pop(0)
+            for bit in due_faults:
                 log.info("injecting fault bit %d at t=%.3f s", bit, now)
                 model.inject_fault(1 << bit)
             out += model.step(now)

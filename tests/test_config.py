@@ -39,6 +39,15 @@ def load_error(tmp_path: Path, text: str) -> str:
     return message
 
 
+def test_shipped_backend_examples_load():
+    mav = load_config(CONFIG_DIR / "gimbal_mavlink.yaml")
+    assert (mav.gimbal.backend, mav.gimbal.port, mav.gimbal.mavlink.target_component) == (
+        "mavlink", "udpin:0.0.0.0:14550", 1)
+    dxl = load_config(CONFIG_DIR / "gimbal_dynamixel.yaml")
+    assert (dxl.gimbal.backend, dxl.gimbal.baud, dxl.gimbal.dynamixel.tilt_reversed) == ("dynamixel", 1_000_000, True)
+    assert dxl.gimbal.limits.tilt_max == pytest.approx(math.radians(90.0))
+
+
 def test_shipped_configs_load():
     spot = load_config(CONFIG_DIR / "spot.yaml")
     assert spot.name == "spot" and spot.status_key == "pivot/spot/status"
@@ -237,3 +246,50 @@ def test_topics_section_is_the_bus_settings(tmp_path):
 def test_topics_section_errors_are_one_line_with_file_line_and_key(tmp_path, section, pattern):
     message = load_error(tmp_path, MINIMAL + section)
     assert re.search(r"bad\.yaml" + pattern, message), message
+
+
+# ---------------------------------------------------------------- gimbal.backend
+def _gimbal_doc(tmp_path, text: str):
+    path = tmp_path / "backend.yaml"
+    path.write_text("map:\n  allow_empty: true\ngimbal:\n" + text)
+    return path
+
+
+def test_backend_defaults_to_pivot_and_builds_the_serial_link(tmp_path):
+    from pivotd.daemon.wiring import build_gimbal
+    from pivotd.gimbal.link import GimbalLink
+
+    cfg = load_config(_gimbal_doc(tmp_path, "  backend: pivot\n"))
+    assert cfg.gimbal.backend == "pivot"
+    assert isinstance(build_gimbal(cfg), GimbalLink)
+
+
+@pytest.mark.parametrize(("text", "line", "needle"), [
+    ("  port: mock://\n  backend: canbus\n", 5, "gimbal.backend: must be one of pivot, mavlink, dynamixel"),
+    ("  backend: dynamixel\n  port: socket://h:1\n", 5, "gimbal.port: 'socket://h:1': the dynamixel backend opens"),
+    ("  mavlink:\n    system_id: 0\n", 5, "gimbal.mavlink.system_id"),
+    ("  mavlink:\n    sysid: 3\n", 5, "gimbal.mavlink.sysid"),
+])
+def test_bad_backend_settings_are_one_line_errors_naming_file_line_and_key(tmp_path, text, line, needle):
+    path = _gimbal_doc(tmp_path, text)
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    msg = str(err.value)
+    assert "\n" not in msg and needle in msg and f"{path.name}:{line}:" in msg, msg
+
+
+def test_the_mavlink_backend_needs_a_mavlink_connection_and_builds_its_gimbal(tmp_path):
+    from pivotd.daemon.wiring import build_gimbal
+    from pivotd.gimbal.mavlink_link import MavlinkGimbal
+
+    path = _gimbal_doc(tmp_path, "  backend: mavlink\n  port: mock://\n")
+    with pytest.raises(ConfigError, match=r"backend\.yaml:5: gimbal\.port: 'mock://' is not a MAVLink connection"):
+        load_config(path)
+    cfg = load_config(_gimbal_doc(tmp_path, "  backend: mavlink\n  port: udpin:0.0.0.0:14550\n"
+                                            "  mavlink: {system_id: 2, target_component: 1}\n"))
+    assert (cfg.gimbal.mavlink.system_id, cfg.gimbal.mavlink.component_id, cfg.gimbal.mavlink.target_component) == (
+        2, 191, 1)
+    g = build_gimbal(cfg)
+    assert isinstance(g, MavlinkGimbal) and g.settings.system_id == 2 and g.settings.limits == cfg.gimbal.limits
+    with pytest.raises(InputError, match="--port: 'socket://x:1' is not a MAVLink connection"):
+        cfg.with_overrides(port="socket://x:1")

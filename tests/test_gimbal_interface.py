@@ -7,8 +7,10 @@ import inspect
 import pytest
 from gimbal_fakes import FakeGimbal
 
+from pivotd.gimbal.dynamixel_link import DynamixelGimbal
 from pivotd.gimbal.interface import GimbalInterface, LinkState
 from pivotd.gimbal.link import GimbalLink
+from pivotd.gimbal.mavlink_link import MavlinkGimbal
 
 MEMBERS = [name for name in vars(GimbalInterface) if not name.startswith("_")]
 
@@ -18,7 +20,7 @@ def test_the_interface_is_what_the_daemon_uses():
                             "set_enabled", "clear_fault", "counters"}
 
 
-@pytest.mark.parametrize("implementation", [GimbalLink, FakeGimbal])
+@pytest.mark.parametrize("implementation", [GimbalLink, MavlinkGimbal, DynamixelGimbal, FakeGimbal])
 def test_implementation_has_every_member_with_a_compatible_signature(implementation):
     for name in MEMBERS:
         spec = getattr(GimbalInterface, name)
@@ -42,3 +44,13 @@ def test_a_stopped_link_reports_its_state_as_the_enum():
     assert link.state is None and link.last_error is None
     assert link.send_setpoint(0.0, 0.0) is None and link.set_enabled(True) is False
     assert isinstance(link.counters(), dict)
+
+
+def test_a_stopped_mavlink_gimbal_sends_nothing():
+    from pivotd.config import Config
+    from pivotd.daemon.wiring import build_mavlink_settings
+
+    g = MavlinkGimbal("udpout:127.0.0.1:9", build_mavlink_settings(Config()))
+    assert g.link_state is LinkState.STOPPED and g.state is None and g.last_error is None
+    assert g.send_setpoint(0.0, 0.0) is None and g.set_enabled(True) is False and g.clear_fault() is False
+    assert g.counters()["setpoints_sent"] == 0

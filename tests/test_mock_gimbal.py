@@ -117,3 +117,20 @@ def test_serial_mode_on_a_pty_pair_with_latency() -> None:
     finally:
         os.close(master)
         os.close(slave)
+
+
+def test_from_first_frame_counts_faults_and_disconnect_from_the_hosts_first_frame() -> None:
+    with MockGimbal("--from-first-frame", "--fault-at", "0.0:2", "--disconnect-after", "0.6",
+                    "--state-hz", "100", tcp=True) as mock:
+        port = serial.serial_for_url(mock.url, timeout=0.05)
+        try:
+            silent = exchange(port, [], wait=0.8)  # longer than both timers, and the host said nothing
+            spoken = exchange(port, [(Hello(1), 1)], wait=0.3)
+            with pytest.raises(serial.SerialException, match="disconnected"):
+                exchange(port, [], wait=1.5)  # the disconnect is due 0.6 s after the Hello
+        finally:
+            port.close()
+    quiet = [f.msg for f in silent if isinstance(f.msg, State)]
+    assert len(quiet) >= 20 and all(s.faults == 0 for s in quiet)
+    states = [f.msg for f in spoken if isinstance(f.msg, State)]
+    assert states and states[-1].mode == MODE_FAULT and states[-1].faults == FAULT_ENCODER

@@ -73,9 +73,10 @@ def test_anchor_enters_the_polish():
 def test_trajectory_option_polishes_without_losing_smoothness():
     scene = competing_clusters_path()
     alpha = np.radians(30)
-    plain = optimize_trajectory(scene.points, scene.path, alpha, 0.6)
-    polished = optimize_trajectory(scene.points, scene.path, alpha, 0.6, options=TrajectoryOptions(polish_deg=1.0))
+    plain = optimize_trajectory(scene.points, scene.path, alpha, 0.6, options=TrajectoryOptions(step_polish_deg=0))
+    polished = optimize_trajectory(scene.points, scene.path, alpha, 0.6,
+                                   options=TrajectoryOptions(polish_deg=1.0, step_polish_deg=0))
     assert polished.visible.mean() >= plain.visible.mean()
     steps = np.degrees(angle_between(polished.directions[1:], polished.directions[:-1]))
-    assert steps.max() < 9.0
+    assert steps.max() < 11.0  # the plain plan's largest step: 10.4° (see test_pivot_trajectory)
     assert np.allclose(np.einsum("nij,j->ni", polished.rotations, [0, 0, 1]), polished.directions, atol=1e-12)

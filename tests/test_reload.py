@@ -109,3 +109,14 @@ def test_a_late_reply_is_never_taken_for_the_next_request(worker):
     assert worker.stale_replies == stale_before + 1
     plan = worker.replan(np.array([2.0, 0.0, 0.7]), IDENTITY, None, timeout=60.0)
     assert plan.directions.shape[1] == 3
+
+
+def test_the_gimbal_backend_and_its_connection_need_a_restart(cfg):
+    from pivotd.config.settings import MavlinkConfig
+
+    loaded = replace(cfg, gimbal=replace(cfg.gimbal, backend="mavlink", port="udpout:127.0.0.1:14550",
+                                         mavlink=MavlinkConfig(system_id=7), park_tilt=0.2))
+    plan = plan_reload(cfg, loaded)
+    assert set(plan.needs_restart) == {"gimbal.backend", "gimbal.port", "gimbal.mavlink"}
+    assert plan.applied == ("gimbal.park_tilt",)
+    assert (plan.config.gimbal.backend, plan.config.gimbal.mavlink) == (cfg.gimbal.backend, cfg.gimbal.mavlink)

@@ -1,11 +1,12 @@
-"""``pivotd bench montecarlo``: the paper's Monte Carlo evaluation (§V-A.2) and the FIF y-corridor plan.
+"""``pivotd bench montecarlo``: the paper's Monte Carlo evaluation (§V-A.2), the FIF y-corridor plan and
+(``--scenes hard|all``) single pose on the hard scene families against the refined reference.
 
 Per feature-count level: PIVOT (single-pose optimizer) and the 2° brute force on the same bearings of
-each pose, timed separately (median ms per pose), their ratio, and the retained visibility
-100·V_PIVOT/V_BF (mean, 5th percentile, min), next to the paper's figures. The FIF section times the
-whole-trajectory optimisation of tests/data/fif/ycorridor (30° FoV, λ = 0.6) and compares it with the
-λ = 0 plan and with the exact best plans on a 2° direction grid with and without a step limit (the
-visibility any plan with that largest step can reach, up to the grid's resolution).
+each pose, timed back to back in alternating order (median ms per pose), the ratio of the medians, and
+the retained visibility 100·V_PIVOT/V_BF (mean, 5th percentile, min), next to the paper's figures. The
+FIF section times the whole-trajectory optimisation of tests/data/fif/ycorridor (30° FoV, λ = 0.6) and
+compares it with the λ = 0 plan and with the exact best plans on a 2° direction grid with and without a
+step limit (the visibility any plan with that largest step can reach, up to the grid's resolution).
 """
 
 from __future__ import annotations
@@ -14,7 +15,11 @@ import argparse
 import json
 import logging
 import math
+import time
+from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -39,6 +44,22 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fov-deg", type=float, default=30.0, help="full FoV opening angle (default 30)")
     parser.add_argument("--resolution-deg", type=float, default=2.0, help="brute-force grid resolution")
     parser.add_argument(
+        "--pareto", action="store_true",
+        help="only the trajectory plans against the exact step-limited grid plan (FIF, competing clusters, a "
+             "path through each hard family): own largest step and hard step limits 5 and 10 deg",
+    )
+    parser.add_argument(
+        "--scenes", choices=("paper", "hard", "all"), default="paper",
+        help="paper: the Monte Carlo levels and the FIF plan (default); hard: single pose on every hard scene "
+        "family against the refined reference; all: both",
+    )
+    parser.add_argument(
+        "--scene-seeds", type=int, default=None, help="hard scenes: seeded instances per family (default 3, quick 2)"
+    )
+    parser.add_argument(
+        "--scene-poses", type=int, default=None, help="hard scenes: sensor poses per instance (default 20, quick 6)"
+    )
+    parser.add_argument(
         "--replan", action="store_true",
         help="only the warm-started replanning regime: 40 waypoints, 20k landmarks, anchor + pan/tilt limits",
     )
@@ -58,8 +79,12 @@ def _level_rows(levels: list[int], pose_idx: np.ndarray, alpha: float, res: floa
         for t in poses:
             diff = pts - t
             bearings = diff / np.linalg.norm(diff, axis=1, keepdims=True)
-            r, dt = timed(optimize_view, bearings, None, alpha)
-            (d, best), db = timed(brute_force_view, bearings, None, alpha, res)
+            if len(t_piv) % 2 == 0:  # alternate which side runs first
+                r, dt = timed(optimize_view, bearings, None, alpha)
+                (d, best), db = timed(brute_force_view, bearings, None, alpha, res)
+            else:
+                (d, best), db = timed(brute_force_view, bearings, None, alpha, res)
+                r, dt = timed(optimize_view, bearings, None, alpha)
             t_piv.append(dt)
             t_bf.append(db)
             ratio.append(100.0 * r.visible / best if best > 0 else 100.0)
@@ -81,6 +106,82 @@ def _level_rows(levels: list[int], pose_idx: np.ndarray, alpha: float, res: floa
         log.info("level %d (%d features) done", level, counts[level])
         _print_row(row)
     return rows, detail
+
+
+def hard_rows(seeds: int, poses: int, alpha: float, res: float, repeats: int = 3) -> list[dict]:
+    """Single pose on every hard scene family (pivotd.pivot.scenes.HARD_FAMILIES): ``seeds`` instances of
+    ``poses`` random sensor positions each. Per pose: the refined reference (pivotd.pivot.brute.refined_view,
+    not timed) first, then ``repeats`` rounds of PIVOT and the ``res`` grid timed back to back on the same
+    bearings, in alternating order (neither side always runs right after the reference or after the other);
+    each side's time for the pose is the median of its rounds. Both answers are scored against the
+    reference. Speedup: the ratio of the median times, and the median of the per-pose ratios (less exposed
+    to the host's load drifting during the run)."""
+    from pivotd.pivot.brute import brute_force_view, refined_view
+    from pivotd.pivot.scenes import HARD_FAMILIES, hard_scene
+    from pivotd.pivot.view import optimize_view
+
+    rows = []
+    for family in HARD_FAMILIES:
+        t_piv, t_grid, ratio, grid_ratio, gap, exact, sizes = [], [], [], [], [], 0, []
+        for seed in range(seeds):
+            scene = hard_scene(family, seed, poses)
+            sizes.append(scene.points.shape[0])
+            for t in scene.path:
+                diff = scene.points - t
+                bearings = diff / np.linalg.norm(diff, axis=1, keepdims=True)
+                ref = refined_view(bearings, None, alpha, res)
+                dts, dgs = [], []
+                for k in range(max(1, repeats)):
+                    if (len(t_piv) + k) % 2 == 0:
+                        r, dt = timed(optimize_view, bearings, None, alpha)
+                        (_, grid_best), dg = timed(brute_force_view, bearings, None, alpha, res)
+                    else:
+                        (_, grid_best), dg = timed(brute_force_view, bearings, None, alpha, res)
+                        r, dt = timed(optimize_view, bearings, None, alpha)
+                    dts.append(dt)
+                    dgs.append(dg)
+                t_piv.append(median(dts))
+                t_grid.append(median(dgs))
+                ratio.append(100.0 * r.visible / ref.value if ref.value > 0 else 100.0)
+                grid_ratio.append(100.0 * grid_best / ref.value if ref.value > 0 else 100.0)
+                gap.append(100.0 * (ref.bound - ref.value) / ref.value if ref.value > 0 else 0.0)
+                exact += int(ref.exact)
+        row = {
+            "family": family,
+            "landmarks": int(np.median(sizes)),
+            "poses": len(ratio),
+            "pivot_ms": 1e3 * median(t_piv),
+            "grid_ms": 1e3 * median(t_grid),
+            "speedup": median(t_grid) / median(t_piv),
+            "speedup_per_pose": median(list(np.array(t_grid) / np.array(t_piv))),
+            "ref_mean_pct": float(np.mean(ratio)),
+            "ref_p5_pct": percentile(ratio, 5),
+            "ref_min_pct": float(np.min(ratio)),
+            "grid_mean_pct": float(np.mean(grid_ratio)),
+            "grid_min_pct": float(np.min(grid_ratio)),
+            "ref_bound_gap_max_pct": float(np.max(gap)),
+            "ref_exact": exact,
+        }
+        rows.append(row)
+        _print_hard_row(row)
+    return rows
+
+
+def _print_hard_header() -> None:
+    print(
+        f"{'family':>9} {'lmks':>6} {'poses':>5} {'PIVOT ms':>9} {'grid ms':>8} {'speedup':>8} {'per pose':>8} "
+        f"{'ref mean%':>9} {'ref p5%':>8} {'ref min%':>8} {'grid mean%':>10} {'grid min%':>9} {'bound gap%':>10}"
+    )
+
+
+def _print_hard_row(r: dict) -> None:
+    print(
+        f"{r['family']:>9} {r['landmarks']:>6} {r['poses']:>5} {r['pivot_ms']:>9.3f} {r['grid_ms']:>8.1f} "
+        f"{r['speedup']:>7.0f}x {r['speedup_per_pose']:>7.0f}x "
+        f"{r['ref_mean_pct']:>9.2f} {r['ref_p5_pct']:>8.2f} {r['ref_min_pct']:>8.2f} "
+        f"{r['grid_mean_pct']:>10.2f} {r['grid_min_pct']:>9.2f} {r['ref_bound_gap_max_pct']:>10.2f}",
+        flush=True,
+    )
 
 
 def _print_header() -> None:
@@ -127,6 +228,107 @@ def fif_section(repeats: int = 5) -> dict | None:
         "visible_mean_lambda0": float(free.visible.mean()),
         "visible_ratio_pct": 100.0 * float(smooth.visible.mean()) / max(float(free.visible.mean()), 1e-12),
     }
+
+
+def _steps_deg(C: np.ndarray) -> np.ndarray:
+    return np.degrees(np.arctan2(np.linalg.norm(np.cross(C[1:], C[:-1]), axis=1), np.sum(C[1:] * C[:-1], axis=1)))
+
+
+def interleaved_grid_speed(
+    points: np.ndarray, waypoints: np.ndarray, alpha: float, grid: np.ndarray,
+    plans: dict[str, Callable[[], Any]], chunks: int = 8,
+) -> tuple[np.ndarray, float, dict[str, float], dict[str, Any]]:
+    """Scoring the grid at every waypoint against plans, side by side on a shared machine.
+
+    The grid is scored in ``chunks`` slices of waypoints, and every plan in ``plans`` runs once after each
+    slice (after one warm-up call), so both see the same load. Times are CPU seconds of this process.
+    Returns (V (N, G) grid visibility, total grid seconds, median seconds per plan, last result per plan).
+    """
+    from pivotd.pivot.brute import grid_visibility
+
+    results = {name: fn() for name, fn in plans.items()}  # warm-up
+    times: dict[str, list[float]] = {name: [] for name in plans}
+    parts, grid_s = [], 0.0
+    for sl in np.array_split(np.arange(waypoints.shape[0]), chunks):
+        if sl.size == 0:
+            continue
+        t0 = time.process_time()
+        parts.append(grid_visibility(points, waypoints[sl], alpha, grid))
+        grid_s += time.process_time() - t0
+        for name, fn in plans.items():
+            t0 = time.process_time()
+            results[name] = fn()
+            times[name].append(time.process_time() - t0)
+    return np.concatenate(parts), grid_s, {k: median(v) for k, v in times.items()}, results
+
+
+def pareto_rows(limits_deg: tuple[float, ...] = (5.0, 10.0), families: bool = True) -> list[dict]:
+    """Trajectory plans against the exact step-limited plan on the 2° grid (hard counts, `pivotd plan`'s
+    objective): the λ = 0.6 plan against the best grid plan with its own largest step, and plans with a hard
+    step limit S (``max_step``) against the best grid plan with steps ≤ S. Scenes: the FIF corridor (30°
+    FoV), the competing-clusters path (60° FoV) and a 40-waypoint path through each hard scene family
+    (30° FoV). Also the CPU time of the λ = 0.6 plan, with and without the step-limited polish, next to
+    scoring the 2° grid at every waypoint, interleaved (:func:`interleaved_grid_speed`)."""
+    from pivotd.maps.formats import load_landmarks
+    from pivotd.pivot.brute import best_grid_chain, sphere_grid
+    from pivotd.pivot.scenes import HARD_FAMILIES, competing_clusters_path, hard_path
+    from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
+    from pivotd.robot_path import load_path
+
+    scenes = []
+    map_file, path_file = FIF_DIR / "ycorridor_6x20_points_w.txt", FIF_DIR / "ycorridor_6x20.csv"
+    if map_file.exists() and path_file.exists():
+        scenes.append(("fif", load_landmarks(map_file).points, load_path(path_file).positions, 15.0))
+    cc = competing_clusters_path()
+    scenes.append(("competing_clusters", cc.points, cc.path, 30.0))
+    if families:
+        for fam in HARD_FAMILIES:
+            hp = hard_path(fam, 0)
+            scenes.append((f"path_{fam}", hp.points, hp.path, 15.0))
+    grid = sphere_grid(2.0)
+    opts = TrajectoryOptions(distance_weights=False)
+    rows = []
+    for name, pts, way, half_deg in scenes:
+        alpha = math.radians(half_deg)
+        variants = {
+            "polish": lambda pts=pts, way=way, alpha=alpha: optimize_trajectory(pts, way, alpha, 0.6, options=opts),
+            "bare": lambda pts=pts, way=way, alpha=alpha: optimize_trajectory(
+                pts, way, alpha, 0.6, options=replace(opts, step_polish_deg=0.0)),
+        }
+        V, grid_s, plan_s, plans = interleaved_grid_speed(pts, way, alpha, grid, variants)
+        plan, bare = plans["polish"], plans["bare"]
+        idx = np.arange(V.shape[0])
+        own = float(_steps_deg(plan.directions).max()) if len(way) > 1 else 0.0
+        row = {
+            "scene": name, "landmarks": int(pts.shape[0]), "waypoints": int(way.shape[0]),
+            "optimize_ms": 1e3 * plan_s["polish"], "grid_scoring_ms": 1e3 * grid_s,
+            "speedup_vs_grid": grid_s / plan_s["polish"],
+            "max_step_deg": own, "visible_sum": int(plan.visible.sum()),
+            "grid_own_step_sum": float(V[idx, best_grid_chain(V, grid, own)].sum()),
+        }
+        row["own_step_pct"] = 100.0 * row["visible_sum"] / max(row["grid_own_step_sum"], 1e-12)
+        # the same plan without the step-limited polish: what the polish costs and buys
+        bare_step = float(_steps_deg(bare.directions).max()) if len(way) > 1 else 0.0
+        row["no_polish_ms"] = 1e3 * plan_s["bare"]
+        row["no_polish_speedup_vs_grid"] = grid_s / plan_s["bare"]
+        row["no_polish_max_step_deg"] = bare_step
+        row["no_polish_own_step_pct"] = 100.0 * float(bare.visible.sum()) / max(
+            float(V[idx, best_grid_chain(V, grid, bare_step)].sum()), 1e-12)
+        for lim in limits_deg:
+            hard = optimize_trajectory(pts, way, alpha, 0.6, max_step=math.radians(lim), options=opts)
+            ref = float(V[idx, best_grid_chain(V, grid, lim)].sum())
+            row[f"limit_{lim:g}_max_step_deg"] = float(_steps_deg(hard.directions).max()) if len(way) > 1 else 0.0
+            row[f"limit_{lim:g}_pct"] = 100.0 * float(hard.visible.sum()) / max(ref, 1e-12)
+        rows.append(row)
+        lims = "  ".join(f"S={lim:g}: {row[f'limit_{lim:g}_pct']:.2f} % (max {row[f'limit_{lim:g}_max_step_deg']:.2f})"
+                         for lim in limits_deg)
+        print(f"{name:>20} {row['landmarks']:>6} lm {row['waypoints']:>4} wp  lambda 0.6: "
+              f"{row['optimize_ms']:8.1f} CPU ms ({row['speedup_vs_grid']:5.1f}x scoring the 2 deg grid at every "
+              f"waypoint, interleaved), max step {own:5.2f} deg, "
+              f"{row['own_step_pct']:.2f} % of the grid optimum at that step;  {lims};  without the polish "
+              f"{row['no_polish_ms']:.1f} ms ({row['no_polish_speedup_vs_grid']:.1f}x), "
+              f"{row['no_polish_own_step_pct']:.2f} % at {row['no_polish_max_step_deg']:.2f} deg", flush=True)
+    return rows
 
 
 def _grid_reference(points: np.ndarray, waypoints: np.ndarray, alpha: float, plan_step_deg: float) -> dict:
@@ -198,6 +400,11 @@ def run(args: argparse.Namespace) -> int:
 
     if not steady_heap():
         log.warning("could not fix the allocator's thresholds (not glibc?): timings include page faults")
+    if args.pareto:
+        rows = pareto_rows(families=not args.quick)
+        if args.json:
+            Path(args.json).write_text(json.dumps({"pareto": rows}, indent=2) + "\n")
+        return 0
     if args.replan:
         out = []
         for nearest in (None, 5000):
@@ -217,6 +424,11 @@ def run(args: argparse.Namespace) -> int:
     if not (0 < args.fov_deg < 180):
         raise InputError(f"--fov-deg must be in (0, 180), got {args.fov_deg}")
     alpha = math.radians(args.fov_deg) / 2
+    hard = _hard_section(args, alpha) if args.scenes != "paper" else None
+    if args.scenes == "hard":
+        if args.json:
+            Path(args.json).write_text(json.dumps({"fov_deg": args.fov_deg, "hard": hard}, indent=2) + "\n")
+        return 0
     levels = [0, 4, 9] if args.quick else list(range(10))
     n_poses = args.poses if args.poses else (40 if args.quick else 400)
     if n_poses < 1:
@@ -249,12 +461,27 @@ def run(args: argparse.Namespace) -> int:
             f"with steps <= 10 deg"
         )
     result = {"fov_deg": args.fov_deg, "resolution_deg": args.resolution_deg, "levels": rows, "paper": PAPER,
-              "fif": fif}
+              "fif": fif, "hard": hard}
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
     if args.plot:
         _plot(Path(args.plot), rows, detail, pose_idx)
     return 0
+
+
+def _hard_section(args: argparse.Namespace, alpha: float) -> list[dict]:
+    """The hard-scene table (``--scenes hard|all``), printed; returns its rows."""
+    from pivotd.errors import InputError
+
+    seeds = args.scene_seeds if args.scene_seeds is not None else (2 if args.quick else 3)
+    poses = args.scene_poses if args.scene_poses is not None else (6 if args.quick else 20)
+    if seeds < 1 or poses < 1:
+        raise InputError(f"--scene-seeds and --scene-poses must be ≥ 1, got {seeds} and {poses}")
+    print(f"Hard scenes: {seeds} instances x {poses} poses per family, FoV {args.fov_deg:g} deg; % of the refined "
+          f"reference ({args.resolution_deg:g} deg grid + branch and bound to 0.25 deg), speedup vs scoring the "
+          f"{args.resolution_deg:g} deg grid, single thread")
+    _print_hard_header()
+    return hard_rows(seeds, poses, alpha, args.resolution_deg)
 
 
 def _plot(out: Path, rows: list[dict], detail: dict, pose_idx: np.ndarray) -> None:

@@ -78,7 +78,7 @@ def summary_lines(cfg: Config, cloud: LandmarkCloud | None) -> list[str]:
         f"planner: spacing {cfg.planner.waypoint_spacing:g} m, horizon {cfg.planner.horizon} waypoints, "
         f"replan {cfg.planner.replan_hz:g} Hz",
         f"gimbal: port {g.port} @ {g.baud} baud, pan {pan_range}°, tilt [{_deg(lim.tilt_min)}, {_deg(lim.tilt_max)}]°, "
-        f"park ({_deg(g.park_pan)}, {_deg(g.park_tilt)})°, watchdog {g.watchdog_ms} ms",
+        f"park ({_deg(g.park_pan)}, {_deg(g.park_tilt)})°, watchdog {g.watchdog_ms} ms, backend {g.backend}",
         f"motion: pan {_deg(m.pan.max_velocity)}°/s {_deg(m.pan.max_acceleration)}°/s² "
         f"{_deg(m.pan.max_jerk)}°/s³; tilt {_deg(m.tilt.max_velocity)}°/s {_deg(m.tilt.max_acceleration)}°/s² "
         f"{_deg(m.tilt.max_jerk)}°/s³; deadband {_deg(m.deadband)}°",

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from pivotd.errors import InputError
+from pivotd.pivot.steps import MAX_STEP_RANGE_DEG
 
 log = logging.getLogger(__name__)
 
@@ -31,6 +32,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--lambda", dest="lam", type=float, default=0.6, metavar="LAMBDA",
         help="smoothness weight λ ≥ 0 (default 0.6); 0 optimises every waypoint independently",
     )
+    parser.add_argument(
+        "--max-step-deg", type=float, default=None, metavar="S",
+        help=f"hard limit on the turn between consecutive directions [deg], {MAX_STEP_RANGE_DEG[0]:g}–"
+             f"{MAX_STEP_RANGE_DEG[1]:g}; every step of the plan stays within it (default: no limit)",
+    )
     parser.add_argument("--min-range", type=float, default=None, metavar="M", help="ignore landmarks closer than M")
     parser.add_argument("--max-range", type=float, default=None, metavar="M", help="ignore landmarks farther than M")
     parser.add_argument("--weights-from", default="auto", metavar="COLUMN", help=WEIGHTS_HELP)
@@ -48,11 +54,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object with the summary on stdout")
 
 
+def check_max_step_deg(value: float | None, what: str = "--max-step-deg") -> None:
+    """Raise InputError unless ``value`` is None or a finite step limit within MAX_STEP_RANGE_DEG [deg]."""
+    lo, hi = MAX_STEP_RANGE_DEG
+    if value is not None and not (math.isfinite(value) and lo <= value <= hi):
+        raise InputError(f"{what} must be a finite angle in [{lo:g}, {hi:g}] degrees, got {value}")
+
+
 def _check_args(args: argparse.Namespace) -> None:
     if not (math.isfinite(args.fov_deg) and 0.0 < args.fov_deg < 180.0):
         raise InputError(f"--fov-deg must be in (0, 180) degrees, got {args.fov_deg}")
     if not (math.isfinite(args.lam) and args.lam >= 0.0):
         raise InputError(f"--lambda must be a finite number >= 0, got {args.lam}")
+    check_max_step_deg(args.max_step_deg)
     for name in ("min_range", "max_range"):
         v = getattr(args, name)
         if v is not None and not (math.isfinite(v) and v >= 0.0):
@@ -80,8 +94,8 @@ def _weights(args: argparse.Namespace, cloud) -> np.ndarray | None:
             raise InputError(
                 f"{args.map}: --weights-from {args.weights_from} needs a 4th (weight) column, the map has {raw}"
             )
-        return np.asarray(cloud.weights, dtype=float)
-    return np.asarray(cloud.weights, dtype=float) if has_column else None
+        return cloud.weights  # as stored: the optimizer reads only the retained rows
+    return cloud.weights if has_column else None
 
 
 def _column_count(path: Path) -> int | None:
@@ -108,11 +122,13 @@ def _uses_map_filters(args: argparse.Namespace) -> bool:
 def load_filtered(args: argparse.Namespace, waypoints: np.ndarray):
     """Landmarks and per-waypoint retained index arrays from the map store (range, view, occlusion filters).
 
-    Returns (points (M, 3), weights (M,), retained list of N index arrays, seconds spent in the retained-set
-    query); points are in the store's order.
+    Returns (points (M, 3), weights (M,), retained list of N index arrays in a spatial order
+    (pivotd.pivot.trajectory.spatial_order), seconds spent in the retained-set query); points are in the
+    store's order.
     """
     from pivotd.maps.filters import RetainedFilter
     from pivotd.maps.store import load_map_store
+    from pivotd.pivot.trajectory import spatial_order
 
     store = load_map_store(args.map, weight_property=args.weight_property, occlusion_voxel=args.occlusion_voxel,
                            occupancy_file=args.occupancy)
@@ -124,7 +140,8 @@ def load_filtered(args: argparse.Namespace, waypoints: np.ndarray):
                          max_range=math.inf if args.max_range is None else args.max_range,
                          max_view_angle_deg=args.max_view_angle_deg, occlusion=args.occlusion_voxel is not None)
     t0 = time.perf_counter()
-    retained = snap.retained(waypoints, flt)
+    # in a spatial order: the plan then does not depend on the order of the landmarks in the map
+    retained = spatial_order(snap.points, snap.retained(waypoints, flt))
     return snap.points, snap.weights, retained, time.perf_counter() - t0
 
 
@@ -148,15 +165,16 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     # The plan is judged by hard visible counts, so landmarks are weighted by their feature weight only
     # (the paper's distance weights favour near landmarks over the count).
+    max_step = None if args.max_step_deg is None else math.radians(args.max_step_deg)
     result = optimize_trajectory(
-        points, waypoints, alpha, args.lam, weights=weights, retained=retained,
+        points, waypoints, alpha, args.lam, weights=weights, retained=retained, max_step=max_step,
         options=TrajectoryOptions(distance_weights=False),
     )
     optimize_s = time.perf_counter() - t0 + filter_s
 
     C = result.directions
     steps = np.degrees(np.arctan2(np.linalg.norm(np.cross(C[1:], C[:-1]), axis=1), np.sum(C[1:] * C[:-1], axis=1)))
-    max_step = float(steps.max()) if steps.size else 0.0
+    largest = float(steps.max()) if steps.size else 0.0
     if args.out:
         _write_csv(Path(args.out), waypoints, C, result.visible)
     summary = {
@@ -168,7 +186,8 @@ def run(args: argparse.Namespace) -> int:
         "visible_mean": float(np.mean(result.visible)),
         "visible_min": int(np.min(result.visible)),
         "visible_max": int(np.max(result.visible)),
-        "max_step_deg": round(max_step, 4),
+        "max_step_deg": round(largest, 4),
+        "max_step_limit_deg": args.max_step_deg,
         "iterations": int(result.iterations),
         "out": args.out,
     }
@@ -179,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
             f"planned {summary['waypoints']} waypoints against {summary['landmarks']} landmarks "
             f"(FoV {args.fov_deg:g} deg, lambda {args.lam:g}) in {optimize_s * 1e3:.1f} ms\n"
             f"visible per waypoint: mean {summary['visible_mean']:.1f}, min {summary['visible_min']}, "
-            f"max {summary['visible_max']}; largest step between directions {max_step:.2f} deg"
+            f"max {summary['visible_max']}; largest step between directions {largest:.2f} deg"
             + (f"\nwrote {args.out}" if args.out else "")
         )
     return 0

@@ -22,10 +22,17 @@ from pivotd.errors import ConfigError, InputError
 from pivotd.gimbal.kinematics import JointLimits, Mount
 from pivotd.gimbal.motion import AxisLimits
 from pivotd.maps.occlusion import voxel_problem
+from pivotd.pivot.steps import MAX_STEP_RANGE_DEG
 
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
 ZENOH_MODES = ("peer", "client")
 CONTROL_RATE_RANGE_HZ = (100.0, 200.0)
+#: ``gimbal.backend`` values: pivotd's own serial protocol, MAVLink Gimbal Protocol v2, two DYNAMIXEL servos.
+GIMBAL_BACKENDS = ("pivot", "mavlink", "dynamixel")
+#: Backends named in the docs that this version cannot drive yet (refused with a clear message).
+GIMBAL_BACKENDS_UNAVAILABLE: tuple[str, ...] = ()
+#: pymavlink connection strings the mavlink backend accepts (besides a serial device path).
+MAVLINK_URL_PREFIXES = ("udpin:", "udpout:", "udp:", "tcp:", "tcpin:")
 
 _NAME_RE = r"[A-Za-z0-9_][A-Za-z0-9_\-]*"
 _TOPIC_RE = r"/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*"
@@ -101,12 +108,14 @@ class PivotConfig:
 
 @dataclass(frozen=True)
 class PlannerConfig:
-    """Receding horizon: waypoint spacing [m], horizon [waypoints], replanning rate [Hz]."""
+    """Receding horizon: waypoint spacing [m], horizon [waypoints], replanning rate [Hz], optional hard
+    limit on the turn between consecutive planned directions [rad] (None: no limit)."""
 
     waypoint_spacing: float = 0.5
     horizon: int = 20
     replan_hz: float = 5.0
     max_landmarks_per_waypoint: int = 2000
+    max_step: float | None = None
 
 
 def _default_limits() -> JointLimits:
@@ -115,9 +124,33 @@ def _default_limits() -> JointLimits:
 
 
 @dataclass(frozen=True)
-class GimbalConfig:
-    """Serial link, mount, joint limits [rad], park pose [rad], device watchdog [ms], park timeout [s]."""
+class MavlinkConfig:
+    """MAVLink identities: ours (``system_id``, ``component_id``), the gimbal manager's (``target_system``,
+    ``target_component``; 0 = the first one heard) and the gimbal device it manages (0 = all / the only one)."""
 
+    system_id: int = 1
+    component_id: int = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
+    target_system: int = 0
+    target_component: int = 0
+    gimbal_device_id: int = 0
+
+
+@dataclass(frozen=True)
+class DynamixelConfig:
+    """The two servos of a DYNAMIXEL pan–tilt unit: bus ids, and whether an axis turns the other way (positive
+    pan left / positive tilt down = counter-clockwise seen from the horn unless reversed)."""
+
+    pan_id: int = 1
+    tilt_id: int = 2
+    pan_reversed: bool = False
+    tilt_reversed: bool = False
+
+
+@dataclass(frozen=True)
+class GimbalConfig:
+    """Backend and its port, mount, joint limits [rad], park pose [rad], device watchdog [ms], park timeout [s]."""
+
+    backend: str = "pivot"
     port: str = "mock://"
     baud: int = 115200
     mount: Mount = field(default_factory=Mount)
@@ -126,6 +159,8 @@ class GimbalConfig:
     park_tilt: float = 0.0
     watchdog_ms: int = 250
     park_timeout_s: float = 3.0
+    mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
+    dynamixel: DynamixelConfig = field(default_factory=DynamixelConfig)
 
 
 @dataclass(frozen=True)
@@ -206,6 +241,9 @@ class Config:
         if port is not None:
             if not port.strip():
                 raise _cli_error("--port", "must not be empty")
+            problem = port_problem(cfg.gimbal.backend, port)
+            if problem:
+                raise _cli_error("--port", problem)
             cfg = replace(cfg, gimbal=replace(cfg.gimbal, port=port))
         zenoh = cfg.zenoh
         for option, values in (("--connect", connect), ("--listen", listen)):
@@ -239,6 +277,18 @@ def endpoint_problem(endpoint: str, listen: bool = False) -> str | None:
         low = 0 if listen else 1
         if not low <= int(port) <= 65535:
             return f"port must be {low}..65535"
+    return None
+
+
+def port_problem(backend: str, port: str) -> str | None:
+    """Why ``port`` cannot reach a gimbal of ``backend`` (None when it can)."""
+    if backend == "mavlink":
+        if port.startswith(MAVLINK_URL_PREFIXES) or port.startswith("/") or port.upper().startswith("COM"):
+            return None
+        return (f"{port!r} is not a MAVLink connection; expected udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT "
+                "or a serial device such as /dev/ttyACM0")
+    if backend == "dynamixel" and "://" in port:
+        return f"{port!r}: the dynamixel backend opens a serial device path such as /dev/ttyUSB0, not a URL"
     return None
 
 
@@ -298,7 +348,10 @@ def wire_config(gimbal: GimbalConfig, motion: MotionConfig) -> ConfigMessage:
 
 def _check_wire(root: Section, gimbal: GimbalConfig, motion: MotionConfig) -> None:
     """Refuse settings the gimbal protocol cannot carry or the device would refuse (so ``check`` passing
-    means the device accepts the CONFIG); the error names the YAML key."""
+    means the device accepts the CONFIG); the error names the YAML key. Only for the ``pivot`` backend, whose
+    device receives this message."""
+    if gimbal.backend != "pivot":
+        return
     msg = wire_config(gimbal, motion)
     for field_name, reason in config_problems(msg):
         keys, factor = _WIRE_KEYS[field_name]
@@ -412,6 +465,10 @@ def _pivot(s: Section) -> PivotConfig:
     return out
 
 
+def _radians_or_none(deg: float | None) -> float | None:
+    return None if deg is None else math.radians(deg)
+
+
 def _planner(s: Section, control: ControlConfig) -> PlannerConfig:
     d = PlannerConfig()
     out = PlannerConfig(
@@ -421,6 +478,7 @@ def _planner(s: Section, control: ControlConfig) -> PlannerConfig:
         max_landmarks_per_waypoint=s.number(
             "max_landmarks_per_waypoint", d.max_landmarks_per_waypoint, min=1, integer=True
         ),
+        max_step=_radians_or_none(s.number("max_step_deg", None, min=MAX_STEP_RANGE_DEG[0], max=MAX_STEP_RANGE_DEG[1])),
     )
     s.finish()
     return out
@@ -428,9 +486,18 @@ def _planner(s: Section, control: ControlConfig) -> PlannerConfig:
 
 def _gimbal(s: Section, control: ControlConfig) -> GimbalConfig:
     d = GimbalConfig()
+    backend = s.string("backend", d.backend)
+    if backend in GIMBAL_BACKENDS_UNAVAILABLE:
+        raise s.error("backend", f"{backend!r} is not available in this version; use "
+                                 f"{' or '.join(GIMBAL_BACKENDS)}")
+    if backend not in GIMBAL_BACKENDS:
+        raise s.error("backend", f"must be one of {', '.join(GIMBAL_BACKENDS)}; got {backend!r}")
     port = s.string("port", d.port)
     if not port.strip():
         raise s.error("port", "must not be empty (a device such as /dev/ttyUSB0 or a pyserial URL)")
+    problem = port_problem(backend, port)
+    if problem:
+        raise s.error("port", problem)
     baud = s.number("baud", d.baud, min=1, integer=True)
 
     m = s.section("mount")
@@ -476,6 +543,7 @@ def _gimbal(s: Section, control: ControlConfig) -> GimbalConfig:
     if watchdog_ms < 3 * period_ms:
         raise s.error("watchdog_ms", f"must be ≥ 3 control periods ({3 * period_ms:g} ms at {control.rate_hz:g} Hz)")
     out = GimbalConfig(
+        backend=backend,
         port=port,
         baud=baud,
         mount=mount,
@@ -484,6 +552,37 @@ def _gimbal(s: Section, control: ControlConfig) -> GimbalConfig:
         park_tilt=math.radians(park_tilt),
         watchdog_ms=watchdog_ms,
         park_timeout_s=s.number("park_timeout_s", d.park_timeout_s, min=0.0, min_open=True),
+        mavlink=_mavlink(s.section("mavlink")),
+        dynamixel=_dynamixel(s.section("dynamixel")),
+    )
+    s.finish()
+    return out
+
+
+def _dynamixel(s: Section) -> DynamixelConfig:
+    d = DynamixelConfig()
+    pan_id = s.number("pan_id", d.pan_id, min=0, max=252, integer=True)
+    tilt_id = s.number("tilt_id", d.tilt_id, min=0, max=252, integer=True)
+    if tilt_id == pan_id:
+        raise s.error("tilt_id", f"must differ from pan_id ({pan_id})")
+    out = DynamixelConfig(pan_id, tilt_id, s.boolean("pan_reversed", d.pan_reversed),
+                          s.boolean("tilt_reversed", d.tilt_reversed))
+    s.finish()
+    return out
+
+
+def _mavlink(s: Section) -> MavlinkConfig:
+    d = MavlinkConfig()
+
+    def ident(key: str, low: int) -> int:
+        return s.number(key, getattr(d, key), min=low, max=255, integer=True)
+
+    out = MavlinkConfig(
+        system_id=ident("system_id", 1),
+        component_id=ident("component_id", 1),
+        target_system=ident("target_system", 0),
+        target_component=ident("target_component", 0),
+        gimbal_device_id=ident("gimbal_device_id", 0),
     )
     s.finish()
     return out

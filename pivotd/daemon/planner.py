@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -25,7 +25,7 @@ from pivotd.gimbal.kinematics import JointLimits, Mount, base_from_world
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapSnapshot
 from pivotd.pivot.constraints import PanTiltConstraint
-from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
+from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory, spatial_order
 from pivotd.robot_path import Polyline, project_onto_polyline
 
 
@@ -84,7 +84,9 @@ class Plan:
 
 @dataclass(frozen=True)
 class PlannerSettings:
-    """fov: full cone opening [rad]; lam: smoothness weight λ; spacing [m]; horizon: waypoints."""
+    """fov: full cone opening [rad]; lam: smoothness weight λ; spacing [m]; horizon: waypoints;
+    max_step: hard limit on the turn between consecutive planned directions, from the commanded one
+    on [rad] (None: no limit)."""
 
     fov: float
     lam: float = 0.6
@@ -95,6 +97,8 @@ class PlannerSettings:
     options: TrajectoryOptions | None = None
     back_window: float = 1.0
     ahead_window: float = 5.0
+    max_step: float | None = None
+    cold_polish: bool = False  # step-limited polish of cold starts (the warm replans after them do not polish)
 
     @property
     def alpha(self) -> float:
@@ -178,7 +182,10 @@ class RecedingHorizonPlanner:
             self._cache_key, self._cache = key, {}
         cached = {i: self._cache.get(round(float(s[i]) * 1e6)) for i in range(1, s.shape[0])}
         todo = [0] + [i for i, r in cached.items() if r is None]
-        fresh = _cap_retained(snapshot.retained(cams[todo], st.retained_filter), st.max_landmarks_per_waypoint)
+        # spatially ordered before the cap's strided subsample (and the optimizer's): the plan does not depend
+        # on the order of the landmarks in the map; only the waypoints new to the window pay for it
+        fresh = _cap_retained(spatial_order(snapshot.points, snapshot.retained(cams[todo], st.retained_filter)),
+                              st.max_landmarks_per_waypoint)
         out: list[np.ndarray] = [np.zeros(0, np.int64)] * s.shape[0]
         for i, r in zip(todo, fresh, strict=True):
             out[i] = r
@@ -236,7 +243,8 @@ class RecedingHorizonPlanner:
             init_directions=init,
             anchor=anchor,
             constraint=self._constraint(quats),
-            options=st.options,
+            max_step=st.max_step,
+            options=st.options if st.cold_polish else replace(st.options or TrajectoryOptions(), step_polish_deg=0.0),
         )
         plan = Plan(
             created=time.monotonic(),

@@ -3,9 +3,10 @@
 Live (applied at once, to the planner process and the control loop from the same :class:`Config`):
 ``map`` (the map file is read again), ``pivot``, ``planner``, ``gimbal.mount``, the park pose and
 timeout, ``sim``. Restart-only (kept at their running values, logged as "needs restart"): the node
-``name``, ``zenoh``, ``topics`` (sessions and subscriptions), ``gimbal.port``, ``baud``, ``limits`` and
-``watchdog_ms`` (sent to the device at the handshake), ``motion`` (the device's rate limits) and
-``control`` (the control thread's rate and clock) and ``logging`` (the command line may override it).
+``name``, ``zenoh``, ``topics`` (sessions and subscriptions), ``gimbal.backend``, ``port``, ``baud``,
+``mavlink`` / ``dynamixel`` (the connection), ``limits`` and ``watchdog_ms`` (sent to the device at the
+handshake), ``motion`` (the device's rate limits), ``control`` (the control thread's rate and clock) and
+``logging`` (the command line may override it).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ log = logging.getLogger(__name__)
 #: Config sections whose changes only take effect at the next start.
 RESTART_SECTIONS = ("name", "zenoh", "topics", "motion", "control", "logging")
 #: ``gimbal`` fields whose changes only take effect at the next start (the rest of ``gimbal`` is live).
-RESTART_GIMBAL_FIELDS = ("port", "baud", "limits", "watchdog_ms")
+RESTART_GIMBAL_FIELDS = ("backend", "port", "baud", "limits", "watchdog_ms", "mavlink", "dynamixel")
 _NOT_SETTINGS = ("source",)
 
 

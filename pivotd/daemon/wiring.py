@@ -12,13 +12,15 @@ import math
 import time
 from collections.abc import Callable
 
-from firmware_proto.messages import Config as ConfigMessage
 from pivotd.config import Config
+from pivotd.config.settings import wire_config
 from pivotd.daemon.control import ControlLoop, ControlSettings
 from pivotd.daemon.planner import PlannerSettings, RecedingHorizonPlanner
 from pivotd.errors import ConfigError
+from pivotd.gimbal.dynamixel_link import DynamixelGimbal, DynamixelSettings
 from pivotd.gimbal.interface import GimbalInterface
 from pivotd.gimbal.link import GimbalLink, LinkConfig
+from pivotd.gimbal.mavlink_link import MavlinkGimbal, MavlinkSettings
 from pivotd.gimbal.motion import MotionGenerator
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapStore, load_map_store
@@ -73,6 +75,7 @@ def build_planner(cfg: Config) -> RecedingHorizonPlanner:
         spacing=pl.waypoint_spacing,
         horizon=pl.horizon,
         max_landmarks_per_waypoint=pl.max_landmarks_per_waypoint,
+        max_step=pl.max_step,
         retained_filter=build_retained_filter(cfg),
         options=TrajectoryOptions(width_deg=math.degrees(p.transition_width), max_iterations=p.iterations,
                                   warm_iterations=min(p.iterations, TrajectoryOptions.warm_iterations),
@@ -83,18 +86,7 @@ def build_planner(cfg: Config) -> RecedingHorizonPlanner:
 
 def build_link_config(cfg: Config) -> LinkConfig:
     """CONFIG limits for the device: joint limits, and the motion limits as the device's rate limits."""
-    lim, mo = cfg.gimbal.limits, cfg.motion
-    return LinkConfig(ConfigMessage(
-        pan_min=lim.pan_min,
-        pan_max=lim.pan_max,
-        tilt_min=lim.tilt_min,
-        tilt_max=lim.tilt_max,
-        vmax_pan=mo.pan.max_velocity,
-        vmax_tilt=mo.tilt.max_velocity,
-        amax_pan=mo.pan.max_acceleration,
-        amax_tilt=mo.tilt.max_acceleration,
-        watchdog_ms=cfg.gimbal.watchdog_ms,
-    ))
+    return LinkConfig(wire_config(cfg.gimbal, cfg.motion))
 
 
 def build_motion(cfg: Config) -> MotionGenerator:
@@ -115,9 +107,33 @@ def build_control_settings(cfg: Config) -> ControlSettings:
                            plan_timeout=max(1.0, 10.0 / cfg.planner.replan_hz))
 
 
+def build_mavlink_settings(cfg: Config) -> MavlinkSettings:
+    """The mavlink backend's identities and the joint limits it enforces and checks against the device's."""
+    m = cfg.gimbal.mavlink
+    return MavlinkSettings(limits=cfg.gimbal.limits, system_id=m.system_id, component_id=m.component_id,
+                           target_system=m.target_system, target_component=m.target_component,
+                           gimbal_device_id=m.gimbal_device_id)
+
+
+def build_dynamixel_settings(cfg: Config) -> DynamixelSettings:
+    """The dynamixel backend's servo ids and directions, and the limits the servos are configured with."""
+    d = cfg.gimbal.dynamixel
+    return DynamixelSettings(limits=cfg.gimbal.limits, pan_motion=cfg.motion.pan, tilt_motion=cfg.motion.tilt,
+                             pan_id=d.pan_id, tilt_id=d.tilt_id, pan_reversed=d.pan_reversed,
+                             tilt_reversed=d.tilt_reversed, watchdog_ms=cfg.gimbal.watchdog_ms,
+                             idle_period_s=2.0 / cfg.control.rate_hz)
+
+
 def build_gimbal(cfg: Config) -> GimbalInterface:
-    """The gimbal named by ``cfg.gimbal`` (pivotd's serial protocol on ``gimbal.port``), not yet started."""
-    return GimbalLink(cfg.gimbal.port, build_link_config(cfg), baudrate=cfg.gimbal.baud)
+    """The gimbal of ``cfg.gimbal.backend`` on ``gimbal.port``, not yet started."""
+    backend = cfg.gimbal.backend
+    if backend == "pivot":
+        return GimbalLink(cfg.gimbal.port, build_link_config(cfg), baudrate=cfg.gimbal.baud)
+    if backend == "mavlink":
+        return MavlinkGimbal(cfg.gimbal.port, build_mavlink_settings(cfg), baudrate=cfg.gimbal.baud)
+    if backend == "dynamixel":
+        return DynamixelGimbal(cfg.gimbal.port, build_dynamixel_settings(cfg), baudrate=cfg.gimbal.baud)
+    raise ConfigError(f"{cfg.source}: gimbal.backend: {backend!r} is not available in this version")
 
 
 def park_joints(cfg: Config) -> tuple[float, float]:

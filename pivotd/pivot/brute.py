@@ -8,6 +8,8 @@ ring closes), so neighbouring grid directions are at most ``resolution`` apart. 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from pivotd.pivot._checks import feature_weights, finite_array, half_angle
@@ -143,3 +145,151 @@ def brute_force_trajectory(
     V = grid_visibility(points, waypoints, alpha, grid, weights)
     path = best_grid_chain(V, grid, max_step_deg)
     return grid[path], V[np.arange(V.shape[0]), path].astype(float)
+
+
+def grid_covering_radius(resolution_deg: float = 2.0) -> float:
+    """Covering radius [rad] of :func:`sphere_grid`: every unit direction lies within it of a grid direction.
+
+    Measured, not assumed: the largest distance to the nearest grid direction over a dense sample
+    (40 elevations per ring gap × azimuths at 1/40 of the coarser ring's step) between every pair of
+    neighbouring rings, the nearest candidates taken on both rings, plus 2 % (the sample's spacing).
+    """
+    grid = sphere_grid(resolution_deg)
+    el = np.arcsin(np.clip(grid[:, 2], -1.0, 1.0))
+    rings = np.unique(np.round(el, 12))
+    counts = np.array([np.count_nonzero(np.abs(el - r) < 1e-9) for r in rings])
+    worst = 0.0
+    for k in range(rings.size - 1):
+        e = np.linspace(rings[k], rings[k + 1], 41)
+        step = 2 * np.pi / min(counts[k], counts[k + 1])
+        az = np.arange(0.0, step + 1e-12, step / 40)
+        E, A = np.meshgrid(e, az, indexing="ij")
+        best = np.full(E.shape, np.pi)
+        for r, n in ((rings[k], counts[k]), (rings[k + 1], counts[k + 1])):
+            d_az = 2 * np.pi / n
+            node = np.round(A / d_az) * d_az
+            for off in (-d_az, 0.0, d_az):
+                cosd = np.sin(E) * np.sin(r) + np.cos(E) * np.cos(r) * np.cos(A - node - off)
+                best = np.minimum(best, np.arccos(np.clip(cosd, -1.0, 1.0)))
+        worst = max(worst, float(best.max()))
+    return 1.02 * worst
+
+
+@dataclass(frozen=True)
+class RefinedView:
+    """The refined reference of one pose: ``direction`` (3,) unit, ``value`` its hard visible weight (a
+    lower bound on the optimum), ``bound`` an upper bound on the hard visible weight of any direction,
+    ``exact`` False when the cell cap cut the search (``bound`` then covers only the cells kept)."""
+
+    direction: np.ndarray
+    value: float
+    bound: float
+    exact: bool
+
+
+def _tangent_basis(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangent vectors (P, 3) at each unit axis C (P, 3)."""
+    t1 = np.cross(C, np.array([0.0, 0.0, 1.0]))
+    polar = np.linalg.norm(t1, axis=1) < 0.3
+    t1[polar] = np.cross(C[polar], np.array([1.0, 0.0, 0.0]))
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    return t1, np.cross(C, t1)
+
+
+def refined_view(
+    bearings: np.ndarray,
+    weights: np.ndarray | None,
+    alpha: float,
+    resolution_deg: float = 2.0,
+    fine_deg: float = 0.25,
+    *,
+    max_expansions: int = 16384,
+) -> RefinedView:
+    """The reference single-pose optimum: the ``resolution_deg`` grid, then best-first branch and bound.
+
+    Every grid direction g stands for the cell of directions within ρ (the grid's covering radius) of it;
+    no direction of that cell sees more than the weight within α + ρ of g (the cell's bound). The cells
+    with the highest bounds above the best hard weight found so far are split, 128 at a time, into 3 × 3
+    children (a tangent-plane lattice at spacing ρ/√2 mapped onto S², each child a cell of radius ρ/2),
+    which are scored the same way; cells spaced at most ``fine_deg`` apart are not split further (2° →
+    1.02° → 0.51° → 0.26° → 0.13° from the 2° grid). The search ends when no cell's bound exceeds the
+    best weight (``exact``: the optimum at that resolution is found and ``bound`` is the largest bound of
+    the finest cells) or after ``max_expansions`` splits (``bound`` is then the largest open bound).
+    Only landmarks in the band α ± 3ρ of a parent can change state among its children: the rest are
+    counted once per parent. Hard weights in float32, as :func:`brute_force_view`.
+    """
+    alpha = half_angle(alpha)
+    B = finite_array("bearings", bearings)
+    w = feature_weights(weights, B.shape[0])
+    nrm = np.linalg.norm(B, axis=1)
+    keep = nrm > 1e-12  # a landmark at the sensor has no bearing
+    B, w = B[keep] / nrm[keep, None], w[keep]
+    grid = sphere_grid(resolution_deg)
+    if B.shape[0] == 0:
+        return RefinedView(grid[0].copy(), 0.0, 0.0, True)
+    rho0 = grid_covering_radius(resolution_deg)
+    B32, w32 = B.astype(np.float32), w.astype(np.float32)
+    uniform = weights is None
+
+    def weigh(mask: np.ndarray, wc: np.ndarray) -> np.ndarray:  # hard weight per row of a (k, m) mask
+        return np.count_nonzero(mask, axis=1).astype(np.float64) if uniform else (mask @ wc).astype(np.float64)
+
+    cos_a = np.float32(np.cos(alpha))
+    vals, bounds = [], []
+    cos_rho = np.float32(np.cos(min(np.pi, alpha + rho0)))
+    for s in range(0, grid.shape[0], 1024):
+        cos = grid[s : s + 1024].astype(np.float32) @ B32.T
+        vals.append(weigh(cos >= cos_a, w32))
+        bounds.append(weigh(cos >= cos_rho, w32))
+    val, ub = np.concatenate(vals), np.concatenate(bounds)
+    i = int(np.argmax(val))
+    best_dir, best = grid[i].copy(), float(val[i])
+    # the open cells: direction, bound, covering radius, lattice spacing
+    live = ub > best
+    dirs, cell_ub = grid[live], ub[live]
+    rho = np.full(dirs.shape[0], rho0)
+    spacing = np.full(dirs.shape[0], np.radians(resolution_deg))
+    fine = np.radians(fine_deg) * 1.0001
+    off = np.array([(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)], dtype=float)  # (9, 2) lattice offsets
+    expansions = 0
+    while True:
+        open_ = np.flatnonzero((cell_ub > best) & (spacing > fine))
+        if open_.size == 0 or expansions >= max_expansions:
+            break
+        take = open_[np.argsort(-cell_ub[open_], kind="stable")[: min(128, max_expansions - expansions)]]
+        expansions += take.size
+        P, r = dirs[take], rho[take][:, None]
+        step = r / np.sqrt(2.0)
+        child_rho = 0.5 * r * 1.01  # 1 %: the tangent-plane lattice mapped onto S² (distortion ~ρ²/6)
+        t1, t2 = _tangent_basis(P)
+        v = step[:, :, None] * (off[None, :, 0:1] * t1[:, None, :] + off[None, :, 1:2] * t2[:, None, :])
+        ang = np.linalg.norm(v, axis=2, keepdims=True)
+        kids = np.cos(ang) * P[:, None, :] + np.sinc(ang / np.pi) * v  # exp map: sin|v|/|v| · v  (p, 9, 3)
+        kids = (kids / np.linalg.norm(kids, axis=2, keepdims=True)).reshape(-1, 3)
+        reach = r + child_rho  # a child's cell lies within this of its parent
+        cos_in = np.cos(np.maximum(0.0, alpha - reach)).astype(np.float32)
+        cos_out = np.cos(np.minimum(np.pi, alpha + reach + child_rho)).astype(np.float32)
+        cos_ub = np.repeat(np.cos(np.minimum(np.pi, alpha + child_rho)).astype(np.float32), 9, axis=0)
+        cp = P.astype(np.float32) @ B32.T  # (p, n)
+        base = np.repeat(weigh(cp >= cos_in, w32), 9)  # inside every child's cone and bound
+        band = (cp >= cos_out) & (cp < cos_in)
+        cols = np.flatnonzero(band.any(axis=0))
+        wc = w32.take(cols)
+        in_band = np.repeat(band[:, cols], 9, axis=0)  # (9p, m): only each parent's own band counts
+        c = kids.astype(np.float32) @ B32.take(cols, axis=0).T  # (9p, m)
+        kid_v = base + weigh((c >= cos_a) & in_band, wc)
+        kid_u = base + weigh((c >= cos_ub) & in_band, wc)
+        k = int(np.argmax(kid_v))
+        if kid_v[k] > best:
+            best, best_dir = float(kid_v[k]), kids[k].copy()
+        rest = np.ones(dirs.shape[0], dtype=bool)
+        rest[take] = False
+        rest &= cell_ub > best
+        new = kid_u > best
+        dirs = np.concatenate([dirs[rest], kids[new]])
+        cell_ub = np.concatenate([cell_ub[rest], kid_u[new]])
+        rho = np.concatenate([rho[rest], np.repeat(child_rho[:, 0], 9)[new]])
+        spacing = np.concatenate([spacing[rest], np.repeat(step[:, 0], 9)[new]])
+    still_open = bool(np.any((cell_ub > best) & (spacing > fine)))
+    bound = max(best, float(cell_ub.max(initial=best)))
+    return RefinedView(best_dir, best, bound, not still_open)

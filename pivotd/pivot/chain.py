@@ -14,9 +14,12 @@ waypoints). The result, interpolated along the path by slerp, seeds the gradient
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
+
 import numpy as np
 
-from pivotd.pivot.brute import sphere_grid
+from pivotd.pivot.brute import best_grid_chain, sphere_grid
 
 
 def node_indices(n: int, max_nodes: int) -> np.ndarray:
@@ -138,4 +141,72 @@ def initial_directions(
     scores = grid_scores(bearings, weights, grid, alpha)
     span = np.diff(nodes, prepend=nodes[0] - 1).astype(float) if nodes.size > 1 else np.ones(1)
     choice = best_chain(scores, grid, span, smooth, anchor)
+    return slerp_fill(n, nodes, grid[choice])
+
+
+Exact = Callable[[int, np.ndarray], np.ndarray]
+
+
+def refine_top_scores(
+    scores: np.ndarray, grid: np.ndarray, exact: Exact, sample: np.ndarray, full: np.ndarray
+) -> np.ndarray:
+    """Coarse to fine: grid scores (K, G) from a sample of ``sample[k]`` of node k's ``full[k]`` landmarks,
+    with each node's best directions by the sample rescored on all its landmarks by
+    ``exact(k, directions (m, 3)) -> (m,)`` visible fractions.
+
+    Node k rescores its m_k = ⌈G · sample[k] / full[k]⌉ best directions (as much work again as scoring the
+    sample on the whole grid), so the choice among near-equal directions, which a sample's noise decides
+    at random, is made on exact counts; nodes whose sample is all their landmarks keep their scores. Its
+    other directions keep their sample score, but no more than the lowest rescored one: the sample ranked
+    them lower.
+    """
+    K, G = scores.shape
+    out = scores.copy()
+    for k in range(K):
+        if full[k] <= sample[k] or full[k] == 0:
+            continue
+        m = min(G, max(1, math.ceil(G * sample[k] / full[k])))
+        top = np.argpartition(-scores[k], m - 1)[:m] if m < G else np.arange(G)
+        ex = np.asarray(exact(k, grid[top]), dtype=np.float64)
+        np.minimum(out[k], ex.min(initial=np.inf), out=out[k])
+        out[k, top] = ex
+    return out
+
+
+def step_limited_directions(
+    bearings: np.ndarray,
+    weights: np.ndarray,
+    alpha: float,
+    nodes: np.ndarray,
+    n: int,
+    max_step: float,
+    *,
+    resolution_deg: float = 12.0,
+    anchor: np.ndarray | None = None,
+    exact: Exact | None = None,
+    full_sizes: np.ndarray | None = None,
+) -> np.ndarray:
+    """Initialisation (n, 3) for a hard step limit ``max_step`` [rad]: the node directions with the largest
+    total visible fraction whose consecutive node directions are at most s × max_step apart (s: the
+    smallest node span), exactly over a grid of resolution clamp(s × max_step / 2, 2°, ``resolution_deg``)
+    (:func:`pivotd.pivot.brute.best_grid_chain`), slerped in between, so every step is ≤ max_step.
+
+    With an anchor, node 0 stays within max_step + the grid's resolution of it. bearings (K, L, 3),
+    weights (K, L) as in :func:`initial_directions`. When they are a sample of each node's landmarks,
+    ``exact(k, directions (m, 3)) -> (m,)`` (the visible fraction of all of node k's landmarks) and
+    ``full_sizes`` (K,) (how many landmarks each node has) refine the sample's scores
+    (:func:`refine_top_scores`).
+    """
+    nodes = np.asarray(nodes, dtype=np.intp)
+    span = int(np.diff(nodes).min()) if nodes.size > 1 else 1
+    res = float(np.clip(np.degrees(span * max_step) / 2, 2.0, max(resolution_deg, 2.0)))
+    grid = sphere_grid(res)
+    scores = grid_scores(bearings, weights, grid, alpha).astype(np.float64)
+    if exact is not None and full_sizes is not None:
+        sample = np.count_nonzero(weights > 0, axis=1)
+        scores = refine_top_scores(scores, grid, exact, sample, np.asarray(full_sizes))
+    if anchor is not None:
+        far = grid @ anchor < np.cos(min(np.pi, max_step + np.radians(res)))
+        scores[0, far] = -np.inf
+    choice = best_grid_chain(scores, grid, np.degrees(span * max_step))
     return slerp_fill(n, nodes, grid[choice])

@@ -11,6 +11,13 @@ maximises the exact per-waypoint objective
 waypoints try 8 directions on each ring of radius r, r/2, … ≥ tol around their axis at once, with
 their neighbours fixed, and move to the best strict improvement; then the odd ones. Every accepted
 move raises Φ_hard, so the polish never makes the plan worse by the measure it is judged by.
+
+:func:`step_limited_polish` is the same idea for a plan with a largest step S: at every waypoint the
+axis and the directions on two rings around it are candidates, and dynamic programming picks the
+sequence of candidates with the largest total hard visible weight whose consecutive directions (and
+the step from the anchor) stay within S: exact over the candidates, so whole runs of waypoints move
+together (a red-black move is blocked wherever the step is already at S), and the current plan is one
+of the sequences, so the count never drops and no step exceeds S.
 """
 
 from __future__ import annotations
@@ -18,6 +25,8 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+
+from pivotd.pivot import _ascent
 
 Reachable = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -72,12 +81,15 @@ def polish_trajectory(
     inv = 1.0 / np.maximum(norm, 1e-12)
     coupled = smooth > 0 and (N > 1 or anchor is not None)
     moves = 0
+    dirty = np.ones(N, dtype=bool)  # rows whose own axis or a neighbour changed since they were last tried
     for _ in range(sweeps):
         moved = 0
         for parity in (0, 1):
             rows = np.arange(parity, N, 2)
+            rows = rows[dirty[rows]]
             if rows.size == 0:
                 continue
+            dirty[rows] = False
             c = C[rows]
             t1, t2 = _tangents(c)
             ring = cos_r[None] * c[:, None, :] + sin_r[None] * (ca[None] * t1[:, None, :] + sa[None] * t2[:, None, :])
@@ -99,9 +111,126 @@ def polish_trajectory(
             better = val[np.arange(rows.size), k] > val[:, 0] + 1e-12
             if np.any(better):
                 new = cand[better, k[better]]
-                C[rows[better]] = new / np.linalg.norm(new, axis=1, keepdims=True)
-                moved += int(np.count_nonzero(better))
+                changed = rows[better]
+                C[changed] = new / np.linalg.norm(new, axis=1, keepdims=True)
+                moved += int(changed.size)
+                dirty[changed] = True
+                dirty[changed[changed > 0] - 1] = True
+                dirty[changed[changed < N - 1] + 1] = True
         moves += moved
         if moved == 0:
             break
     return C, moves
+
+
+
+def _ring_candidates(C: np.ndarray, radius: float) -> np.ndarray:
+    """Candidates (N, 17, 3) per unit axis C (N, 3): the axis, then 8 directions at ``radius`` and 8 at radius/2."""
+    cos_r, sin_r, ca, sa = ring_offsets(radius, 0.5 * radius)
+    t1, t2 = _tangents(C)
+    ring = cos_r[None] * C[:, None, :] + sin_r[None] * (ca[None] * t1[:, None, :] + sa[None] * t2[:, None, :])
+    return np.concatenate([C[:, None, :], ring], axis=1)
+
+
+def _best_sequence(val: np.ndarray, pen: np.ndarray) -> np.ndarray:
+    """Candidate index per waypoint (N,) maximising Σ_i val[i, k_i] + Σ_i pen[i − 1, k_i, k_{i−1}] (Viterbi).
+
+    val (N, K) candidate values, pen (N − 1, K to, K from) transition values (−inf: forbidden). Ties go
+    to the lowest index (candidate 0, the current axis). One small (K, K) step per waypoint; the
+    backtrack runs on Python lists.
+    """
+    N, K = val.shape
+    back = np.empty((N, K), dtype=np.intp)
+    cols = np.arange(K)
+    score = val[0]
+    for i in range(1, N):
+        tot = pen[i - 1] + score  # (to, from)
+        b = tot.argmax(axis=1)
+        back[i] = b
+        score = tot[cols, b] + val[i]
+    pick = [int(score.argmax())]
+    rows = back.tolist()
+    for i in range(N - 1, 0, -1):
+        pick.append(rows[i][pick[-1]])
+    return np.array(pick[::-1], dtype=np.intp)
+
+
+def _narrow(B: np.ndarray, Wa: np.ndarray, C: np.ndarray, alpha: float, reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """The part of a band (B (N, L, 3) unit bearings, Wa (N, L)) within α ± reach [rad] of the axes C (N, 3)."""
+    geom = _ascent.Geometry(B, np.zeros((B.shape[0], 3), np.float32), None, Wa, _no_exact)
+    cos_lo = float(np.cos(min(np.pi, alpha + reach)))
+    cos_hi = float(np.cos(alpha - reach)) if alpha > reach else 2.0
+    return _ascent._active(geom, C, cos_lo, cos_hi, max(B.shape[1], 1))
+
+
+def _no_exact(rows: np.ndarray, cols: np.ndarray, C: np.ndarray) -> np.ndarray:
+    raise AssertionError("band geometries are never evaluated exactly")
+
+
+def _score(cand: np.ndarray, B: np.ndarray, Wa: np.ndarray, cos_a: np.float32) -> np.ndarray:
+    """Hard visible weight (N, K) float64 of candidate axes cand (N, K, 3) over the band B (N, L, 3), Wa (N, L)."""
+    x = np.matmul(cand.astype(np.float32), B.transpose(0, 2, 1))  # (N, K, L) cosines
+    np.greater_equal(x, cos_a, out=x, casting="unsafe")  # 1.0 inside, 0.0 outside, in place
+    return np.matmul(x, Wa[:, :, None])[..., 0].astype(float)
+
+
+def step_limited_polish(
+    band: Callable[[np.ndarray, float], tuple[np.ndarray, np.ndarray]],
+    C: np.ndarray,
+    alpha: float,
+    max_step: float,
+    radius: float,
+    tol: float,
+    *,
+    anchor: np.ndarray | None = None,
+    reachable: Reachable | None = None,
+    smooth: float = 0.0,
+    norm: np.ndarray | None = None,
+) -> np.ndarray:
+    """Step-limited dynamic-programming polish (module docstring); returns the new unit axes (N, 3).
+
+    ``band(C, reach)`` returns float32 unit bearings (N, L, 3) and weights (N, L) of the landmarks
+    within α ± reach [rad] of each axis C (N, 3): the only ones whose state a move of at most ``reach``
+    can change (the others add the same to every candidate of their waypoint). C (N, 3): unit axes whose
+    steps are ≤ ``max_step`` [rad]; one DP per radius r = radius, radius/2, … ≥ tol [rad] over the
+    rings r and r/2, recentred on each result. ``band`` is called once, with the reach 2.02 × radius of
+    all levels together (the axes move by < 2 × radius in all); each level narrows the previous level's
+    band to α ± 2.02 r around its axes (it held α ± 4.04 r around axes that have moved ≤ 2 r since) and
+    scores all waypoints × candidates in one batched product. ``reachable`` as in
+    :func:`polish_trajectory`. With ``smooth`` = λκ > 0 it maximises Φ_hard (visible weight / ``norm``
+    (N,) plus λκ Σ c_{i+1}·c_i) within the limit instead of the visible weight alone.
+    """
+    C = np.array(C, dtype=float)
+    N = C.shape[0]
+    if N == 0 or radius < tol:
+        return C
+    cos_a = np.float32(np.cos(alpha) - 1e-7)
+    cos_s = float(np.cos(max_step)) - 1e-12
+    inv = 1.0 / np.maximum(norm, 1e-12) if smooth > 0 else None
+    B, Wa = band(C, 2.02 * radius)
+    r = radius
+    while r >= tol:
+        if r < radius:
+            B, Wa = _narrow(B, Wa, C, alpha, 2.02 * r)
+        if B.shape[1] == 0:
+            break
+        cand = _ring_candidates(C, r)  # (N, K, 3)
+        val = _score(cand, B, Wa, cos_a)  # (N, K)
+        if inv is not None:
+            val *= inv[:, None]
+        if reachable is not None:
+            val[:, 1:][~reachable(np.arange(N), cand[:, 1:])] = -np.inf
+        if anchor is not None:
+            far = cand[0] @ anchor < cos_s
+            far[0] = False  # the current axis stays a choice whatever the rounding
+            val[0, far] = -np.inf
+        cos_pairs = np.matmul(cand[1:], cand[:-1].transpose(0, 2, 1))  # (N − 1, K to, K from)
+        ok = cos_pairs >= cos_s
+        ok[:, 0, 0] = True  # the current plan is always feasible
+        pen = np.where(ok, smooth * cos_pairs if smooth > 0 else 0.0, -np.inf)
+        if smooth > 0 and anchor is not None:
+            val[0] += smooth * (cand[0] @ anchor)
+        C = cand[np.arange(N), _best_sequence(val, pen)]
+        C /= np.linalg.norm(C, axis=1, keepdims=True)
+        r *= 0.5
+    return C

@@ -169,3 +169,206 @@ def competing_clusters_path(
     x = np.arange(0.0, length + 1e-9, spacing)
     path = np.column_stack([x, np.zeros_like(x), np.ones_like(x)])
     return Scene(points=pts, weights=np.ones(pts.shape[0]), path=path)
+
+
+# --- hard single-pose scenes: families that defeat naive multi-start --------------------------------
+
+#: the hard scene families, in report order
+HARD_FAMILIES: tuple[str, ...] = ("clusters", "near_far", "twins", "rooms", "ring")
+
+
+def _random_rotation(rng: np.random.Generator) -> np.ndarray:
+    """A uniformly random rotation (3, 3) (QR of a Gaussian matrix with the sign fixed)."""
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q *= np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def _anisotropic(rng: np.random.Generator, centre: np.ndarray, sigmas: np.ndarray, n: int) -> np.ndarray:
+    """``n`` Gaussian points (n, 3) around ``centre`` with per-axis ``sigmas`` [m] in a random orientation."""
+    return centre + (rng.normal(size=(n, 3)) * sigmas) @ _random_rotation(rng).T
+
+
+def _clutter(rng: np.random.Generator, lo: np.ndarray, hi: np.ndarray, n: int) -> np.ndarray:
+    """``n`` points uniform in the box [lo, hi] (n, 3)."""
+    return rng.uniform(lo, hi, (n, 3))
+
+
+def _count(n: float, scale: float) -> int:
+    return max(1, round(n * scale))
+
+
+def _clusters_family(rng: np.random.Generator, scale: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Seven anisotropic Gaussian clusters of very different sizes and densities (rods, sheets, blobs;
+    σ per axis log-uniform in 0.5–20 m, counts log-uniform and scaled to 11 700 in all) plus 8 % uniform
+    clutter in [−60, 60]² × [0, 15] m (≈ 12.7k landmarks at scale 1)."""
+    lo, hi = np.array([-60.0, -60.0, 0.0]), np.array([60.0, 60.0, 15.0])
+    counts = np.exp(rng.uniform(np.log(300), np.log(4000), 7))
+    counts = np.maximum(1, np.round(counts * 11_700 * scale / counts.sum())).astype(int)
+    inset = np.array([10.0, 10.0, 2.0])
+    parts = [
+        _anisotropic(rng, rng.uniform(lo + inset, hi - inset), np.exp(rng.uniform(np.log(0.5), np.log(20), 3)), k)
+        for k in counts
+    ]
+    parts.append(_clutter(rng, lo, hi, _count(0.08 * 11_700 / 0.92, scale)))
+    return np.concatenate(parts), lo + np.array([5.0, 5.0, 1.0]), hi - np.array([5.0, 5.0, 5.0])
+
+
+def _near_far_family(rng: np.random.Generator, scale: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A large diffuse cluster near the sensor (≈ 9000 landmarks, σ 5 m at 12 m: far wider than a 30° cone)
+    against a small dense one far away (1500–2200 landmarks, σ 1 m at 80 m: inside one cone), in random
+    directions, plus 8 % clutter; which one wins depends on where in the ±3 m box the sensor stands."""
+    d_near, d_far = _random_rotation(rng)[:, :2].T
+    d_near[2], d_far[2] = 0.3 * d_near[2], 0.3 * d_far[2]
+    d_near, d_far = d_near / np.linalg.norm(d_near), d_far / np.linalg.norm(d_far)
+    near = _anisotropic(rng, 12.0 * d_near, np.array([5.0, 5.0, 3.0]), _count(9000, scale))
+    far = _anisotropic(rng, 80.0 * d_far, np.array([1.0, 1.0, 0.6]), _count(rng.uniform(1500, 2200), scale))
+    ext = np.array([90.0, 90.0, 20.0])
+    clutter = _clutter(rng, -ext, ext, _count(0.08 * 10_850 / 0.92, scale))
+    return np.concatenate([near, far, clutter]), np.array([-3.0, -3.0, -1.0]), np.array([3.0, 3.0, 1.0])
+
+
+def _twins_family(rng: np.random.Generator, scale: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Two clusters of near-equal size (5000 and 5000·(1 ± 3 %) landmarks) of different shapes, 100–180°
+    apart as seen from the origin at 20–40 m, plus 8 % clutter; the sensor stands within ±4 m of the origin."""
+    az = rng.uniform(0, 2 * np.pi)
+    sep = rng.uniform(np.radians(100), np.pi)
+    dirs = [np.array([np.cos(a), np.sin(a), rng.uniform(-0.2, 0.2)]) for a in (az, az + sep)]
+    n0 = 5000
+    n1 = round(n0 * (1 + rng.uniform(-0.03, 0.03)))
+    parts = [
+        _anisotropic(rng, rng.uniform(20, 40) * d / np.linalg.norm(d), np.exp(rng.uniform(np.log(1.0), np.log(6.0), 3)),
+                     _count(n, scale))
+        for d, n in zip(dirs, (n0, n1), strict=True)
+    ]
+    ext = np.array([50.0, 50.0, 10.0])
+    parts.append(_clutter(rng, -ext, ext, _count(0.08 * (n0 + n1) / 0.92, scale)))
+    return np.concatenate(parts), np.array([-4.0, -4.0, -1.0]), np.array([4.0, 4.0, 1.0])
+
+
+def _wall_points(rng: np.random.Generator, a: np.ndarray, b: np.ndarray, height: float, n: int) -> np.ndarray:
+    """``n`` points (n, 3) on the vertical wall over the floor segment a → b (2,), 0–``height`` m, with
+    half of them in a few dense patches (posters, shelves) and the rest uniform."""
+    n_patch = n // 2
+    u = rng.uniform(0, 1, n - n_patch)
+    z = rng.uniform(0, height, n - n_patch)
+    k = rng.integers(1, 4)
+    pu, pz = rng.uniform(0.1, 0.9, k), rng.uniform(0.3, height - 0.3, k)
+    which = rng.integers(0, k, n_patch)
+    length = max(float(np.linalg.norm(b - a)), 1e-9)
+    u = np.concatenate([u, np.clip(pu[which] + rng.normal(0, 0.4 / length, n_patch), 0, 1)])
+    z = np.concatenate([z, np.clip(pz[which] + rng.normal(0, 0.3, n_patch), 0, height)])
+    xy = a + u[:, None] * (b - a)
+    return np.column_stack([xy, z])
+
+
+def _rooms_family(rng: np.random.Generator, scale: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A floor: a 3-m-wide corridor along +x with three rooms on each side (6–10 m wide, 7 m deep, 3 m
+    high); landmarks on every wall (uniform and in dense patches, per-wall density varying ×8) and
+    sparsely on the floors (≈ 12k). No occlusion is modelled: walls of other rooms stay visible."""
+    height = 3.0
+    widths = rng.uniform(6.0, 10.0, 3)
+    xs = np.concatenate([[0.0], np.cumsum(widths)])
+    depth, half = 7.0, 1.5
+    walls = [(np.array([0.0, -half]), np.array([xs[-1], -half])), (np.array([0.0, half]), np.array([xs[-1], half]))]
+    for side in (-1.0, 1.0):
+        y0, y1 = side * half, side * (half + depth)
+        for i in range(3):
+            walls.append((np.array([xs[i], y1]), np.array([xs[i + 1], y1])))  # back wall
+        for x in xs:
+            walls.append((np.array([x, y0]), np.array([x, y1])))  # side walls
+    dens = np.exp(rng.uniform(0, np.log(8.0), len(walls)))
+    lengths = np.array([np.linalg.norm(b - a) for a, b in walls])
+    share = dens * lengths / np.sum(dens * lengths)
+    parts = [_wall_points(rng, a, b, height, _count(s * 10_800, scale)) for (a, b), s in zip(walls, share, strict=True)]
+    floor = rng.uniform([0.0, -half - depth, 0.0], [xs[-1], half + depth, 0.0], (_count(1200, scale), 3))
+    parts.append(floor)
+    sensor_lo = np.array([0.5, -half - depth + 0.5, 0.5])
+    sensor_hi = np.array([xs[-1] - 0.5, half + depth - 0.5, 1.8])
+    return np.concatenate(parts), sensor_lo, sensor_hi
+
+
+def _ring_family(rng: np.random.Generator, scale: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Landmarks in an annulus 15–25 m around the origin, heights −1–3 m, with an azimuthal density
+    1 + Σ low-frequency cosines (random phases) and a few blobs: many near-equal maxima all around
+    the sensor, whose landmark centroid is near zero (≈ 12k). The sensor stands within ±2 m of the centre."""
+    n = _count(12_000, scale)
+    freqs = np.arange(1, 6)
+    amp, phase = rng.uniform(0.0, 0.25, freqs.size), rng.uniform(0, 2 * np.pi, freqs.size)
+    # rejection sampling of the azimuth density
+    az = np.empty(0)
+    while az.size < n:
+        a = rng.uniform(0, 2 * np.pi, 2 * n)
+        dens = 1.0 + np.cos(np.outer(a, freqs) + phase) @ amp
+        az = np.concatenate([az, a[rng.uniform(0, 1 + amp.sum(), a.size) < dens]])
+    n_blob = n // 10
+    az = az[: n - n_blob]
+    blob_az = rng.uniform(0, 2 * np.pi, 4)[rng.integers(0, 4, n_blob)] + rng.normal(0, 0.05, n_blob)
+    az = np.concatenate([az, blob_az])
+    r = rng.uniform(15.0, 25.0, n)
+    z = rng.uniform(-1.0, 3.0, n)
+    pts = np.column_stack([r * np.cos(az), r * np.sin(az), z])
+    return pts, np.array([-2.0, -2.0, 0.0]), np.array([2.0, 2.0, 1.5])
+
+
+_FAMILIES = {
+    "clusters": _clusters_family,
+    "near_far": _near_far_family,
+    "twins": _twins_family,
+    "rooms": _rooms_family,
+    "ring": _ring_family,
+}
+
+
+def _family_points(family: str, seed: int, scale: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    if family not in _FAMILIES:
+        raise ValueError(f"unknown scene family {family!r}; expected one of {', '.join(HARD_FAMILIES)}")
+    if not (np.isfinite(scale) and scale > 0):
+        raise ValueError(f"scale must be > 0, got {scale}")
+    return _FAMILIES[family](np.random.default_rng([seed, HARD_FAMILIES.index(family)]), scale)
+
+
+def hard_scene(family: str, seed: int = 0, poses: int = 60, scale: float = 1.0) -> Scene:
+    """One seeded instance of a hard scene family (see :data:`HARD_FAMILIES`) with ``poses`` random
+    sensor positions for single-pose evaluation (``path`` (poses, 3), uniform in the family's sensor box).
+
+    ``scale`` multiplies every landmark count (small instances for tests); the geometry stays the same.
+    Families: ``clusters`` (mixed anisotropic clusters + 8 % clutter, random sensor positions),
+    ``near_far`` (small dense distant cluster vs large diffuse near one), ``twins`` (two near-equal
+    clusters far apart), ``rooms`` (walls and floors of rooms along a corridor), ``ring`` (an annulus of
+    landmarks around the sensor).
+    """
+    points, lo, hi = _family_points(family, seed, scale)
+    rng = np.random.default_rng([seed, HARD_FAMILIES.index(family), 1])
+    sensors = rng.uniform(lo, hi, (poses, 3))
+    return Scene(points=points, weights=np.ones(points.shape[0]), path=sensors)
+
+
+def hard_path(family: str, seed: int = 0, waypoints: int = 40, scale: float = 1.0) -> Scene:
+    """The landmarks of ``hard_scene(family, seed, scale=scale)`` with a smooth path through the family's
+    sensor box (``path`` (waypoints, 3), evenly spaced along its arc length): a seeded closed-form curve —
+    a sine-perturbed diagonal (clusters, near_far, twins), the corridor then into a room (rooms), a loop
+    around the centre (ring)."""
+    points, lo, hi = _family_points(family, seed, scale)
+    if waypoints < 2:
+        raise ValueError(f"waypoints must be ≥ 2, got {waypoints}")
+    rng = np.random.default_rng([seed, HARD_FAMILIES.index(family), 2])
+    mid, span = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    if family == "ring":
+        rad = 0.8 * float(min(span[0], span[1]))
+        knots = [mid + np.array([rad * np.cos(t), rad * np.sin(t), 0.0]) for t in np.linspace(0, 2 * np.pi, 65)]
+    elif family == "rooms":
+        y_room = rng.choice([-1.0, 1.0]) * 0.7 * span[1]
+        x_door = rng.uniform(lo[0] + 0.3 * 2 * span[0], hi[0] - 0.2 * 2 * span[0])
+        z = 1.2
+        knots = [np.array([lo[0], 0.0, z]), np.array([x_door, 0.0, z]), np.array([x_door, y_room, z])]
+    else:
+        a, b = rng.uniform(-1, 1, 2)
+        u = np.linspace(-1.0, 1.0, 65)
+        knots = mid + span * np.column_stack([0.9 * u, 0.9 * u * a + 0.3 * np.sin(3 * u + b), 0.5 * np.sin(2 * u)])
+    knots = np.asarray(knots, dtype=float)
+    seg = np.linalg.norm(np.diff(knots, axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(seg)])
+    s = np.linspace(0.0, arc[-1], waypoints)
+    path = np.column_stack([np.interp(s, arc, knots[:, k]) for k in range(3)])
+    return Scene(points=points, weights=np.ones(points.shape[0]), path=path)

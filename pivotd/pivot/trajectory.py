@@ -9,7 +9,7 @@ J_i = J_vis,i/W_i + λ c_i × (c_{i−1} + c_{i+1}) (eqs. 12, 18–20; one neigh
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,7 +18,8 @@ from pivotd.geometry import optical_frame_from_direction
 from pivotd.pivot import _ascent, chain, polish
 from pivotd.pivot._checks import feature_weights, finite_array, half_angle, unit_vector
 from pivotd.pivot.constraints import PanTiltConstraint
-from pivotd.pivot.view import schedule
+from pivotd.pivot.steps import limit_steps, step_angles
+from pivotd.pivot.view import optimize_view, schedule
 
 
 @dataclass
@@ -53,6 +54,8 @@ class TrajectoryOptions:
     polish_sweeps: int = 4  # ... at most this many red-black sweeps
     polish_cap: int = 2048  # ... landmarks per waypoint in its band (strided beyond)
     warm_polish: bool = False  # also polish warm starts (receding-horizon replans)
+    step_polish_deg: float = 4.0  # step-limited DP polish of the visible count (pivotd.pivot.polish): radius (0: off)
+    seed_cap: int = 512  # landmarks per node waypoint scoring the step-limited grid chain (a second candidate; 0: off)
 
 
 @dataclass
@@ -128,56 +131,32 @@ def _dense_geometry(points: np.ndarray, waypoints: np.ndarray, fw: np.ndarray, d
     return _ascent.Geometry(P, T, inv, W, exact, valid_all), W.sum(axis=1, dtype=np.float64)
 
 
-def _ragged_geometry(points, waypoints, fw, dist_w, retained: Sequence[np.ndarray]):
-    """Geometry from per-waypoint index arrays, padded to the longest; returns (geometry, W_i totals).
+def _ragged_geometry(pairs: _Pairs, waypoints: np.ndarray, dist_w: bool):
+    """Geometry of the retained pairs (padded per waypoint); returns (geometry, W_i totals).
 
-    The retained pairs are few compared with M × N, so each pair's bearing is computed once in float64
-    (exact, no cancellation) and stored as a float32 unit vector: later passes are plain dot products.
+    Each pair's offset is computed in float64 (exact, no cancellation however far the scene is from the
+    origin) and stored as a float32 unit bearing: later passes are plain dot products.
     """
-    N = waypoints.shape[0]
-    if len(retained) != N:
-        raise ValueError(f"retained must have one index array per waypoint ({N}), got {len(retained)}")
-    lists = [np.asarray(r).ravel() for r in retained]
-    lens = np.array([r.size for r in lists], dtype=np.intp)
-    flat = np.concatenate(lists).astype(np.intp, copy=False) if lists else np.zeros(0, np.intp)
-    M = points.shape[0]
-    if flat.size and (flat.min() < 0 or flat.max() >= M):
-        bad = int(np.searchsorted(np.cumsum(lens), int(np.argmax((flat < 0) | (flat >= M))), side="right"))
-        raise ValueError(f"retained[{bad}] indexes outside 0..{M - 1}")
-    L = max(int(lens.max(initial=0)), 1)
-    idx = np.zeros((N, L), dtype=np.intp)  # padding points at landmark 0 and is masked out
-    for i, r in enumerate(lists):
-        idx[i, : r.size] = r
+    P, lens = pairs.points, pairs.lengths
+    N, L = P.shape[0], P.shape[1]
     pad = np.arange(L)[None, :] < lens[:, None]  # (N, L): real entries
-    # float32 around the waypoints' centroid, one plane per coordinate (3, N, L): element-wise work then
-    # runs along L instead of over a trailing axis of length 3 (several times faster); pairs closer than
-    # 1 % of the scene scale (where float32 rounding of the positions would show) are redone in float64
-    centre = waypoints.mean(axis=0)
-    PT = np.empty((3, points.shape[0]), np.float32)
+    # one float32 plane per coordinate (3, N, L): element-wise work then runs along L instead of over a
+    # trailing axis of length 3 (several times faster)
+    D = np.empty((3, N, L), np.float32)
     for k in range(3):
-        np.subtract(points[:, k], centre[k], out=PT[k], casting="same_kind")
-    T = (waypoints - centre).astype(np.float32)
-    D = PT.take(idx, axis=1)  # (3, N, L)
-    D -= T.T[:, :, None]
+        np.subtract(P[:, :, k], waypoints[:, k, None], out=D[k], casting="same_kind")
     d = np.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
-    scale = float(max(np.abs(PT).max(initial=0.0), np.abs(T).max(), 1.0))
-    rows, cols = _ascent._nonzero2d((d < np.float32(1e-2 * scale)) & pad)
-    if rows.size:
-        exact = points[idx[rows, cols]] - waypoints[rows]
-        d[rows, cols] = np.sqrt(np.square(exact) @ np.ones(3))
+    scale = float(max(d.max(initial=0.0), np.abs(waypoints).max(), 1.0))
     valid = pad & (d > np.float32(1e-9 * scale))  # a landmark at the sensor has no bearing: weight 0, never counts
     inv = np.zeros_like(d)
     np.divide(np.float32(1.0), d, out=inv, where=valid)
-    D *= inv[None]
-    if rows.size:
-        D[:, rows, cols] = (exact * inv[rows, cols, None]).T
     U = np.empty((N, L, 3), np.float32)
     for k in range(3):
-        U[:, :, k] = D[k]
-    W = _weights(d, valid, fw.astype(np.float32).take(idx), dist_w)
+        np.multiply(D[k], inv, out=U[:, :, k])
+    W = _weights(d, valid, pairs.weights.astype(np.float32), dist_w)
 
     def exact(r: np.ndarray, c: np.ndarray, C: np.ndarray) -> np.ndarray:
-        v = points[idx[r, c]] - waypoints[r]
+        v = P[r, c].astype(float) - waypoints[r]
         return np.einsum("ij,ij->i", v, C[r]) / np.maximum(np.linalg.norm(v, axis=1), 1e-300)
 
     geom = _ascent.Geometry(U, np.zeros((N, 3), np.float32), None, W, exact, valid=valid)
@@ -211,6 +190,190 @@ def _weights(d: np.ndarray, valid: np.ndarray | None, fw: np.ndarray, dist_w: bo
     return s.astype(np.float32, copy=False)
 
 
+def _spread_table() -> np.ndarray:
+    """(256,) uint64: the bits of each byte moved to every third bit (bit b to bit 3b)."""
+    v = np.arange(256, dtype=np.uint64)
+    out = np.zeros(256, np.uint64)
+    for b in range(8):
+        out |= ((v >> np.uint64(b)) & np.uint64(1)) << np.uint64(3 * b)
+    out.flags.writeable = False
+    return out
+
+
+_SPREAD = _spread_table()
+
+
+def morton_keys(P: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Z-order (Morton) keys (M,) uint64 of points P (M, 3) [m] in the box [lo, hi] (16 bits per axis).
+
+    Sorting landmarks by them lays them out along a space-filling curve: every strided subsample
+    (active-set thinning, the chain's scoring sample, the planner's cap) is then spread over space
+    evenly and depends on the landmarks only, not on their order in the map. Two table look-ups per
+    axis (bytes spread to every third bit).
+    """
+    lo = np.asarray(lo, float)
+    span = np.maximum(np.asarray(hi, float) - lo, 1e-12)
+    key = np.zeros(P.shape[0], np.uint64)
+    for k in range(3):
+        q = ((P[:, k] - lo[k]) * ((2**16 - 1) / span[k])).clip(0, 2**16 - 1).astype(np.uint32)
+        key |= (_SPREAD.take(q & 255) | (_SPREAD.take(q >> 8) << np.uint64(24))) << np.uint64(k)
+    return key
+
+
+def spatial_order(points: np.ndarray, retained: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Each retained index array ordered by the Morton key of its landmarks (``points`` (M, 3) [m]) in the
+    box of all retained landmarks; ties (coincident landmarks) by coordinates. Cost O(R log R) for R
+    retained pairs: only the retained rows of ``points`` are read.
+
+    ``optimize_trajectory`` subsamples each waypoint's landmarks by strides in the given order, so
+    retained sets in this order give answers that do not depend on the map's landmark order.
+    """
+    lists = [np.asarray(r, dtype=np.intp).ravel() for r in retained]
+    if not lists or sum(r.size for r in lists) == 0:
+        return lists
+    pts = [points.take(r, axis=0) for r in lists]
+    nonempty = [p for p in pts if p.size]
+    # the box, one coordinate column at a time (reductions along axis 0 of an (n, 3) array are much slower)
+    lo = np.array([min(float(p[:, k].min()) for p in nonempty) for k in range(3)])
+    hi = np.array([max(float(p[:, k].max()) for p in nonempty) for k in range(3)])
+    out = []
+    for r, p in zip(lists, pts, strict=True):
+        if r.size < 2:
+            out.append(r)
+            continue
+        key = morton_keys(p, lo, hi)
+        order = np.argsort(key)
+        ks = key[order]
+        dup = np.flatnonzero(ks[1:] == ks[:-1])
+        if dup.size:  # landmarks within one key cell (~coincident): by coordinates, within their groups
+            sel = np.union1d(dup, dup + 1)
+            sub = order[sel]
+            order[sel] = sub[np.lexsort((p[sub, 2], p[sub, 1], p[sub, 0], ks[sel]))]
+        out.append(r[order])
+    return out
+
+
+@dataclass
+class _Pairs:
+    """The retained (waypoint, landmark) pairs, padded per waypoint: points (N, L, 3) in the map's dtype
+    (padding repeats a retained landmark), weights (N, L) float32 or float64 (0 for padding), lengths (N,)."""
+
+    points: np.ndarray
+    weights: np.ndarray
+    lengths: np.ndarray
+
+    def waypoint(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Landmarks (n, 3) and weights (n,) of waypoint i."""
+        n = int(self.lengths[i])
+        return self.points[i, :n], self.weights[i, :n]
+
+
+def _gather_pairs(
+    points: np.ndarray, weights: np.ndarray | None, retained: Sequence[np.ndarray], N: int
+) -> _Pairs:
+    """The retained pairs only, gathered once from the map in retained order (:class:`_Pairs`).
+
+    Everything here costs O(N × longest retained set): the map itself is only indexed, never converted,
+    checked or copied as a whole (NaN/inf coordinates and bad weights are reported with their row in the map).
+    """
+    if len(retained) != N:
+        raise ValueError(f"retained must have one index array per waypoint ({N}), got {len(retained)}")
+    pts = points if isinstance(points, np.ndarray) else np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"points must have shape (n, 3), got {pts.shape}")
+    M = pts.shape[0]
+    lists = [np.asarray(r).ravel() for r in retained]
+    for i, r in enumerate(lists):
+        if r.size and r.dtype.kind not in "iu":
+            raise ValueError(f"retained[{i}] must hold integer indices, got {r.dtype}")
+    lens = np.array([r.size for r in lists], dtype=np.intp)
+    L = max(int(lens.max(initial=0)), 1)
+    if not lens.any():  # nothing retained anywhere (possibly an empty map)
+        return _Pairs(np.zeros((N, L, 3)), np.zeros((N, L)), lens)
+    first = next(r[0] for r in lists if r.size)
+    idx = np.full((N, L), first, dtype=np.intp)  # padding repeats a retained landmark (masked out later)
+    for i, r in enumerate(lists):
+        idx[i, : r.size] = r
+    if lens.sum() and (idx.min() < 0 or idx.max() >= M):
+        bad = int(np.argmax(((idx < 0) | (idx >= M)).any(axis=1)))
+        raise ValueError(f"retained[{bad}] indexes outside 0..{M - 1}")
+    flat = idx.reshape(-1)
+    P = pts.take(flat, axis=0)
+    if P.dtype not in (np.float32, np.float64):
+        P = P.astype(float)
+    if not np.isfinite(P).all():
+        finite_array("points", P, rows=flat)  # raises, naming the row in the map
+    if weights is None:
+        fw = np.ones((N, L))
+    else:
+        w = weights if isinstance(weights, np.ndarray) else np.asarray(weights)
+        if w.shape != (M,):
+            raise ValueError(f"weights must have shape ({M},), got {w.shape}")
+        fw = w.take(flat)
+        if fw.dtype not in (np.float32, np.float64):
+            fw = fw.astype(float)
+        if not (np.isfinite(fw).all() and (fw >= 0).all()):
+            feature_weights(fw, flat.size, rows=flat)  # raises, naming the row in the map
+        fw = fw.reshape(N, L)
+    fw[np.arange(L)[None, :] >= lens[:, None]] = 0.0
+    return _Pairs(P.reshape(N, L, 3), fw, lens)
+
+
+def _independent_views(
+    landmarks: Callable[[int], tuple[np.ndarray, np.ndarray]],
+    T: np.ndarray,
+    alpha: float,
+    init: np.ndarray | None,
+    dist_w: bool,
+) -> TrajectoryResult:
+    """λ = 0 without joint limits: every waypoint is its own single-pose problem, solved by
+    :func:`pivotd.pivot.view.optimize_view` (init[i] joins its multi-start set); objective Σ F_i/W_i.
+    ``landmarks(i)`` returns waypoint i's landmarks (n, 3) [m] and weights (n,)."""
+    N = T.shape[0]
+    dirs, rots, visible = np.empty((N, 3)), np.empty((N, 3, 3)), np.zeros(N, dtype=int)
+    obj, iters = 0.0, 0
+    for i in range(N):
+        Pi, wi = landmarks(i)
+        d = Pi - T[i]
+        n = np.sqrt(np.square(d) @ np.ones(3))
+        scale = max(float(n.max(initial=0.0)), float(np.abs(T).max()), 1.0)
+        ok = n > 1e-9 * scale  # a landmark at the sensor has no bearing
+        B, w, n = d[ok] / n[ok, None], wi[ok], n[ok]
+        if dist_w and n.size:
+            w = np.maximum(_weights(n[None].astype(np.float32), None, w[None], True)[0].astype(float), 0.0)
+        uniform = w.size == 0 or bool(np.all(w == w[0]))
+        r = optimize_view(B, None if uniform else w, alpha, init=None if init is None else init[i])
+        dirs[i], rots[i], visible[i] = r.direction, r.rotation, r.visible
+        # F_i / W_i: with uniform weights optimize_view counted each landmark as 1
+        obj += r.objective / max(float(w.size) if uniform else float(w.sum()), 1e-12)
+        iters = max(iters, r.iterations)
+    return TrajectoryResult(dirs, rots, visible, iters, obj)
+
+
+def _band(geom: _ascent.Geometry, C: np.ndarray, alpha: float, reach: float, cap: int):
+    """Bearings (N, L, 3) and weights (N, L) of the landmarks within α ± reach of each axis C (N, 3):
+    the only ones whose state a search moving the axes by at most ``reach`` [rad] can change."""
+    cos_lo = float(np.cos(min(np.pi, alpha + reach)))
+    cos_hi = float(np.cos(alpha - reach)) if alpha > reach else 2.0
+    return _ascent._active(geom, C, cos_lo, cos_hi, cap)
+
+
+def _reachable_fn(constraint: PanTiltConstraint | None) -> polish.Reachable | None:
+    """``reachable(rows, directions (n, K, 3)) -> (n, K) bool`` for the polish, or None without limits."""
+    if constraint is None:
+        return None
+
+    def reachable(rows: np.ndarray, d: np.ndarray) -> np.ndarray:
+        n, K, _ = d.shape
+        sub = PanTiltConstraint(
+            np.repeat(constraint.base_from_world[rows], K, axis=0),
+            constraint.pan_min, constraint.pan_max, constraint.tilt_min, constraint.tilt_max,
+        )
+        return sub.reachable(d.reshape(-1, 3)).reshape(n, K)
+
+    return reachable
+
+
 def _polish(
     geom: _ascent.Geometry,
     C: np.ndarray,
@@ -221,27 +384,58 @@ def _polish(
     constraint: PanTiltConstraint | None,
     opts: TrajectoryOptions,
 ) -> np.ndarray:
-    """Hard-count polish of the axes C (N, 3) on the landmarks that can change state within its reach."""
+    """Hard-count polish of Φ_hard (pivotd.pivot.polish.polish_trajectory) of the axes C (N, 3)."""
     radius, tol = np.radians(opts.polish_deg), np.radians(opts.polish_tol_deg)
-    reach = (opts.polish_sweeps + 1) * radius
-    cos_lo = float(np.cos(min(np.pi, alpha + reach)))
-    cos_hi = float(np.cos(alpha - reach)) if alpha > reach else 2.0
-    B, Wa = _ascent._active(geom, C, cos_lo, cos_hi, opts.polish_cap)
-    reachable = None
-    if constraint is not None:
-
-        def reachable(rows: np.ndarray, d: np.ndarray) -> np.ndarray:
-            n, K, _ = d.shape
-            sub = PanTiltConstraint(
-                np.repeat(constraint.base_from_world[rows], K, axis=0),
-                constraint.pan_min, constraint.pan_max, constraint.tilt_min, constraint.tilt_max,
-            )
-            return sub.reachable(d.reshape(-1, 3)).reshape(n, K)
-
+    B, Wa = _band(geom, C, alpha, (opts.polish_sweeps + 1) * radius, opts.polish_cap)
     C_new, _ = polish.polish_trajectory(
-        B, Wa, C, norm, alpha, smooth, radius, tol, sweeps=opts.polish_sweeps, anchor=anchor, reachable=reachable
+        B, Wa, C, norm, alpha, smooth, radius, tol, sweeps=opts.polish_sweeps, anchor=anchor,
+        reachable=_reachable_fn(constraint),
     )
     return C_new
+
+
+def _visible_fraction(geom: _ascent.Geometry, row: int, D: np.ndarray, alpha: float) -> np.ndarray:
+    """Hard visible fraction of the weight of all of waypoint ``row``'s landmarks (m,) for axes D (m, 3)."""
+    D32 = D.astype(np.float32)
+    W = geom.weights[row] if geom.weights.ndim == 2 else geom.weights
+    if geom.shared:
+        x = D32 @ geom.points.T
+        if geom.inv_dist is not None:
+            x -= (D32 @ geom.origins[row])[:, None]
+            x *= geom.inv_dist[row][None, :]
+    else:
+        x = D32 @ geom.points[row].T
+    np.greater_equal(x, np.float32(np.cos(alpha)), out=x, casting="unsafe")
+    total = float(np.sum(W, dtype=np.float64))
+    return (x @ W).astype(float) / (total if total > 0 else 1.0)
+
+
+def _hard_total(geom: _ascent.Geometry, C: np.ndarray, alpha: float) -> float:
+    """Σ_i of the hard visible weight of waypoint i's landmarks for axes C (N, 3) (float32 cosines)."""
+    inside = geom.cos_all(C) >= np.float32(np.cos(alpha))
+    if geom.inv_dist is not None and not geom.valid_all:
+        inside &= geom.inv_dist > 0
+    return float(np.sum(inside * geom.weight_rows(), dtype=np.float64))
+
+
+def _step_polish(
+    geom: _ascent.Geometry,
+    C: np.ndarray,
+    alpha: float,
+    max_step: float,
+    anchor: np.ndarray | None,
+    constraint: PanTiltConstraint | None,
+    opts: TrajectoryOptions,
+    smooth: float = 0.0,
+    norm: np.ndarray | None = None,
+) -> np.ndarray:
+    """Step-limited polish of the visible weight (pivotd.pivot.polish.step_limited_polish) of the axes C (N, 3)."""
+    radius, tol = np.radians(opts.step_polish_deg), np.radians(opts.polish_tol_deg)
+    return polish.step_limited_polish(
+        lambda C_, reach: _band(geom, C_, alpha, reach, opts.polish_cap),
+        C, alpha, max_step, radius, tol, anchor=anchor, reachable=_reachable_fn(constraint),
+        smooth=smooth, norm=norm,
+    )
 
 
 def optimize_trajectory(
@@ -255,28 +449,44 @@ def optimize_trajectory(
     init_directions: np.ndarray | None = None,
     anchor: np.ndarray | None = None,
     constraint: PanTiltConstraint | None = None,
+    max_step: float | None = None,
     options: TrajectoryOptions | None = None,
 ) -> TrajectoryResult:
     """Optimise viewing directions for landmarks ``points`` (M, 3) [m] along ``waypoints`` (N, 3) [m].
 
     α: FoV half-angle [rad]; λ ≥ 0: smoothness weight; ``weights`` (M,) feature weights (None: 1);
-    ``retained``: per-waypoint index arrays into ``points`` (None: every landmark everywhere);
-    ``init_directions`` (N, 3): warm start (no multi-start, no FoV widening unless configured) — None
-    starts along the local path direction with the FoV schedule; ``anchor`` (3,): a fixed direction
-    just before waypoint 0 (adds λ anchor·c_0); ``constraint``: pan/tilt limits enforced at every step.
-    Landmarks coinciding with a waypoint are ignored there. Raises ValueError on NaN/inf or bad shapes.
+    ``retained``: per-waypoint index arrays into ``points`` (None: every landmark everywhere) — only
+    those landmarks are read, so the cost does not depend on the map's size; ``init_directions``
+    (N, 3): warm start (no multi-start, no FoV widening unless configured) — None starts from the
+    chain initialisation; ``anchor`` (3,): a fixed direction just before waypoint 0 (adds λ anchor·c_0);
+    ``constraint``: pan/tilt limits enforced at every step; ``max_step`` [rad]: a hard limit on the
+    angle between consecutive directions (and from the anchor), guaranteed (pivotd.pivot.steps).
+    λ = 0 without ``constraint`` and ``max_step`` solves each waypoint with
+    :func:`pivotd.pivot.view.optimize_view`. Landmarks coinciding with a waypoint are ignored there.
+    Raises ValueError on NaN/inf or bad shapes.
     """
     opts = options or TrajectoryOptions()
     alpha = half_angle(alpha)
     lam = float(lam)
     if not (np.isfinite(lam) and lam >= 0):
         raise ValueError(f"lambda must be a finite number ≥ 0, got {lam}")
-    P = finite_array("points", points)
+    if max_step is not None:
+        max_step = float(max_step)
+        if not (np.isfinite(max_step) and 0.0 < max_step <= np.pi):
+            raise ValueError(f"max_step must be an angle in (0, pi] rad, got {max_step}")
     T = finite_array("waypoints", waypoints)
     N = T.shape[0]
     if N == 0:
         raise ValueError("waypoints is empty")
-    fw = feature_weights(weights, P.shape[0])
+    if retained is None:
+        P = finite_array("points", points)
+        fw = feature_weights(weights, P.shape[0])
+        if P.shape[0] > 1:  # every landmark is used: lay them out along a space-filling curve (spatial_order)
+            order = spatial_order(P, [np.arange(P.shape[0])])[0]
+            P, fw = P[order], fw[order]
+        pairs = None
+    else:
+        pairs = _gather_pairs(points, weights, retained, N)
     if constraint is not None and len(constraint) != N:
         raise ValueError(f"constraint has {len(constraint)} waypoints, the path has {N}")
     a_vec = None if anchor is None else unit_vector("anchor", anchor)
@@ -291,14 +501,18 @@ def optimize_trajectory(
         C0 = C0 / n0[:, None]
     else:
         C0 = path_directions(T)
+    if lam == 0.0 and constraint is None and max_step is None:
+        views = (lambda i: (P, fw)) if pairs is None else pairs.waypoint
+        return _independent_views(views, T, alpha, C0 if warm else None, opts.distance_weights)
     R0 = optical_frame_from_direction(C0)
 
-    if P.shape[0] == 0:
+    lengths = np.full(N, P.shape[0]) if pairs is None else pairs.lengths
+    if not lengths.any():
         geom, norm = None, np.zeros(N)
-    elif retained is None:
+    elif pairs is None:
         geom, norm = _dense_geometry(P, T, fw, opts.distance_weights)
     else:
-        geom, norm = _ragged_geometry(P, T, fw, opts.distance_weights, retained)
+        geom, norm = _ragged_geometry(pairs, T, opts.distance_weights)
 
     rad = np.radians
     if warm:
@@ -333,16 +547,17 @@ def optimize_trajectory(
     else:
         geom_run = geom
     coarse = None
+    seed = None  # node waypoints of the chain initialisation, for the step-limited seed
     smooth = lam * opts.smooth_scale
     if geom is not None and (len(stages) > 1 or (opts.chain_init and not warm)):
-        lengths = (
-            np.full(N, P.shape[0]) if retained is None else np.array([np.asarray(r).size for r in retained])
-        )
         if opts.chain_init and not warm:  # the chain scores its node waypoints only
-            nodes = chain.node_indices(N, opts.chain_nodes) if smooth > 0 else np.arange(N)
+            linked = smooth > 0 or max_step is not None
+            nodes = chain.node_indices(N, opts.chain_nodes) if linked else np.arange(N)
             sub = _ascent.subsample(geom.take_rows(nodes), lengths[nodes], opts.active_cap)
+            seed = nodes if linked else None
+            node_scores = sub if smooth > 0 or not linked else _ascent.subsample(geom, lengths, opts.active_cap)
             C_init = chain.initial_directions(
-                sub.points, sub.weights, alpha, smooth, nodes, N,
+                node_scores.points, node_scores.weights, alpha, smooth, nodes if smooth > 0 else np.arange(N), N,
                 resolution_deg=opts.chain_resolution_deg, anchor=a_vec,
             )
             R0 = optical_frame_from_direction(C_init)
@@ -352,17 +567,46 @@ def optimize_trajectory(
             coarse = _ascent.subsample(geom, lengths, opts.active_cap)
     R, iters = _ascent.ascend(geom_run, R0, norm, settings, lam=smooth, anchor=a_vec, project=project, coarse=coarse)
     C = R[:, :, 2].copy()
-    if geom is not None and opts.polish_deg > 0 and (opts.warm_polish or not warm):
-        C_new = _polish(geom, C, norm, alpha, smooth, a_vec, constraint, opts)
-        R = _ascent._turn_to(R, C_new)
-        C = R[:, :, 2].copy()
+    cold_or_allowed = opts.warm_polish or not warm
+    if geom is not None and opts.polish_deg > 0 and cold_or_allowed:
+        C = _polish(geom, C, norm, alpha, smooth, a_vec, constraint, opts)
+    if max_step is not None:  # the hard limit: project, then polish the count within it
+        C = limit_steps(C, max_step, anchor=a_vec, constraint=constraint)
+        limit = max_step
+    else:  # Pareto polish: more visible landmarks at the plan's own largest step
+        limit = float(step_angles(C, a_vec).max(initial=0.0)) if (N > 1 or a_vec is not None) else None
+    if geom is not None and opts.step_polish_deg > 0 and cold_or_allowed and limit is not None and limit > 0:
+        # at the plan's own largest step the polish keeps the λ trade-off (Φ_hard within the step); under a
+        # hard limit the limit is the smoothness asked for, and the polish maximises the visible weight
+        keep_smooth = smooth if max_step is None else 0.0
+        C = _step_polish(geom, C, alpha, limit, a_vec, constraint, opts, keep_smooth, norm)
+        if seed is not None and opts.seed_cap > 0 and max_step is not None:
+            # under a hard limit, the best plan within it on a grid, polished, is a second candidate, kept when
+            # it sees more (both stay within the limit): the λ plan may take another route than the limit allows
+            nodes = seed
+            sub = _ascent.subsample(geom.take_rows(nodes), lengths[nodes], opts.seed_cap)
+            C_alt = chain.step_limited_directions(
+                sub.points, sub.weights, alpha, nodes, N, limit, resolution_deg=opts.chain_resolution_deg,
+                anchor=a_vec, exact=lambda k, D: _visible_fraction(geom, int(nodes[k]), D, alpha),
+                full_sizes=lengths[nodes],
+            )
+            if constraint is not None:
+                C_alt = constraint.project(C_alt)
+            C_alt = _step_polish(geom, limit_steps(C_alt, limit, anchor=a_vec, constraint=constraint), alpha, limit,
+                                 a_vec, constraint, opts, keep_smooth, norm)
+            if _hard_total(geom, C_alt, alpha) > _hard_total(geom, C, alpha):
+                C = C_alt
+        if max_step is not None:
+            C = limit_steps(C, max_step, anchor=a_vec, constraint=constraint)  # a no-op: the guarantee
+    R = _ascent._turn_to(R, C)
+    C = R[:, :, 2].copy()
     if geom is None:
         visible = np.zeros(N, dtype=int)
         F = np.zeros(N)
     else:
         visible, F = _ascent.evaluate(geom, C, alpha, rad(opts.width_deg))
     obj = float(np.sum(F / np.maximum(norm, 1e-12)))
-    if lam > 0:
+    if smooth > 0:
         obj += smooth * float(np.sum(C[1:] * C[:-1]))
         if a_vec is not None:
             obj += smooth * float(a_vec @ C[0])

@@ -1,10 +1,12 @@
 """Single-pose PIVOT: the viewing direction that keeps the most (weighted) landmarks in a conical FoV.
 
 Practical enhancements of the paper (§IV-C): multi-start initialisation (centroid, orthogonal and
-tangent directions and landmark-seeded directions, each moved by two mean-shift steps, ranked by hard
-visible weight on a strided subsample, near-duplicates pruned, the top few refined together), a FoV
-schedule that starts wide and narrows to α with k_s recomputed from a target transition width, and
-normalised, clipped, adaptively scaled steps (see :func:`pivotd.pivot._ascent.ascend`).
+tangent directions, landmark-seeded directions and the best directions of a coarse lattice scored on a
+strided subsample, each moved by two mean-shift steps, ranked on the subsample, near-duplicates pruned),
+ranking of the survivors by their hard visible weight on all landmarks after one more mean-shift step,
+refinement of the best one and of those whose widened-cone bound could still beat it, a hard-count
+polish, an optional FoV schedule that starts wide and narrows to α with k_s recomputed from a target
+transition width, and normalised, clipped, adaptively scaled steps (see :func:`pivotd.pivot._ascent.ascend`).
 """
 
 from __future__ import annotations
@@ -35,11 +37,16 @@ class ViewOptions:
     step_max_deg: float = 15.0
     tol_deg: float = 0.25
     sample: int = 1024  # landmarks (strided) used to rank the multi-start candidates
-    seeds: int = 48  # landmark-seeded candidates
+    seeds: int = 32  # landmark-seeded candidates
     mean_shift: int = 2  # mean-shift steps applied to every candidate before ranking
-    refine: int = 3  # candidates refined after ranking and pruning
-    final_candidates: int = 2  # at most this many go on to the full-resolution stage at α
-    keep_ratio: float = 0.5  # refine only candidates scoring ≥ ratio · best
+    coarse_ratio: float = 1.0  # global seed: a direction lattice spaced ≈ ratio · α scored on the subsample
+    coarse_peaks: int = 4  # its best directions (non-maximum suppressed) join the multi-start set (0: off)
+    refine: int = 6  # distinct candidates kept after the subsample ranking
+    distinct_ratio: float = 0.5  # candidates closer than ratio · α count as duplicates
+    full_shift: int = 1  # mean-shift steps of those candidates on all landmarks, each scored by full hard count
+    reach_ratio: float = 0.25  # a candidate is refined when its weight within α(1 + ratio) can beat the best
+    final_candidates: int = 2  # at most this many go on to the refinement at α
+    keep_ratio: float = 0.5  # drop candidates whose subsample score is < ratio · best
     active_cap: int = 1024
     final_cap: int = 8192
     drift_deg: float = 5.0
@@ -71,7 +78,7 @@ _AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), (-1.0, 0.0, 0.0), (0
 def _candidates(
     B: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, init: np.ndarray | None, uniform: bool
 ) -> np.ndarray:
-    """Multi-start directions (K, 3), best first, near-duplicates (closer than α) removed.
+    """Multi-start directions (K ≤ refine, 3), best subsample score first, none closer than distinct_ratio · α.
 
     ``uniform``: all weights ``w`` are equal (saves a weighted product per mean-shift step).
     """
@@ -103,34 +110,78 @@ def _candidates(
         C = np.concatenate([C, Bs.take(_spread(Bs.shape[0], k), axis=0)])
     cos_a = np.float32(np.cos(alpha))
     BsT = np.ascontiguousarray(Bs.T)  # (3, s): (K, 3) @ (3, s) is the fast layout
+    if opts.coarse_peaks > 0:  # on every other landmark of the subsample: the lattice is only a seed
+        C = np.concatenate([C, _coarse_peaks(BsT[:, ::2], ws[::2], alpha, opts)])
     raw = C
     raw_score = None
+    Bs1 = np.empty((Bs.shape[0], 4), np.float32)  # (s, 4): bearings and a column of ones
+    Bs1[:, :3] = Bs
+    Bs1[:, 3] = 1.0
     for _ in range(opts.mean_shift):  # mean shift with a flat conical kernel
-        inside = (C @ BsT) >= cos_a  # (K, s)
-        inside = inside.astype(np.float32) if uniform else inside * ws
+        inside = C @ BsT  # (K, s)
+        np.greater_equal(inside, cos_a, out=inside)  # 1.0 inside the cone
+        if not uniform:
+            inside *= ws
+        moved = inside @ Bs1  # (K, 4): weighted sums inside each cone and the weight inside
         if raw_score is None:
-            raw_score = inside @ (ws if uniform else np.ones_like(ws))
-        moved = inside @ Bs
+            raw_score = moved[:, 3] if uniform else moved[:, 3].copy()
+        moved = moved[:, :3]
         nrm = np.sqrt(np.einsum("ij,ij->i", moved, moved))
         ok = nrm > 1e-12
         C = np.where(ok[:, None], moved / np.where(ok, nrm, 1.0)[:, None], C)
-    score = ((C @ BsT) >= cos_a) @ ws
+    score = C @ BsT
+    score = np.greater_equal(score, cos_a, out=score) @ ws
     if raw_score is not None:  # a seed can beat the mode it drifts to (wide cones): keep both
         C = np.concatenate([C, raw])
         score = np.concatenate([score, raw_score])
     order = np.argsort(-score, kind="stable")
     order = order[score[order] >= opts.keep_ratio * score[order[0]]]
     Co = C[order]
-    near = (Co @ Co.T) >= cos_a  # near-duplicates: closer than α
-    remaining = np.ones(order.size, dtype=bool)
-    kept = []  # positions in ``order``, best first
-    for _ in range(max(1, opts.refine)):
-        left = np.flatnonzero(remaining)
-        if left.size == 0:
-            break
-        kept.append(int(left[0]))
-        remaining &= ~near[left[0]]
+    kept = _greedy_distinct(Co, np.cos(opts.distinct_ratio * alpha), max(1, opts.refine))  # positions, best first
     return Co[kept].astype(float)
+
+
+def _greedy_distinct(D: np.ndarray, cos_min: float, k: int) -> list[int]:
+    """Greedy non-maximum suppression over unit directions D (m, 3) sorted best first: the positions of at
+    most k of them, each with cosine < ``cos_min`` to every one picked before it."""
+    far = np.less(D @ D.T, np.float32(cos_min))  # (m, m)
+    free = np.ones(D.shape[0], dtype=bool)
+    picks: list[int] = []
+    for _ in range(k):
+        i = int(free.argmax())
+        if not free[i]:
+            break
+        picks.append(i)
+        free &= far[i]
+    return picks
+
+
+def fibonacci_sphere(n: int) -> np.ndarray:
+    """n near-uniform unit directions (n, 3) (Fibonacci lattice; neighbours ≈ √(4π/n) rad apart)."""
+    i = np.arange(0.5, n, dtype=np.float64)
+    out = np.empty((n, 3))
+    z = out[:, 2]
+    np.multiply(i, 2.0, out=z)
+    z /= n
+    np.subtract(1.0, z, out=z)
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    phi = i * (math.pi * (3.0 - math.sqrt(5.0)))
+    np.multiply(r, np.cos(phi), out=out[:, 0])
+    np.multiply(r, np.sin(phi), out=out[:, 1])
+    return out
+
+
+def _coarse_peaks(BsT: np.ndarray, ws: np.ndarray, alpha: float, opts: ViewOptions) -> np.ndarray:
+    """The global seed: hard visible weight of the subsample (BsT (3, s), ws (s,)) for every direction of a
+    Fibonacci lattice spaced ≈ coarse_ratio · α, and its ``coarse_peaks`` best directions (k, 3) float32,
+    each at least α/2 from the better ones (greedy non-maximum suppression)."""
+    n_dirs = int(min(max(4.0 * math.pi / (opts.coarse_ratio * alpha) ** 2, 32), 4096))
+    D = fibonacci_sphere(n_dirs).astype(np.float32)
+    inside = np.greater_equal(D @ BsT, np.float32(np.cos(alpha)), out=np.empty((n_dirs, BsT.shape[1]), np.float32))
+    score = inside @ ws
+    order = np.argsort(-score, kind="stable")[: 8 * opts.coarse_peaks]
+    Do = D[order]
+    return Do[_greedy_distinct(Do, np.cos(0.5 * alpha), opts.coarse_peaks)]
 
 
 def optimize_view(
@@ -155,6 +206,7 @@ def optimize_view(
         d = init_v if init_v is not None else np.array([1.0, 0.0, 0.0])
         return ViewResult(d, optical_frame_from_direction(d), 0, 0.0, 0)
     w32 = w.astype(np.float32)
+    uniform = weights is None or float(w.min()) == float(w.max())
     C = _candidates(B, w, alpha, opts, init_v, weights is None)
     rad = np.radians
     start = rad(opts.fov_start_deg) if opts.fov_start_deg is not None else min(np.pi / 2, alpha + rad(10.0))
@@ -162,28 +214,35 @@ def optimize_view(
     iters = 0
     if len(stages) > 1:  # widened stages on a strided subsample with weights scaled to the same total
         C, iters = _widened(BT.T, w, C, stages, alpha, opts)
+    C, cos_c, score, bound = _full_shift(C, BT, w32, alpha, opts, uniform)
     cos_a32 = np.float32(np.cos(alpha))
-    cos_c = C.astype(np.float32) @ BT  # (K, n)
-    score = (cos_c >= cos_a32) @ w32
-    # refine only the candidates whose full hard visible weight is within 2 % of the best
-    keep = np.flatnonzero(score >= 0.98 * score.max())[: max(1, opts.final_candidates)]
-    dirs, cos_rows, scores, steps = [], [], [], 0
-    for k in keep:
-        c_r, n_it = _refine_one(BT, w32, C[k], cos_c[k], alpha, opts)
-        steps = max(steps, n_it)
-        dirs.append(c_r)
+    # refine the candidates that could still win: those whose bound (the weight within α(1 + reach_ratio),
+    # more than any direction that close to them can see) reaches the best full hard weight: the best one
+    # first, then by highest bound, skipping those the mean shift brought within distinct_ratio · α of one
+    # already chosen (a greedy pick for the winner so far, optimistic picks for the basins it may miss)
+    order = np.argsort(-bound, kind="stable")
+    order = order[bound[order] >= score.max()]
+    order = np.concatenate([[int(np.argmax(score))], order])
+    cos_d = np.cos(opts.distinct_ratio * alpha)
+    keep: list[int] = []
+    for k in order:
+        if len(keep) >= max(1, opts.final_candidates):
+            break
+        if all(float(C[k] @ C[j]) < cos_d for j in keep):
+            keep.append(int(k))
+    # the chosen candidates are refined together (one band, a few numpy calls per step for all of them);
+    # each keeps the better of its start and its refined axis by full hard weight
+    R, steps = _refine(BT, w32, C[keep], cos_c[keep], alpha, opts, uniform)
     iters += steps
-    if dirs:
-        cos_r = np.stack(dirs).astype(np.float32) @ BT
-        s_r = (cos_r >= cos_a32) @ w32
-        dirs += [C[k] for k in keep]  # never worse than a starting candidate
-        cos_rows = [*cos_r, *cos_c[keep]]
-        scores = [*s_r, *score[keep]]
+    s_r = _row_weights(R.astype(np.float32) @ BT >= cos_a32, w32, uniform)
+    dirs = [*R, *C[keep]]
+    scores = [*s_r.tolist(), *score[keep].tolist()]
     best = int(np.argmax(scores))
-    c_best, cos_best = dirs[best], cos_rows[best]
+    c_best = dirs[best]
+    cos_best = c_best.astype(np.float32) @ BT if best < len(keep) else cos_c[keep[best - len(keep)]]
     if opts.polish_deg > 0:
         tol = min(rad(opts.tol_deg), 0.05 * alpha)
-        c_best = polish_hard(c_best, BT, w32, alpha, min(rad(opts.polish_deg), 0.5 * alpha), tol, cos_best)
+        c_best = polish_hard(c_best, BT, w32, alpha, min(rad(opts.polish_deg), 0.5 * alpha), tol, cos_best, uniform)
     c_best = c_best / np.sqrt(c_best @ c_best)
     ca = np.cos(alpha)
     cos_f = c_best.astype(np.float32) @ BT
@@ -205,6 +264,50 @@ def optimize_view(
     wb = w32.take(band)
     f = 0.5 * float(wb.sum(dtype=np.float64) + x @ wb) + float(w32 @ (cos_f >= hi))
     return ViewResult(c_best, _frame(c_best), visible, f, iters)
+
+
+def _full_shift(
+    C: np.ndarray, BT: np.ndarray, w32: np.ndarray, alpha: float, opts: ViewOptions, uniform: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Mean-shift steps of the candidate axes C (K, 3) on all landmarks (float32 BT (3, n), weights w32 (n,)).
+
+    Each candidate keeps the position with the highest full hard weight among its start and its shifted
+    positions. Returns those axes (K, 3), their cos rows (K, n) float32, their hard weights (K,) and
+    bounds (K,): the weight within α(1 + reach_ratio) of each kept axis. ``uniform``: all weights equal.
+    """
+    cos_a = np.float32(np.cos(alpha))
+    cos_b = np.float32(np.cos(min(np.pi, alpha * (1.0 + opts.reach_ratio))))
+    C = C.astype(float)
+    cos_c = C.astype(np.float32) @ BT  # (K, n)
+    inside = cos_c >= cos_a
+    axes, cos_rows, scores = [C], [cos_c], [_row_weights(inside, w32, uniform)]  # per position
+    for _ in range(opts.full_shift):
+        moved = (inside.astype(np.float32) if uniform else inside * w32) @ BT.T  # (K, 3) sums inside each cone
+        nrm = np.sqrt(np.einsum("ij,ij->i", moved, moved))
+        ok = nrm > 1e-12
+        C = np.where(ok[:, None], moved / np.where(ok, nrm, 1.0)[:, None], C).astype(float)
+        cos_c = C.astype(np.float32) @ BT
+        inside = cos_c >= cos_a
+        axes.append(C)
+        cos_rows.append(cos_c)
+        scores.append(_row_weights(inside, w32, uniform))
+    pick = np.argmax(np.array(scores), axis=0)  # (K,): the first position with the highest weight
+    rows = np.arange(C.shape[0])
+    best_C, best_score = np.array(axes)[pick, rows], np.array(scores)[pick, rows]
+    best_cos = cos_rows[0]
+    for p in range(1, len(cos_rows)):
+        moved_rows = pick == p
+        if moved_rows.any():
+            best_cos[moved_rows] = cos_rows[p][moved_rows]
+    return best_C, best_cos, best_score, _row_weights(best_cos >= cos_b, w32, uniform)
+
+
+def _row_weights(mask: np.ndarray, w32: np.ndarray, uniform: bool) -> np.ndarray:
+    """Weight inside each row of ``mask`` (K, n) bool, float32 (K,). With equal weights w32 (n,) and few rows,
+    the count times that weight: one count_nonzero per long row beats a (K, n) cast and product."""
+    if not uniform or mask.shape[0] > 8:
+        return mask @ w32
+    return np.array([np.count_nonzero(r) for r in mask], np.float32) * (w32[0] if w32.size else np.float32(1.0))
 
 
 def _widened(
@@ -294,17 +397,20 @@ def _width(alpha: float, opts: ViewOptions) -> float:
     return max(np.radians(opts.width_deg), opts.width_ratio * alpha)
 
 
-def _refine_one(
-    BT: np.ndarray, w: np.ndarray, c: np.ndarray, cos_c: np.ndarray, alpha: float, opts: ViewOptions
+def _refine(
+    BT: np.ndarray, w: np.ndarray, C: np.ndarray, cos_c: np.ndarray, alpha: float, opts: ViewOptions, uniform: bool
 ) -> tuple[np.ndarray, int]:
-    """Gradient ascent at α from the unit axis c (3,) over float32 bearings BT (3, n) / weights w (n,);
-    ``cos_c`` (n,) = c · k_j. Returns the final axis (3,) and the number of steps.
+    """Gradient ascent at α from each unit axis of C (K, 3) over float32 bearings BT (3, n) / weights w (n,),
+    all K at once; ``cos_c`` (K, n) = C · k_j; ``uniform``: all weights equal. Returns the final axes (K, 3)
+    and the largest number of steps.
 
     Same step control as :func:`pivotd.pivot._ascent.ascend` (normalised direction, bound grows ×1.2,
-    halves on reversal), on the landmarks within the transition band α ± (2·width + drift) of the axis;
-    the band is re-selected when the axis drifts further than ``drift_deg`` from where it was selected.
-    The step exp((h Ĵ)^) R turns the axis about the unit tangent Ĵ ⟂ c: c ← cos h · c + sin h · (Ĵ × c),
-    so only the axis is tracked (the roll about it does not change the objective).
+    halves on reversal), per axis, on the landmarks within the transition band α ± (2·width + drift) of
+    any axis; the band is re-selected when an axis drifts further than ``drift_deg`` from where it was
+    selected. The step exp((h Ĵ)^) R turns the axis about the unit tangent Ĵ ⟂ c:
+    c ← cos h · c + sin h · (Ĵ × c), so only the axes are tracked (the roll does not change the objective).
+    One iteration is a handful of numpy calls whatever K: (K, 4) @ (4, m) gives (k_s/2)(c · k_j − cos α)
+    for every axis (the band carries a row of ones), then tanh, and v(1 − v) @ band for the ascent directions.
     """
     width = _width(alpha, opts)
     ks = ks_from_width(alpha, width)
@@ -313,62 +419,83 @@ def _refine_one(
     margin = 2.0 * w_eff + drift
     lo = np.float32(np.cos(min(np.pi, alpha + margin)))
     hi = np.float32(np.cos(alpha - margin)) if alpha > margin else np.float32(2.0)
-    cos_a = np.float32(np.cos(alpha))
-    half_ks = np.float32(0.5 * ks)
+    half_ks = 0.5 * ks
+    shift = -half_ks * float(np.cos(alpha))
     tol = min(np.radians(opts.tol_deg), 0.05 * alpha)
     h_max = min(np.radians(opts.step_max_deg), alpha)
-    h = min(np.radians(opts.step_init_deg), 0.5 * drift, 0.5 * alpha)
+    h0 = min(np.radians(opts.step_init_deg), 0.5 * drift, 0.5 * alpha)
     cos_drift = np.cos(drift)
-    uniform = bool(w.size) and float(w.min()) == float(w.max())
 
-    def band(cs: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        sel = np.flatnonzero((cs >= lo) & (cs <= hi))
-        return np.ascontiguousarray(BT.take(sel, axis=1).T), None if uniform else w.take(sel)
+    def band(cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bearings of the band with a row of ones (4, m) and their weighted bearings (m, 3)."""
+        inside = (cs >= lo) & (cs <= hi)
+        sel = np.flatnonzero(inside.any(axis=0) if inside.shape[0] > 1 else inside[0])
+        A = np.empty((4, sel.size), np.float32)
+        BT.take(sel, axis=1, out=A[:3])
+        A[3] = 1.0
+        return A, (A[:3] if uniform else A[:3] * w.take(sel)).T
 
-    x, y, z = (float(v) for v in c)
-    Bb, wb = band(cos_c)
-    ref = (x, y, z)
-    jx = jy = jz = 0.0
+    K = C.shape[0]
+    xyz = [[float(v) for v in c] for c in C]
+    ref = [list(c) for c in xyz]
+    J = [(0.0, 0.0, 0.0)] * K
+    h = [h0] * K
+    active = list(range(K))
+    A, AwT = band(cos_c)
     it = 0
     for it in range(1, opts.max_iterations + 1):  # noqa: B007
-        if Bb.shape[0] == 0:
+        if not active or A.shape[1] == 0:
             break
-        t = Bb @ np.array([x, y, z], dtype=np.float32)
-        t -= cos_a
-        t *= half_ks
+        V = np.array([[half_ks * v for v in xyz[k]] + [shift] for k in active], np.float32)
+        t = V @ A  # (k_s/2)(c · k_j − cos α), (K', m)
         np.tanh(t, out=t)
         t *= t
-        g = 1.0 - t  # ∝ v(1 − v); the constant factor does not matter after normalisation
-        if wb is not None:
-            g *= wb
-        sx, sy, sz = (float(v) for v in g @ Bb)
-        Jx, Jy, Jz = y * sz - z * sy, z * sx - x * sz, x * sy - y * sx  # c × S
-        nJ = math.sqrt(Jx * Jx + Jy * Jy + Jz * Jz)
-        agree = Jx * jx + Jy * jy + Jz * jz
-        h = 0.5 * h if agree < 0 else (min(1.2 * h, h_max) if agree > 0 else h)
-        jx, jy, jz = (0.0, 0.0, 0.0) if agree < 0 else (Jx, Jy, Jz)
-        if nJ < 1e-12 or h < tol:
-            break
-        ux, uy, uz = Jx / nJ, Jy / nJ, Jz / nJ
-        ch, sh = math.cos(h), math.sin(h)
-        x, y, z = (ch * x + sh * (uy * z - uz * y), ch * y + sh * (uz * x - ux * z), ch * z + sh * (ux * y - uy * x))
-        nrm = math.sqrt(x * x + y * y + z * z)
-        x, y, z = x / nrm, y / nrm, z / nrm
-        if x * ref[0] + y * ref[1] + z * ref[2] < cos_drift:
-            Bb, wb = band(np.array([x, y, z], dtype=np.float32) @ BT)
-            ref = (x, y, z)
-    return np.array([x, y, z]), it
+        np.subtract(1.0, t, out=t)  # ∝ v(1 − v); the constant factor does not matter after normalisation
+        S = (t @ AwT).tolist()  # (K', 3)
+        still, moved = [], False
+        for k, (sx, sy, sz) in zip(active, S, strict=True):
+            x, y, z = xyz[k]
+            Jx, Jy, Jz = y * sz - z * sy, z * sx - x * sz, x * sy - y * sx  # c × S
+            nJ = math.sqrt(Jx * Jx + Jy * Jy + Jz * Jz)
+            jx, jy, jz = J[k]
+            agree = Jx * jx + Jy * jy + Jz * jz
+            hk = h[k]
+            hk = 0.5 * hk if agree < 0 else (min(1.2 * hk, h_max) if agree > 0 else hk)
+            h[k] = hk
+            J[k] = (0.0, 0.0, 0.0) if agree < 0 else (Jx, Jy, Jz)
+            if nJ < 1e-12 or hk < tol:
+                continue
+            ux, uy, uz = Jx / nJ, Jy / nJ, Jz / nJ
+            ch, sh = math.cos(hk), math.sin(hk)
+            x, y, z = ch * x + sh * (uy * z - uz * y), ch * y + sh * (uz * x - ux * z), ch * z + sh * (ux * y - uy * x)
+            nrm = math.sqrt(x * x + y * y + z * z)
+            xyz[k] = [x / nrm, y / nrm, z / nrm]
+            still.append(k)
+            r = ref[k]
+            moved |= xyz[k][0] * r[0] + xyz[k][1] * r[1] + xyz[k][2] * r[2] < cos_drift
+        active = still
+        if moved and active:
+            A, AwT = band(np.array(xyz, np.float32) @ BT)
+            ref = [list(c) for c in xyz]
+    return np.array(xyz), it
 
 
 def polish_hard(
-    c: np.ndarray, BT: np.ndarray, w: np.ndarray, alpha: float, radius: float, tol: float, cos_c: np.ndarray
+    c: np.ndarray,
+    BT: np.ndarray,
+    w: np.ndarray,
+    alpha: float,
+    radius: float,
+    tol: float,
+    cos_c: np.ndarray,
+    uniform: bool = False,
 ) -> np.ndarray:
     """Pattern search on the hard visible weight around ``c``: evaluate 8 directions on each of the rings
     radius, radius/2, …, ≥ tol [rad] at once, move to the best strict improvement, repeat (at most 4 moves).
 
     BT (3, n) float32 unit bearings, w (n,) weights. The axis moves at most 4·radius, so only landmarks
     within α ± 4.5·radius of ``c`` (``cos_c`` = c · k_j) can change the count: the others are counted
-    once. Float32 inside; the caller recounts exactly.
+    once. Float32 inside; the caller recounts exactly. ``uniform``: all weights equal (counts instead of sums).
     """
     reach = 4.5 * radius
     lo, hi = np.cos(min(np.pi, alpha + reach)), np.cos(max(0.0, alpha - reach))
@@ -381,10 +508,10 @@ def polish_hard(
     radii = [radius]
     while radii[-1] * 0.5 >= tol:
         radii.append(radii[-1] * 0.5)
-    ring = [(math.cos(r), math.sin(r), math.cos(k * math.pi / 4), math.sin(k * math.pi / 4))
-            for r in radii for k in range(8)]
-    cos_r, sin_r, ca, sa = np.array(ring).T[:, :, None]  # each (8·rings, 1)
-    best = float((c.astype(np.float32) @ bandT >= cos_a) @ wb)
+    r = np.repeat(radii, 8)[:, None]  # (8·rings, 1)
+    phi = np.tile(np.arange(8) * (math.pi / 4), len(radii))[:, None]
+    cos_r, sin_r, ca, sa = np.cos(r), np.sin(r), np.cos(phi), np.sin(phi)
+    best = float(_row_weights(c.astype(np.float32)[None] @ bandT >= cos_a, wb, uniform)[0])
     for _ in range(4):
         x, y, z = (float(v) for v in c)
         tx, ty, tz = (y, -x, 0.0) if abs(z) < 0.9 else (0.0, z, -y)  # c × e_z or c × e_x
@@ -392,7 +519,7 @@ def polish_hard(
         t1 = np.array([tx / nt, ty / nt, tz / nt])
         t2 = np.array([y * t1[2] - z * t1[1], z * t1[0] - x * t1[2], x * t1[1] - y * t1[0]])
         cand = cos_r * c + sin_r * (ca * t1 + sa * t2)
-        vals = (cand.astype(np.float32) @ bandT >= cos_a) @ wb
+        vals = _row_weights(cand.astype(np.float32) @ bandT >= cos_a, wb, uniform)
         k = int(np.argmax(vals))
         if vals[k] <= best:
             break

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pivotd.gimbal.dynamixel_table import POSITION_RESOLUTION
 from pivotd.gimbal.kinematics import camera_position, joints_to_world_direction
 from pivotd.gimbal.motion import AxisLimits
 from pivotd.maps.formats import load_landmarks
@@ -143,6 +144,15 @@ def setpoint_dynamics(positions: np.ndarray, dt: float, pan: AxisLimits, tilt: A
                           *allow, (lim_v, lim_a, lim_j))
 
 
+def device_setpoint_dynamics(cfg: Config, dev: DeviceLog) -> DynamicsReport:
+    """:func:`setpoint_dynamics` of what the device logged, as its backend's wire carries it: angles and rates at
+    micro-radian resolution, or (dynamixel) goal positions only, in ticks of 2π/4096."""
+    if cfg.gimbal.backend == "dynamixel":
+        return setpoint_dynamics(dev.sp_pos, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt,
+                                 resolution=POSITION_RESOLUTION)
+    return setpoint_dynamics(dev.sp_pos, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt, rates=dev.sp_rate)
+
+
 def visible_counts(points: np.ndarray, cameras: np.ndarray, directions: np.ndarray, half_angle: float,
                    min_range: float = 0.0, max_range: float = np.inf, chunk: int = 64) -> np.ndarray:
     """Hard count (T,) of ``points`` (M, 3) inside the cone of half-angle [rad] around ``directions`` (T, 3)
@@ -182,7 +192,7 @@ def analyse_run(cfg: Config, obs: Observations, device_log: Path) -> tuple[dict,
     n_piv = visible_counts(cloud.points, cams, piv, cfg.pivot.half_angle, flt.min_range, flt.max_range)
     n_fwd = visible_counts(cloud.points, cams, fwd, cfg.pivot.half_angle, flt.min_range, flt.max_range)
     dev = read_device_log(device_log)
-    dyn = setpoint_dynamics(dev.sp_pos, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt, rates=dev.sp_rate)
+    dyn = device_setpoint_dynamics(cfg, dev)
     lim = cfg.gimbal.limits
     report = {
         "frames": len(frames),

@@ -1,6 +1,8 @@
-"""The main job on the embedded default: daemon + simulated robot + in-process mock gimbal.
+"""The main job on the embedded default: daemon + simulated robot + simulated gimbal.
 
-Starts ``pivotd`` with ``config/demo.yaml`` (gimbal ``mock://`` with a message log) and
+Starts ``pivotd`` with ``config/demo.yaml`` (gimbal ``mock://`` with a message log, or with ``--backend
+mavlink`` / ``dynamixel`` the MAVLink gimbal manager on UDP / the DYNAMIXEL servo chain on a pty of
+``tools/mock_gimbal``, logging the same CSV) and
 ``tools/sim_pose`` on the S-shaped hallway, both talking Zenoh on loopback only. While the robot
 walks, a live status line shows what the daemon reports. Afterwards it prints a summary: landmarks
 visible per frame with PIVOT versus a forward-facing camera on the same route, setpoints sent, worst
@@ -25,7 +27,7 @@ import numpy as np
 from pivotd.bus.probe import BusProbe
 from pivotd.config import Config, load_config
 from pivotd.sim.analysis import analyse_run
-from pivotd.sim.launch import REPO, free_port, spawn
+from pivotd.sim.launch import REPO, SIMULATED_BACKENDS, derive_config, free_port, spawn, start_gimbal_simulator
 
 log = logging.getLogger("pivotd.demo")
 
@@ -94,15 +96,19 @@ def plot(series: dict, path: Path) -> None:
 
 
 def run_demo(config_path: Path, out_dir: Path, speed: float = 1.2, timeout: float = 90.0,
-             live: bool = True) -> DemoSummary:
-    """Run the whole demo; returns the summary (also printed)."""
-    cfg = load_config(config_path)
+             live: bool = True, backend: str | None = None) -> DemoSummary:
+    """Run the whole demo (with the config's gimbal backend, or ``backend`` against its simulator); returns the
+    summary (also printed)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    backend = backend or load_config(config_path).gimbal.backend
     device_log = out_dir / "gimbal_log.csv"
+    gimbal, port = start_gimbal_simulator(backend, device_log, out_dir / "mock_gimbal.log")
+    config_path = derive_config(config_path, out_dir / "demo.yaml", {"gimbal.backend": backend, "gimbal.port": port})
+    cfg = load_config(config_path)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     py = sys.executable
     daemon = spawn([py, "-m", "pivotd.cli", "--config", str(config_path), "--listen", endpoint,
-                     "--port", f"mock://?log={device_log}"], out_dir / "pivotd.log")
+                     "--port", port], out_dir / "pivotd.log")
     sim = None
     probe = None
     exit_code = None
@@ -138,6 +144,13 @@ def run_demo(config_path: Path, out_dir: Path, speed: float = 1.2, timeout: floa
             if proc is not None and proc.poll() is None:
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
+        if gimbal is not None:
+            gimbal.send_signal(signal.SIGTERM)
+            try:
+                gimbal.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                os.killpg(gimbal.pid, signal.SIGKILL)
+                gimbal.wait()
         if probe is not None:
             probe.close()
     obs = probe.observations()
@@ -155,7 +168,7 @@ def run_demo(config_path: Path, out_dir: Path, speed: float = 1.2, timeout: floa
 def _print_summary(r: dict, cfg: Config, png: Path) -> None:
     print()
     print(f"pivotd demo summary ({r['frames']} frames at {cfg.control.joint_state_hz:g} Hz, "
-          f"FoV {np.degrees(cfg.pivot.fov):.0f}°)")
+          f"FoV {np.degrees(cfg.pivot.fov):.0f}°, gimbal backend {cfg.gimbal.backend})")
     print(f"  landmarks visible per frame: PIVOT {r['visible_mean_pivot']:.1f}, forward-facing "
           f"{r['visible_mean_forward']:.1f}  ->  {r['visible_ratio']:.2f}x")
     print(f"  frames with < 10 landmarks visible: PIVOT {r['frames_pivot_below_10']}, "
@@ -166,8 +179,10 @@ def _print_summary(r: dict, cfg: Config, png: Path) -> None:
               f"of limit), acceleration {r['max_acceleration_deg_s2'][i]:7.2f} deg/s² "
               f"({r['acceleration_ratio'][i]:.0%}), jerk {r['max_jerk_deg_s3'][i]:8.1f} deg/s³ "
               f"({r['jerk_ratio'][i]:.0%})")
-    print(f"  within limits (acceleration and jerk from the setpoint rates; the wire's µrad/s resolution allows "
-          f"±{r['jerk_allowance_deg_s3']} deg/s³): {'yes' if r['within_limits'] else 'NO'}")
+    source = ("goal positions in ticks" if cfg.gimbal.backend == "dynamixel"
+              else "acceleration and jerk from the setpoint rates")
+    print(f"  within limits ({source}; the wire's resolution allows ±{r['jerk_allowance_deg_s3']} deg/s³): "
+          f"{'yes' if r['within_limits'] else 'NO'}")
     print(f"  pan range {r['pan_range_deg']} deg, tilt range {r['tilt_range_deg']} deg "
           f"(limits pan/tilt {r['joint_limits_deg']})")
     print(f"  daemon exit code after SIGTERM: {r['daemon_exit_code']}")
@@ -179,8 +194,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", type=Path, default=REPO / "config" / "demo.yaml")
     parser.add_argument("--out", type=Path, default=REPO / "out" / "demo")
     parser.add_argument("--speed", type=float, default=1.2, help="robot speed along the hallway [m/s]")
+    parser.add_argument("--backend", choices=SIMULATED_BACKENDS, default=None,
+                        help="gimbal backend, driven against its simulator (default: the config's)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
-    summary = run_demo(args.config, args.out, speed=args.speed)
+    summary = run_demo(args.config, args.out, speed=args.speed, backend=args.backend)
     ok = summary.daemon_exit == 0 and summary.within_limits and summary.frames > 0
     return 0 if ok else 1

@@ -8,6 +8,8 @@ from __future__ import annotations
 import os
 import socket
 import subprocess
+import sys
+import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
@@ -55,3 +57,38 @@ def spawn(args: list[str], log_path: Path) -> subprocess.Popen:
     fh = open(log_path, "w")  # noqa: SIM115 - owned by the child for its lifetime
     return subprocess.Popen(args, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env,
                             cwd=str(REPO), start_new_session=True)
+
+
+#: backends ``tools/mock_gimbal`` simulates (``gimbal.backend`` values)
+SIMULATED_BACKENDS = ("pivot", "mavlink", "dynamixel")
+
+
+def free_udp_port() -> int:
+    """A UDP port on 127.0.0.1 that was free a moment ago."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def start_gimbal_simulator(backend: str, device_log: Path, log_path: Path) -> tuple[subprocess.Popen | None, str]:
+    """A simulated gimbal for ``backend`` writing its CSV message log to ``device_log``; returns the simulator
+    process (None for ``pivot``: the daemon runs the device model in process, ``mock://``) and the ``gimbal.port``
+    that reaches it."""
+    if backend == "pivot":
+        return None, f"mock://?log={device_log}"
+    if backend == "mavlink":
+        port = free_udp_port()
+        proc = spawn([sys.executable, str(REPO / "tools" / "mock_gimbal"), "--protocol", "mavlink", "--udp",
+                      f"127.0.0.1:{port}", "--log", str(device_log)], log_path)
+        return proc, f"udpout:127.0.0.1:{port}"
+    if backend == "dynamixel":
+        link = device_log.with_name(device_log.stem + "_servos")
+        proc = spawn([sys.executable, str(REPO / "tools" / "mock_gimbal"), "--protocol", "dynamixel", "--link",
+                      str(link), "--log", str(device_log)], log_path)
+        deadline = time.monotonic() + 15.0
+        while not link.exists():  # the pty appears once the simulator runs
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"the servo simulator did not start; see {log_path}")
+            time.sleep(0.05)
+        return proc, str(link)
+    raise ValueError(f"no simulator for gimbal backend {backend!r}; expected one of {', '.join(SIMULATED_BACKENDS)}")

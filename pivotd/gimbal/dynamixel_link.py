@@ -1,0 +1,432 @@
+"""Host side of a pan–tilt unit made of two DYNAMIXEL X-series servos (Protocol 2.0) with ``dynamixel_sdk``.
+
+``DynamixelGimbal(port, settings).start()`` runs one bus thread (the bus is half duplex: every transaction
+happens there). On every (re)connection it pings both servos, turns the torque off, sets Position Control
+Mode, Min/Max Position Limit from the joint limits, Profile Velocity/Acceleration from the motion limits, the
+Goal Position to where each servo is (no jump), turns the torque on and arms the Bus Watchdog with
+``watchdog_ms`` (the servos stop by themselves when the host goes silent). Then, for every setpoint, in order:
+one Sync Write of both Goal Positions; after them one Sync Read of Torque Enable … Present Position (torque,
+Hardware Error Status, velocity and position from one answer). A hardware error is a fault
+(``clear_fault`` reboots the servo and configures it again); disabling turns the torque off. No state for
+``state_timeout_s`` → link down, reconnect with backoff. Positions are 4096 ticks per turn: the joint limits
+must lie within ±180°.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import logging
+import math
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from pivotd.errors import ConfigError
+from pivotd.gimbal import dynamixel_table as ct
+from pivotd.gimbal.interface import GimbalMode, GimbalState, LinkState
+from pivotd.gimbal.kinematics import JointLimits
+from pivotd.gimbal.motion import AxisLimits
+
+log = logging.getLogger(__name__)
+
+_GOAL_QUEUE = 64  # setpoints waiting for the bus thread; older ones are dropped beyond this (counted)
+
+
+def load_sdk() -> Any:
+    """The ``dynamixel_sdk`` module; a clear error when the extra is missing."""
+    try:
+        import dynamixel_sdk
+    except ImportError:
+        raise ConfigError("gimbal.backend: dynamixel needs dynamixel-sdk: pip install 'pivotd[dynamixel]'") from None
+    return dynamixel_sdk
+
+
+@dataclass(frozen=True)
+class DynamixelSettings:
+    """Servo ids and directions, the joint limits [rad] and per-axis motion limits the servos enforce, the bus
+    watchdog [ms], the cycle when no setpoint comes [s], and timing [s]."""
+
+    limits: JointLimits
+    pan_motion: AxisLimits
+    tilt_motion: AxisLimits
+    pan_id: int = 1
+    tilt_id: int = 2
+    pan_reversed: bool = False
+    tilt_reversed: bool = False
+    watchdog_ms: int = 250
+    idle_period_s: float = 0.02
+    state_timeout_s: float = 0.5
+    reconnect_backoff_s: tuple = (0.1, 2.0)
+
+
+class _BusError(Exception):
+    """A transaction failed (no answer, CRC) or a servo refused it."""
+
+
+class DynamixelGimbal:
+    """Two servos as a pan–tilt unit (see the module docstring); a GimbalInterface. Thread-safe."""
+
+    def __init__(self, port: str, settings: DynamixelSettings, baudrate: int = 57600) -> None:
+        self.port_name = port
+        self.settings = settings
+        self.baudrate = baudrate
+        self._sdk = load_sdk()
+        self._ph = self._sdk.PacketHandler(2.0)
+        self._port: Any = None
+        self._link_state = LinkState.STOPPED
+        self._state: GimbalState | None = None
+        self._last_error: str | None = None
+        self._cond = threading.Condition()
+        self._stopping = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._goals: collections.deque[tuple[float, float]] = collections.deque(maxlen=_GOAL_QUEUE)
+        self._wake = threading.Event()
+        self._requests: queue.Queue = queue.Queue()
+        self._want_enabled = True
+        self._torque = (False, False)
+        self._hw_errors = (0, 0)
+        self._ever_up = False
+        self._n = dict.fromkeys(("setpoints_sent", "sync_writes", "sync_reads", "comm_errors", "reconnects",
+                                 "link_losses", "reboots", "goals_dropped", "write_errors"), 0)
+
+    # ------------------------------------------------------------------ GimbalInterface
+    @property
+    def link_state(self) -> LinkState:
+        return self._link_state
+
+    @property
+    def state(self) -> GimbalState | None:
+        return self._state
+
+    @property
+    def last_error(self) -> str | None:
+        return self._last_error
+
+    def start(self) -> None:
+        if self._thread is not None and self._thread.is_alive():
+            return
+        self._stopping.clear()
+        self._set_link_state(LinkState.CONNECTING)
+        self._thread = threading.Thread(target=self._run, name="gimbal-dynamixel", daemon=True)
+        self._thread.start()
+
+    def stop(self, disable: bool = True) -> None:
+        """Torque off (if ``disable`` and up), close the port, stop the bus thread."""
+        if disable and self._link_state == LinkState.UP:
+            self.set_enabled(False)
+        self._stopping.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+        self._set_link_state(LinkState.STOPPED)
+
+    def send_setpoint(self, pan: float, tilt: float, pan_rate: float = 0.0, tilt_rate: float = 0.0) -> int | None:
+        """Hand the next Goal Positions (clamped into the joint limits) to the bus thread; the servos take no rate
+        feed-forward in Position Control Mode, so the rates are not sent."""
+        if self._link_state != LinkState.UP:
+            return None
+        if not all(math.isfinite(v) for v in (pan, tilt, pan_rate, tilt_rate)):
+            raise ValueError("setpoint must be finite")
+        if len(self._goals) == _GOAL_QUEUE:
+            self._n["goals_dropped"] += 1
+        self._goals.append(self.settings.limits.clamp(pan, tilt))
+        self._wake.set()
+        self._n["setpoints_sent"] += 1
+        return self._n["setpoints_sent"]
+
+    def send_heartbeat(self) -> None:
+        """Nothing to send: the bus thread's reads feed the servos' Bus Watchdog."""
+
+    def set_enabled(self, on: bool, timeout: float | None = None) -> bool:
+        """Torque on or off on both servos; True once both confirmed."""
+        self._want_enabled = bool(on)
+        return bool(self._call(lambda: self._set_torque(on), timeout))
+
+    def clear_fault(self, timeout: float | None = None) -> bool:
+        """Reboot the servos that report a hardware error and configure them again; True when none is left."""
+        return bool(self._call(self._reboot_faulted, timeout))
+
+    def counters(self) -> dict[str, int | float]:
+        return dict(self._n)
+
+    # ------------------------------------------------------------------ requests to the bus thread
+    def _call(self, fn: Callable[[], bool], timeout: float | None) -> bool:
+        if self._link_state != LinkState.UP:
+            return False
+        done, box = threading.Event(), []
+        self._requests.put((fn, done, box))
+        self._wake.set()
+        if not done.wait(2.0 if timeout is None else timeout):
+            return False
+        return bool(box and box[0])
+
+    def _serve_requests(self) -> None:
+        """Run the queued requests; a failed one answers False (a port failure is raised after answering)."""
+        while True:
+            try:
+                fn, done, box = self._requests.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                box.append(fn())
+            except _BusError as exc:
+                log.warning("dynamixel request failed: %s", exc)
+                box.append(False)
+            finally:
+                done.set()
+
+    # ------------------------------------------------------------------ bus thread
+    def _set_link_state(self, value: LinkState) -> None:
+        with self._cond:
+            if self._link_state != value:
+                log.info("gimbal link %s: %s", self.port_name, value)
+            self._link_state = value
+            self._cond.notify_all()
+
+    def wait_up(self, timeout: float) -> bool:
+        """Block until the link is up (True) or ``timeout`` seconds passed / it became incompatible (False)."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while self._link_state != LinkState.UP:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or self._link_state in (LinkState.INCOMPATIBLE, LinkState.STOPPED):
+                    return False
+                self._cond.wait(remaining)
+            return True
+
+    def _run(self) -> None:
+        first, maximum = self.settings.reconnect_backoff_s
+        delay = first
+        while not self._stopping.is_set():
+            if self._link_state != LinkState.DOWN:
+                self._set_link_state(LinkState.CONNECTING)
+            result = LinkState.DOWN
+            if self._open():
+                try:
+                    result = self._configure()
+                except Exception as exc:
+                    self._last_error = f"servos at {self.port_name}: {exc}"
+                    result = LinkState.DOWN
+                if result is LinkState.UP:
+                    delay = first
+                    if self._ever_up:
+                        self._n["reconnects"] += 1
+                    self._ever_up = True
+                    self._set_link_state(LinkState.UP)
+                    self._cycle_until_lost()
+                    if not self._stopping.is_set():
+                        self._n["link_losses"] += 1
+                        log.warning("gimbal link %s lost: %s", self.port_name, self._last_error)
+                self._close()
+                if result is LinkState.INCOMPATIBLE:
+                    self._set_link_state(LinkState.INCOMPATIBLE)
+                    return
+            if self._stopping.is_set():
+                return
+            self._set_link_state(LinkState.DOWN)
+            self._drain_requests()
+            self._stopping.wait(delay)
+            delay = min(maximum, delay * 2)
+
+    def _drain_requests(self) -> None:
+        while True:
+            try:
+                _, done, box = self._requests.get_nowait()
+            except queue.Empty:
+                return
+            box.append(False)
+            done.set()
+
+    def _open(self) -> bool:
+        try:
+            port = self._sdk.PortHandler(self.port_name)
+            if not port.openPort() or not port.setBaudRate(self.baudrate):
+                raise OSError(f"baud rate {self.baudrate} not supported")
+        except Exception as exc:
+            self._last_error = f"cannot open servo bus {self.port_name}: {exc}"
+            log.debug(self._last_error)
+            return False
+        self._port = port
+        return True
+
+    def _close(self) -> None:
+        if self._port is not None:
+            with contextlib.suppress(Exception):
+                self._port.closePort()
+        self._port = None
+
+    def _check(self, what: str, dxl_id: int, comm: int, error: int) -> None:
+        if comm != self._sdk.COMM_SUCCESS:
+            self._n["comm_errors"] += 1
+            self._port.clearPort()
+            raise _BusError(f"{what} on servo {dxl_id}: {self._ph.getTxRxResult(comm)}")
+        if error & 0x7F:
+            raise _BusError(f"{what} on servo {dxl_id}: {self._ph.getRxPacketError(error)}")
+
+    def _write(self, dxl_id: int, item: tuple[int, int], value: int) -> None:
+        addr, size = item
+        fn = {1: self._ph.write1ByteTxRx, 2: self._ph.write2ByteTxRx, 4: self._ph.write4ByteTxRx}[size]
+        comm, error = fn(self._port, dxl_id, addr, value & ((1 << (8 * size)) - 1))
+        self._check(f"write {addr}", dxl_id, comm, error)
+
+    def _read(self, dxl_id: int, item: tuple[int, int], signed: bool = False) -> int:
+        addr, size = item
+        fn = {1: self._ph.read1ByteTxRx, 2: self._ph.read2ByteTxRx, 4: self._ph.read4ByteTxRx}[size]
+        value, comm, error = fn(self._port, dxl_id, addr)
+        self._check(f"read {addr}", dxl_id, comm, error)
+        if signed and value >= 1 << (8 * size - 1):
+            value -= 1 << (8 * size)
+        return value
+
+    def _axes(self) -> tuple[tuple[int, bool, float, float, AxisLimits], ...]:
+        s, lim = self.settings, self.settings.limits
+        return ((s.pan_id, s.pan_reversed, lim.pan_min, lim.pan_max, s.pan_motion),
+                (s.tilt_id, s.tilt_reversed, lim.tilt_min, lim.tilt_max, s.tilt_motion))
+
+    def _configure(self) -> LinkState:
+        """Ping, then the settings of the module docstring; UP, DOWN or INCOMPATIBLE."""
+        s = self.settings
+        lim = s.limits
+        if lim.continuous_pan or max(abs(lim.pan_min), abs(lim.pan_max), abs(lim.tilt_min), abs(lim.tilt_max)) > (
+                math.pi - ct.POSITION_RESOLUTION):
+            self._last_error = ("gimbal.limits must lie within ±180° (no continuous pan) for servos in Position "
+                                "Control Mode")
+            log.error(self._last_error)
+            return LinkState.INCOMPATIBLE
+        for dxl_id, *_ in self._axes():
+            model, comm, error = self._ph.ping(self._port, dxl_id)
+            self._check("ping", dxl_id, comm, error)
+        for dxl_id, reversed_axis, lo, hi, motion in self._axes():
+            self._write(dxl_id, ct.TORQUE_ENABLE, 0)
+            self._write(dxl_id, ct.OPERATING_MODE, ct.POSITION_CONTROL_MODE)
+            tmin, tmax = ct.limits_to_ticks(lo, hi, reversed_axis)
+            self._write(dxl_id, ct.MIN_POSITION_LIMIT, tmin)
+            self._write(dxl_id, ct.MAX_POSITION_LIMIT, tmax)
+            self._write(dxl_id, ct.BUS_WATCHDOG, 0)  # clears an expired watchdog
+            self._write(dxl_id, ct.PROFILE_ACCELERATION, ct.acceleration_units(motion.max_acceleration))
+            self._write(dxl_id, ct.PROFILE_VELOCITY, ct.velocity_units(motion.max_velocity))
+            present = self._read(dxl_id, ct.PRESENT_POSITION, signed=True)
+            self._write(dxl_id, ct.GOAL_POSITION, min(tmax, max(tmin, present)))
+        self._goals.clear()
+        self._read_state()
+        if self._want_enabled and not any(self._hw_errors):
+            self._set_torque(True)
+        for dxl_id, *_ in self._axes():
+            self._write(dxl_id, ct.BUS_WATCHDOG, ct.watchdog_units(s.watchdog_ms))
+        self._read_state()
+        log.info("servos %d (pan) and %d (tilt) at %s configured: model %d", s.pan_id, s.tilt_id, self.port_name,
+                 model)
+        return LinkState.UP
+
+    def _set_torque(self, on: bool) -> bool:
+        for dxl_id, *_ in self._axes():
+            self._write(dxl_id, ct.TORQUE_ENABLE, 1 if on else 0)
+        self._read_state()
+        return self._torque == (on, on)
+
+    def _reboot_faulted(self) -> bool:
+        self._read_state()
+        if not any(self._hw_errors):
+            return True
+        for (dxl_id, *_), err in zip(self._axes(), self._hw_errors, strict=True):
+            if err:
+                comm, error = self._ph.reboot(self._port, dxl_id)
+                self._check("reboot", dxl_id, comm, error & 0x7F)
+                self._n["reboots"] += 1
+        time.sleep(0.05)
+        return self._configure() is LinkState.UP and not any(self._hw_errors)
+
+    def _sync_read(self, start: int, length: int) -> list[bytes] | None:
+        gsr = self._sdk.GroupSyncRead(self._port, self._ph, start, length)
+        for dxl_id, *_ in self._axes():
+            gsr.addParam(dxl_id)
+        comm = gsr.txRxPacket()
+        self._n["sync_reads"] += 1
+        if comm != self._sdk.COMM_SUCCESS:
+            self._n["comm_errors"] += 1
+            self._port.clearPort()  # a late answer must not be taken for the next one
+            return None
+        out = []
+        for dxl_id, *_ in self._axes():
+            if not gsr.isAvailable(dxl_id, start, length):
+                self._n["comm_errors"] += 1
+                return None
+            out.append(bytes(gsr.getData(dxl_id, start + i, 1) for i in range(length)))
+        return out
+
+    def _read_state(self) -> bool:
+        """One Sync Read of Torque Enable … Present Position (64–135) from both servos: torque, hardware errors,
+        position and velocity always come from the same answer, so a late answer can only be an older state."""
+        start = ct.TORQUE_ENABLE[0]
+        data = self._sync_read(start, ct.PRESENT_POSITION[0] + ct.PRESENT_POSITION[1] - start)
+        if data is None:
+            return False
+        now = time.monotonic()
+
+        def field(raw: bytes, item: tuple[int, int]) -> int:
+            off = item[0] - start
+            return int.from_bytes(raw[off:off + item[1]], "little", signed=item[1] == 4)
+
+        self._torque = (bool(field(data[0], ct.TORQUE_ENABLE)), bool(field(data[1], ct.TORQUE_ENABLE)))
+        self._hw_errors = (field(data[0], ct.HARDWARE_ERROR_STATUS), field(data[1], ct.HARDWARE_ERROR_STATUS))
+        values = []
+        for raw, (_, reversed_axis, *_rest) in zip(data, self._axes(), strict=True):
+            vel = field(raw, ct.PRESENT_VELOCITY) * ct.VELOCITY_UNIT
+            pos = ct.ticks_to_angle(field(raw, ct.PRESENT_POSITION), reversed_axis)
+            values.append((pos, -vel if reversed_axis else vel))
+        errors = self._hw_errors[0] | self._hw_errors[1]
+        mode = GimbalMode.FAULT if errors else GimbalMode.ENABLED if all(self._torque) else GimbalMode.DISABLED
+        st = GimbalState(values[0][0], values[1][0], values[0][1], values[1][1], mode, ct.hardware_faults(errors),
+                         0, int(now * 1e6) & 0xFFFFFFFF, now)
+        with self._cond:
+            self._state = st
+            self._cond.notify_all()
+        return True
+
+    def _write_goal(self, goal: tuple[float, float]) -> None:
+        gsw = self._sdk.GroupSyncWrite(self._port, self._ph, ct.GOAL_POSITION[0], ct.GOAL_POSITION[1])
+        for angle, (dxl_id, reversed_axis, lo, hi, _) in zip(goal, self._axes(), strict=True):
+            tmin, tmax = ct.limits_to_ticks(lo, hi, reversed_axis)
+            ticks = min(tmax, max(tmin, ct.angle_to_ticks(angle, reversed_axis)))
+            gsw.addParam(dxl_id, list(ticks.to_bytes(4, "little", signed=True)))
+        result = gsw.txPacket()
+        if result != self._sdk.COMM_SUCCESS:
+            self._n["write_errors"] += 1
+            log.debug("goal sync write failed: %s", self._ph.getTxRxResult(result))
+        self._n["sync_writes"] += 1
+
+    def _cycle(self, cycle: int) -> bool:
+        """Requests, the pending goal, status now and then, the state; whether the state was read."""
+        try:
+            self._serve_requests()
+        except _BusError as exc:
+            log.warning("%s", exc)
+        while self._goals:  # every setpoint goes on the wire, in order, even when the bus fell behind
+            goal = self._goals.popleft()
+            if all(self._torque) and not any(self._hw_errors):
+                self._write_goal(goal)
+        return self._read_state()
+
+    def _cycle_until_lost(self) -> None:
+        s = self.settings
+        last_ok = time.monotonic()
+        cycle = 0
+        while not self._stopping.is_set():
+            self._wake.wait(s.idle_period_s)
+            self._wake.clear()
+            try:
+                ok = self._cycle(cycle)
+            except Exception as exc:
+                self._last_error = f"servo bus {self.port_name}: {exc}"
+                return
+            cycle += 1
+            if ok:
+                last_ok = time.monotonic()
+            elif time.monotonic() - last_ok > s.state_timeout_s:
+                self._last_error = f"no answer from the servos for {s.state_timeout_s} s"
+                return

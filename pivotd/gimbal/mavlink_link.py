@@ -1,0 +1,502 @@
+"""Host side of MAVLink Gimbal Protocol v2 (common dialect, MAVLink 2) with pymavlink: a GimbalInterface.
+
+``MavlinkGimbal(url, settings).start()`` opens a pymavlink connection (``udpin:``/``udpout:``/``tcp:`` or a
+serial device) on a background thread and, on every (re)connection: sends our HEARTBEAT (then once a second),
+asks the gimbal manager for GIMBAL_MANAGER_INFORMATION (MAV_CMD_REQUEST_MESSAGE) and checks the configured joint
+limits against the ones it reports (refusing to drive a gimbal whose range is smaller: ``incompatible``), then
+takes primary control with MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE and asks for GIMBAL_DEVICE_ATTITUDE_STATUS at 50 Hz
+(MAV_CMD_SET_MESSAGE_INTERVAL, best effort). Setpoints go out as GIMBAL_MANAGER_SET_PITCHYAW
+(angles and rates, yaw in the vehicle frame). GIMBAL_DEVICE_ATTITUDE_STATUS is the measured state, its failure
+flags the faults; GIMBAL_MANAGER_STATUS tells whether we are still in control (``disabled`` when not). No
+attitude status for ``state_timeout_s`` → link down, reconnect with backoff. Disabling releases control
+(CONFIGURE with −3: "remove control if currently in control"), after which the manager holds or returns to its
+own inputs. Conversions live in :mod:`pivotd.gimbal.mavlink_frames`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import os
+import queue
+import threading
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from pivotd.errors import ConfigError
+from pivotd.gimbal import mavlink_frames as mf
+from pivotd.gimbal.interface import GimbalMode, GimbalState, LinkState
+from pivotd.gimbal.kinematics import JointLimits
+
+log = logging.getLogger(__name__)
+
+MSG_GIMBAL_MANAGER_INFORMATION = 280
+MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE = 1001
+MAV_CMD_REQUEST_MESSAGE = 512
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+MSG_GIMBAL_DEVICE_ATTITUDE_STATUS = 285
+ATTITUDE_INTERVAL_US = 20_000  # asked of the manager: 50 Hz attitude status (best effort, not required)
+MAV_RESULT_ACCEPTED = 0
+CONTROL_TAKE, CONTROL_RELEASE, CONTROL_UNCHANGED = None, -3.0, -1.0
+_TX_QUEUE = 64
+
+
+def command_message(mavlink: Any, target: tuple[int, int], command: int, *params: float) -> Any:
+    """COMMAND_LONG ``command`` to ``target`` (system, component) with up to seven params (the rest 0)."""
+    p = [float(x) for x in params] + [0.0] * (7 - len(params))
+    return mavlink.MAVLink_command_long_message(target[0], target[1], command, 0, *p)
+
+
+def configure_message(mavlink: Any, manager: tuple[int, int], us: tuple[int, int], gimbal_device_id: int,
+                      take: bool) -> Any:
+    """MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE: ``us`` (system, component) as primary control, or (``take`` False)
+    −3/−3, "remove control if currently in control"; secondary control unchanged (−1)."""
+    primary = (float(us[0]), float(us[1])) if take else (CONTROL_RELEASE, CONTROL_RELEASE)
+    return command_message(mavlink, manager, MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE, *primary, CONTROL_UNCHANGED,
+                           CONTROL_UNCHANGED, 0.0, 0.0, float(gimbal_device_id))
+
+
+def setpoint_message(mavlink: Any, manager: tuple[int, int], gimbal_device_id: int, limits: JointLimits, pan: float,
+                     tilt: float, pan_rate: float, tilt_rate: float) -> Any:
+    """GIMBAL_MANAGER_SET_PITCHYAW for joint angles [rad] and rates [rad/s], clamped into ``limits`` (an axis held
+    at a limit gets zero rate; a continuous pan is sent wrapped to (−π, π])."""
+    cpan, ctilt = limits.clamp(pan, tilt)
+    if cpan != pan:
+        pan_rate = 0.0
+    if ctilt != tilt:
+        tilt_rate = 0.0
+    if limits.continuous_pan:
+        cpan = mf.wrap_pi(cpan)
+    py = mf.to_pitch_yaw(cpan, ctilt, pan_rate, tilt_rate)
+    return mavlink.MAVLink_gimbal_manager_set_pitchyaw_message(manager[0], manager[1], mf.SETPOINT_FLAGS,
+                                                               gimbal_device_id, py.pitch, py.yaw, py.pitch_rate,
+                                                               py.yaw_rate)
+
+
+def load_mavutil() -> Any:
+    """pymavlink's mavutil on MAVLink 2 with the common dialect; a clear error when the extra is missing."""
+    os.environ.setdefault("MAVLINK20", "1")
+    try:
+        from pymavlink import mavutil
+    except ImportError:
+        raise ConfigError("gimbal.backend: mavlink needs pymavlink: pip install 'pivotd[mavlink]'") from None
+    mavutil.set_dialect("common")
+    return mavutil
+
+
+@dataclass(frozen=True)
+class MavlinkSettings:
+    """Identities (ours, the manager's: 0 = first heard, the device's: 0 = all), the configured joint limits
+    [rad], and timing [s]."""
+
+    limits: JointLimits
+    system_id: int = 1
+    component_id: int = 191
+    target_system: int = 0
+    target_component: int = 0
+    gimbal_device_id: int = 0
+    state_timeout_s: float = 0.5
+    reply_timeout_s: float = 0.2
+    retries: int = 5
+    heartbeat_period_s: float = 1.0
+    reconnect_backoff_s: tuple = (0.1, 2.0)
+
+
+@dataclass
+class _Connection:
+    port: Any  # a pymavlink mavfile
+    tx: queue.Queue = field(default_factory=lambda: queue.Queue(_TX_QUEUE))
+    closing: threading.Event = field(default_factory=threading.Event)
+    error: str | None = None
+    threads: list = field(default_factory=list)
+
+    @property
+    def alive(self) -> bool:
+        return self.error is None and not self.closing.is_set()
+
+
+class MavlinkGimbal:
+    """A gimbal behind a MAVLink gimbal manager (see the module docstring); thread-safe, never blocks senders."""
+
+    def __init__(self, url: str, settings: MavlinkSettings, baudrate: int = 115200) -> None:
+        self.url = url
+        self.settings = settings
+        self.baudrate = baudrate
+        self._mavutil = load_mavutil()
+        self._lock = threading.Condition()
+        self._link_state = LinkState.STOPPED
+        self._state: GimbalState | None = None
+        self._last_error: str | None = None
+        self._conn: _Connection | None = None
+        self._stopping = threading.Event()
+        self._manager_thread: threading.Thread | None = None
+        self._want_enabled = True
+        self._in_control = False
+        self._manager: tuple[int, int] | None = None  # (system, component) of the gimbal manager
+        self._info: Any = None
+        self._device_limits: JointLimits | None = None
+        self._waiters: dict[str, list[tuple[Any, threading.Event, list]]] = {}
+        self._last_state_rx = 0.0
+        self._faults = 0
+        self._ever_up = False
+        self._n = dict.fromkeys(("messages_sent", "messages_received", "setpoints_sent", "heartbeats_received",
+                                 "retries", "reconnects", "link_losses", "command_failures", "tx_overflow",
+                                 "rate_unknown"), 0)
+
+    # ------------------------------------------------------------------ GimbalInterface
+    @property
+    def link_state(self) -> LinkState:
+        return self._link_state
+
+    @property
+    def state(self) -> GimbalState | None:
+        return self._state
+
+    @property
+    def last_error(self) -> str | None:
+        return self._last_error
+
+    @property
+    def device_limits(self) -> JointLimits | None:
+        """The joint ranges the manager reported at the last handshake."""
+        return self._device_limits
+
+    def start(self) -> None:
+        """Connect, handshake and keep reconnecting on a background thread; returns immediately."""
+        if self._manager_thread is not None and self._manager_thread.is_alive():
+            return
+        self._stopping.clear()
+        self._set_link_state(LinkState.CONNECTING)
+        self._manager_thread = threading.Thread(target=self._run, name="gimbal-mavlink", daemon=True)
+        self._manager_thread.start()
+
+    def stop(self, disable: bool = True) -> None:
+        """Release control (if ``disable`` and up), close the connection, stop all threads."""
+        if disable and self._link_state == LinkState.UP:
+            self.set_enabled(False)
+        self._stopping.set()
+        if self._manager_thread is not None:
+            self._manager_thread.join(timeout=5.0)
+            self._manager_thread = None
+        self._set_link_state(LinkState.STOPPED)
+
+    def send_setpoint(self, pan: float, tilt: float, pan_rate: float = 0.0, tilt_rate: float = 0.0) -> int | None:
+        """Queue one GIMBAL_MANAGER_SET_PITCHYAW (joint limits enforced here too); its count, or None."""
+        conn, manager = self._conn, self._manager
+        if self._link_state != LinkState.UP or conn is None or manager is None:
+            return None
+        if not all(math.isfinite(v) for v in (pan, tilt, pan_rate, tilt_rate)):
+            raise ValueError("setpoint must be finite")
+        msg = setpoint_message(self._mavutil.mavlink, manager, self.settings.gimbal_device_id, self.settings.limits,
+                               pan, tilt, pan_rate, tilt_rate)
+        if not self._enqueue(conn, msg):
+            return None
+        self._n["setpoints_sent"] += 1
+        return self._n["setpoints_sent"]
+
+    def send_heartbeat(self) -> None:
+        """Nothing to do per tick: the MAVLink HEARTBEAT goes out once a second by itself, and the manager holds
+        the last angle setpoint without a watchdog of ours."""
+
+    def set_enabled(self, on: bool, timeout: float | None = None) -> bool:
+        """Take (True) or release (False) primary control of the gimbal; True once the manager accepted."""
+        self._want_enabled = bool(on)
+        conn = self._conn
+        if self._link_state != LinkState.UP or conn is None:
+            return False
+        ok = self._configure(conn, on, timeout)
+        if ok:
+            self._in_control = on
+            self._refresh_mode()
+        return ok
+
+    def clear_fault(self, timeout: float | None = None) -> bool:
+        """MAVLink has no fault reset: the device clears its failure flags itself. True when none is set now."""
+        return self._link_state == LinkState.UP and not self._faults
+
+    def counters(self) -> dict[str, int | float]:
+        return dict(self._n)
+
+    # ------------------------------------------------------------------ internals
+    def _mav_msg(self, name: str, *args: Any) -> Any:
+        mav = self._mavutil.mavlink
+        return getattr(mav, f"MAVLink_{name}_message")(*args)
+
+    def _set_link_state(self, value: LinkState) -> None:
+        with self._lock:
+            if self._link_state != value:
+                log.info("gimbal link %s: %s", self.url, value)
+            self._link_state = value
+            self._lock.notify_all()
+
+    def wait_up(self, timeout: float) -> bool:
+        """Block until the link is up (True) or ``timeout`` seconds passed / it became incompatible (False)."""
+        deadline = time.monotonic() + timeout
+        with self._lock:
+            while self._link_state != LinkState.UP:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or self._link_state in (LinkState.INCOMPATIBLE, LinkState.STOPPED):
+                    return False
+                self._lock.wait(remaining)
+            return True
+
+    def _enqueue(self, conn: _Connection, msg: Any) -> bool:
+        try:
+            conn.tx.put_nowait(msg)
+            return True
+        except queue.Full:
+            self._n["tx_overflow"] += 1
+            return False
+
+    def _heartbeat_msg(self) -> Any:
+        mav = self._mavutil.mavlink
+        return self._mav_msg("heartbeat", mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0, 0,
+                             mav.MAV_STATE_ACTIVE, 3)
+
+    def _run(self) -> None:
+        first, maximum = self.settings.reconnect_backoff_s
+        delay = first
+        while not self._stopping.is_set():
+            if self._link_state != LinkState.DOWN:
+                self._set_link_state(LinkState.CONNECTING)
+            conn = self._open()
+            if conn is not None:
+                result = self._handshake(conn)
+                if result is LinkState.UP:
+                    delay = first
+                    if self._ever_up:
+                        self._n["reconnects"] += 1
+                    self._ever_up = True
+                    self._set_link_state(LinkState.UP)
+                    self._monitor(conn)
+                    if not self._stopping.is_set():
+                        self._n["link_losses"] += 1
+                        log.warning("gimbal link %s lost: %s", self.url, conn.error or "closed")
+                self._close(conn)
+                if result is LinkState.INCOMPATIBLE:
+                    self._set_link_state(LinkState.INCOMPATIBLE)
+                    return
+            if self._stopping.is_set():
+                return
+            self._set_link_state(LinkState.DOWN)
+            self._stopping.wait(delay)
+            delay = min(maximum, delay * 2)
+
+    def _open(self) -> _Connection | None:
+        s = self.settings
+        try:
+            port = self._mavutil.mavlink_connection(self.url, baud=self.baudrate, source_system=s.system_id,
+                                                    source_component=s.component_id, autoreconnect=False)
+        except Exception as exc:  # pymavlink raises OSError, SerialException, ValueError, ...
+            self._last_error = f"cannot open MAVLink connection {self.url}: {exc}"
+            log.debug(self._last_error)
+            return None
+        conn = _Connection(port)
+        self._conn = conn
+        for target, name in ((self._reader, "gimbal-mavlink-rx"), (self._writer, "gimbal-mavlink-tx")):
+            t = threading.Thread(target=target, args=(conn,), name=name, daemon=True)
+            conn.threads.append(t)
+            t.start()
+        return conn
+
+    def _close(self, conn: _Connection) -> None:
+        conn.closing.set()
+        with contextlib.suppress(queue.Full):
+            conn.tx.put_nowait(None)
+        for t in conn.threads:
+            t.join(timeout=2.0)
+        with contextlib.suppress(Exception):
+            conn.port.close()
+        if self._conn is conn:
+            self._conn = None
+        self._in_control = False
+
+    def _handshake(self, conn: _Connection) -> LinkState:
+        """HEARTBEAT, GIMBAL_MANAGER_INFORMATION (limits, capabilities), take control."""
+        s = self.settings
+        self._manager = None
+        self._enqueue(conn, self._heartbeat_msg())
+        info = None
+        for attempt in range(s.retries + 1):
+            if attempt:
+                self._n["retries"] += 1
+                self._enqueue(conn, self._heartbeat_msg())
+            self._enqueue(conn, self._command(conn, MAV_CMD_REQUEST_MESSAGE, (s.target_system, s.target_component),
+                                              MSG_GIMBAL_MANAGER_INFORMATION))
+            info = self._wait_for("GIMBAL_MANAGER_INFORMATION", self._from_target, s.reply_timeout_s)
+            if info is not None or not conn.alive or self._stopping.is_set():
+                break
+        if info is None:
+            self._last_error = f"no gimbal manager answered at {self.url} (GIMBAL_MANAGER_INFORMATION)"
+            return LinkState.DOWN
+        self._manager = (info.get_srcSystem(), info.get_srcComponent())
+        self._info = info
+        device = mf.joint_limits_from_manager(info.pitch_min, info.pitch_max, info.yaw_min, info.yaw_max)
+        self._device_limits = device
+        caps = info.cap_flags
+        needed = mf.GIMBAL_MANAGER_CAP_FLAGS_HAS_PITCH_AXIS | mf.GIMBAL_MANAGER_CAP_FLAGS_HAS_YAW_AXIS
+        if caps & needed != needed:
+            self._last_error = f"gimbal manager at {self.url} lacks a pitch or yaw axis (cap_flags 0x{caps:x})"
+            log.error(self._last_error)
+            return LinkState.INCOMPATIBLE
+        problem = mf.limits_problem(s.limits, device, bool(caps & mf.GIMBAL_MANAGER_CAP_FLAGS_SUPPORTS_INFINITE_YAW))
+        if problem:
+            self._last_error = f"gimbal at {self.url}: {problem}: refusing to drive it"
+            log.error(self._last_error)
+            return LinkState.INCOMPATIBLE
+        if not caps & mf.GIMBAL_MANAGER_CAP_FLAGS_HAS_PITCH_FOLLOW:
+            log.warning("gimbal manager at %s cannot let pitch follow the vehicle: tilt is then relative to the "
+                        "horizon, not to the mount", self.url)
+        if self._want_enabled and not self._configure(conn, True, None):
+            self._last_error = f"gimbal manager at {self.url} did not give us control (DO_GIMBAL_MANAGER_CONFIGURE)"
+            return LinkState.DOWN
+        self._in_control = self._want_enabled
+        self._enqueue(conn, self._command(conn, MAV_CMD_SET_MESSAGE_INTERVAL, self._manager,
+                                          MSG_GIMBAL_DEVICE_ATTITUDE_STATUS, ATTITUDE_INTERVAL_US))
+        if self._wait_for("GIMBAL_DEVICE_ATTITUDE_STATUS", self._from_device, s.state_timeout_s) is None:
+            self._last_error = f"gimbal at {self.url} sends no GIMBAL_DEVICE_ATTITUDE_STATUS"
+            return LinkState.DOWN
+        log.info("gimbal manager %d/%d at %s: device %d, cap_flags 0x%x, pan [%.1f, %.1f] deg, tilt [%.1f, %.1f] deg",
+                 *self._manager, self.url, info.gimbal_device_id, caps, math.degrees(device.pan_min),
+                 math.degrees(device.pan_max), math.degrees(device.tilt_min), math.degrees(device.tilt_max))
+        return LinkState.UP
+
+    def _command(self, conn: _Connection, command: int, target: tuple[int, int], *params: float) -> Any:
+        return command_message(self._mavutil.mavlink, target, command, *params)
+
+    def _configure(self, conn: _Connection, take: bool, timeout: float | None) -> bool:
+        """MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE: us as primary control, or remove us; True on MAV_RESULT_ACCEPTED."""
+        s, manager = self.settings, self._manager
+        if manager is None:
+            return False
+        msg = configure_message(self._mavutil.mavlink, manager, (s.system_id, s.component_id), s.gimbal_device_id,
+                                take)
+        attempts = s.retries + 1 if timeout is None else max(1, int(timeout / s.reply_timeout_s + 0.999))
+        for attempt in range(attempts):
+            if attempt:
+                self._n["retries"] += 1
+            self._enqueue(conn, msg)
+            ack = self._wait_for("COMMAND_ACK", lambda m: m.command == MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE,
+                                 s.reply_timeout_s)
+            if ack is not None:
+                if ack.result == MAV_RESULT_ACCEPTED:
+                    return True
+                log.warning("gimbal manager refused DO_GIMBAL_MANAGER_CONFIGURE (result %d)", ack.result)
+                break
+            if not conn.alive or self._stopping.is_set():
+                break
+        self._n["command_failures"] += 1
+        return False
+
+    def _wait_for(self, msg_type: str, predicate: Any, timeout: float) -> Any:
+        event, box = threading.Event(), []
+        entry = (predicate, event, box)
+        with self._lock:
+            self._waiters.setdefault(msg_type, []).append(entry)
+        try:
+            event.wait(timeout)
+            return box[0] if box else None
+        finally:
+            with self._lock:
+                self._waiters[msg_type].remove(entry)
+
+    def _from_target(self, msg: Any) -> bool:
+        s = self.settings
+        return ((not s.target_system or msg.get_srcSystem() == s.target_system)
+                and (not s.target_component or msg.get_srcComponent() == s.target_component))
+
+    def _from_device(self, msg: Any) -> bool:
+        dev = self.settings.gimbal_device_id
+        return not dev or dev in (msg.get_srcComponent(), getattr(msg, "gimbal_device_id", 0))
+
+    def _monitor(self, conn: _Connection) -> None:
+        s = self.settings
+        self._last_state_rx = time.monotonic()
+        next_hb = time.monotonic() + s.heartbeat_period_s
+        while not self._stopping.is_set() and conn.alive:
+            now = time.monotonic()
+            if now - self._last_state_rx > s.state_timeout_s:
+                conn.error = f"no GIMBAL_DEVICE_ATTITUDE_STATUS for {s.state_timeout_s} s"
+                break
+            if now >= next_hb:
+                next_hb += s.heartbeat_period_s
+                self._enqueue(conn, self._heartbeat_msg())
+            self._stopping.wait(0.02)
+        self._last_error = conn.error
+
+    def _writer(self, conn: _Connection) -> None:
+        mav = conn.port.mav
+        while not conn.closing.is_set():
+            try:
+                msg = conn.tx.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            if msg is None:
+                return
+            try:
+                mav.send(msg)
+                self._n["messages_sent"] += 1
+            except Exception as exc:
+                conn.error = f"write failed: {exc}"
+                return
+
+    def _reader(self, conn: _Connection) -> None:
+        while not conn.closing.is_set():
+            try:
+                msg = conn.port.recv_match(blocking=True, timeout=0.05)
+            except Exception as exc:
+                if not conn.closing.is_set():
+                    conn.error = f"read failed: {exc}"
+                return
+            if msg is None or msg.get_type() == "BAD_DATA":
+                continue
+            self._n["messages_received"] += 1
+            self._dispatch(msg)
+
+    def _dispatch(self, msg: Any) -> None:
+        kind = msg.get_type()
+        if kind == "HEARTBEAT":
+            self._n["heartbeats_received"] += 1
+        elif kind == "GIMBAL_DEVICE_ATTITUDE_STATUS" and self._from_device(msg):
+            self._on_attitude(msg)
+        elif kind == "GIMBAL_MANAGER_STATUS" and self._manager == (msg.get_srcSystem(), msg.get_srcComponent()):
+            s = self.settings
+            self._in_control = (msg.primary_control_sysid, msg.primary_control_compid) == (s.system_id,
+                                                                                           s.component_id)
+            self._refresh_mode()
+        with self._lock:
+            waiters = list(self._waiters.get(kind, ()))
+        for predicate, event, box in waiters:
+            if not event.is_set() and predicate(msg):
+                box.append(msg)
+                event.set()
+
+    def _mode(self) -> int:
+        if self._faults:
+            return GimbalMode.FAULT
+        return GimbalMode.ENABLED if self._in_control else GimbalMode.DISABLED
+
+    def _refresh_mode(self) -> None:
+        st = self._state
+        if st is not None and st.mode != self._mode():
+            self._state = replace(st, mode=self._mode())
+
+    def _on_attitude(self, msg: Any) -> None:
+        now = time.monotonic()
+        try:
+            pan, tilt, pan_rate, tilt_rate = mf.joints_from_attitude(msg.q, msg.angular_velocity_x,
+                                                                     msg.angular_velocity_y, msg.angular_velocity_z)
+        except ValueError:
+            return
+        if not (math.isfinite(pan_rate) and math.isfinite(tilt_rate)):
+            self._n["rate_unknown"] += 1
+            pan_rate = tilt_rate = 0.0
+        self._faults = mf.device_faults(msg.failure_flags)
+        st = GimbalState(pan, tilt, pan_rate, tilt_rate, self._mode(), self._faults, 0,
+                         (int(msg.time_boot_ms) * 1000) & 0xFFFFFFFF, now)
+        with self._lock:
+            self._state = st
+            self._last_state_rx = now
+            self._lock.notify_all()

@@ -1,0 +1,53 @@
+"""``pivotd bench localization`` end to end (a real subprocess) and its errors."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from pivotd.errors import InputError
+from pivotd.localization.estimator import require_poselib
+from pivotd.localization.plot import require_matplotlib
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _bench(*args: str, tmp_path: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "pivotd.cli", "bench", "localization", *args],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=240)
+
+
+def test_small_run_writes_table_json_and_goals(tmp_path):
+    out = tmp_path / "loc.json"
+    r = _bench("--scenes", "fif_four_walls", "--policies", "forward,pivot", "--seeds", "2",
+               "--json", str(out), tmp_path=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "fif_four_walls  pivot" in r.stdout
+    doc = json.loads(out.read_text())
+    assert doc["seeds"] == [0, 1]
+    s = doc["scenes"]["fif_four_walls"]
+    assert set(s) == {"forward", "pivot"}
+    for pol in s.values():
+        iv = pol["success_0.25m/2deg"]
+        assert 0.0 <= iv["lo"] <= iv["mean"] <= iv["hi"] <= 1.0
+        assert pol["runs"] == 2
+        assert pol["success_0.05m/0.4deg"]["mean"] <= iv["mean"] <= pol["success_0.5m/5deg"]["mean"]
+    assert s["forward"]["compute_ms_per_frame"]["mean"] < s["pivot"]["compute_ms_per_frame"]["mean"]
+    assert [g["goal"] for g in doc["goals"]] == ["failure <= forward/2"]
+
+
+def test_unknown_scene_is_a_one_line_error(tmp_path):
+    r = _bench("--scenes", "atrium", tmp_path=tmp_path)
+    assert r.returncode == 2
+    assert "unknown scene 'atrium'" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(("module", "check", "extra"), [("poselib", require_poselib, "pivotd[bench]"),
+                                                         ("matplotlib", require_matplotlib, "pivotd[plot]")])
+def test_missing_optional_dependency_names_its_extra(monkeypatch, module, check, extra):
+    monkeypatch.setitem(sys.modules, module, None)  # makes `import module` raise ImportError
+    with pytest.raises(InputError, match=extra.replace("[", r"\[").replace("]", r"\]")):
+        check()

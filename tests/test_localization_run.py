@@ -1,0 +1,78 @@
+"""Whole runs: reproducible from the seed, and every policy's commanded stream inside the motion limits."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pivotd.localization.benchmark import BenchSettings, run_scene, truncate_scene
+from pivotd.localization.camera import CameraModel
+from pivotd.localization.policies import PolicyName, make_policy
+from pivotd.localization.scenes import build_scene
+from pivotd.localization.simulate import run_policy
+from pivotd.localization.stack import load_config, setpoint_dynamics
+from pivotd.localization.world import World
+
+REPO = Path(__file__).resolve().parent.parent
+DEMO = REPO / "config" / "demo.yaml"
+
+
+def _settings(scene: str, policies: tuple[PolicyName, ...], seed: int) -> BenchSettings:
+    return BenchSettings(scenes=(scene,), policies=policies, seeds=(seed,), camera=CameraModel(),
+                         cfg=load_config(DEMO), fif_dir=REPO / "tests" / "data" / "fif", max_duration=4.0)
+
+
+def test_a_run_is_reproducible_from_its_seed():
+    st = _settings("corridor", (PolicyName.FORWARD, PolicyName.PIVOT, PolicyName.RANDOM), 5)
+    a, b = run_scene(st, "corridor"), run_scene(st, "corridor")
+    for p in ("forward", "pivot", "random"):
+        ra, rb = a.runs[p][0], b.runs[p][0]
+        assert (ra.success, ra.median_t, ra.median_r, ra.no_pose, ra.longest_failure) == (
+            rb.success, rb.median_t, rb.median_r, rb.no_pose, rb.longest_failure)
+        np.testing.assert_array_equal(a.errors[p][0], b.errors[p][0])
+        np.testing.assert_array_equal(a.errors[p][1], b.errors[p][1])
+    np.testing.assert_array_equal(a.centres, b.centres)
+    c = run_scene(replace(st, seeds=(6,)), "corridor")
+    assert not np.array_equal(a.errors["forward"][0], c.errors["forward"][0])  # another seed, another scene
+
+
+def test_procedural_scenes_depend_on_the_seed_only():
+    for name in ("rooms", "corridor", "warehouse"):
+        a, b, c = build_scene(name, 1, REPO), build_scene(name, 1, REPO), build_scene(name, 2, REPO)
+        np.testing.assert_array_equal(a.landmarks, b.landmarks)
+        np.testing.assert_array_equal(a.route, b.route)
+        assert a.landmarks.shape != c.landmarks.shape or not np.array_equal(a.landmarks, c.landmarks)
+
+
+@pytest.fixture(scope="module")
+def rooms_world() -> World:
+    scene = truncate_scene(build_scene("rooms", 3, REPO), 6.0)
+    return World(load_config(DEMO), scene, CameraModel())
+
+
+@pytest.mark.parametrize("policy", [p for p in PolicyName if p != PolicyName.ORACLE])
+def test_every_limited_policy_obeys_joint_and_motion_limits(rooms_world, policy):
+    cfg = rooms_world.cfg
+    pol = make_policy(policy, rooms_world, seed=4)
+    assert pol.limited
+    traj = run_policy(rooms_world, pol)
+    sp = traj.setpoints
+    assert sp.shape[0] == int(rooms_world.scene.duration / traj.dt + 1e-9) + 1 > 500
+    rep = setpoint_dynamics(sp[:, :2], traj.dt, cfg.motion.pan, cfg.motion.tilt, rates=sp[:, 2:], resolution=0.0)
+    assert rep.worst_ratio <= 1.0 + 1e-6, (rep.velocity_ratio, rep.acceleration_ratio, rep.jerk_ratio)
+    lim = cfg.gimbal.limits
+    assert lim.pan_min - 1e-9 <= sp[:, 0].min() and sp[:, 0].max() <= lim.pan_max + 1e-9
+    assert lim.tilt_min - 1e-9 <= sp[:, 1].min() and sp[:, 1].max() <= lim.tilt_max + 1e-9
+    if policy != PolicyName.FORWARD:
+        assert np.ptp(sp[:, 0]) > np.radians(5.0)  # the policy does steer the gimbal
+    else:
+        assert np.abs(sp[:, :2]).max() < 1e-9
+
+
+def test_only_the_oracle_ignores_the_limits(rooms_world):
+    unlimited = [p for p in PolicyName if not make_policy(p, rooms_world, 0).limited]
+    assert unlimited == [PolicyName.ORACLE]
+    traj = run_policy(rooms_world, make_policy(PolicyName.ORACLE, rooms_world, 0))
+    assert traj.setpoints.shape[0] == 0  # no commanded stream: it teleports to its best view every frame
+    assert traj.directions.shape == (traj.times.shape[0], 3)
