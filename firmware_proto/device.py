@@ -16,6 +16,9 @@ from dataclasses import dataclass, field
 from firmware_proto import codec
 from firmware_proto.messages import (
     ACK_OK,
+    CONFIG_LIMIT_ABS_MAX,
+    CONFIG_WATCHDOG_MS_MAX,
+    CONFIG_WATCHDOG_MS_MIN,
     FAULT_CLAMPED,
     FAULT_CONFIG,
     FAULT_WATCHDOG,
@@ -39,12 +42,13 @@ from firmware_proto.messages import (
     Message,
     Setpoint,
     State,
+    config_problems,
 )
 
 log = logging.getLogger(__name__)
 
-WATCHDOG_MS_MIN, WATCHDOG_MS_MAX = 10, 10_000
-LIMIT_ABS_MAX = 2 * math.pi  # |joint limit| [rad]
+WATCHDOG_MS_MIN, WATCHDOG_MS_MAX = CONFIG_WATCHDOG_MS_MIN, CONFIG_WATCHDOG_MS_MAX
+LIMIT_ABS_MAX = CONFIG_LIMIT_ABS_MAX  # |joint limit| [rad]
 TRACKING_GAIN = 25.0  # 1/s: proportional position gain of the axis controller (gives the "little lag")
 SUBSTEP = 0.001  # s: integration step of the axis dynamics
 CAP_WATCHDOG, CAP_CLAMP, CAP_FAULT_INJECTION = 1 << 0, 1 << 1, 1 << 2
@@ -89,19 +93,8 @@ class DeviceInfo:
 
 def validate_config(cfg: Config) -> str | None:
     """Reason a CONFIG is invalid, or None if the device accepts it."""
-    for name in ("pan_min", "pan_max", "tilt_min", "tilt_max"):
-        if abs(getattr(cfg, name)) > LIMIT_ABS_MAX:
-            return f"{name} beyond ±2π"
-    if not cfg.pan_min < cfg.pan_max:
-        return "pan_min >= pan_max"
-    if not cfg.tilt_min < cfg.tilt_max:
-        return "tilt_min >= tilt_max"
-    for name in ("vmax_pan", "vmax_tilt", "amax_pan", "amax_tilt"):
-        if getattr(cfg, name) <= 0:
-            return f"{name} <= 0"
-    if not WATCHDOG_MS_MIN <= cfg.watchdog_ms <= WATCHDOG_MS_MAX:
-        return f"watchdog_ms outside [{WATCHDOG_MS_MIN}, {WATCHDOG_MS_MAX}]"
-    return None
+    problems = config_problems(cfg)
+    return None if not problems else f"{problems[0][0]}: {problems[0][1]}"
 
 
 @dataclass

@@ -231,6 +231,44 @@ class Ack(Message):
                         ("value", "I", False))
 
 
+#: CONFIG validity on the device (PROTOCOL.md §4): watchdog range [ms] and joint limit magnitude [rad]
+CONFIG_WATCHDOG_MS_MIN, CONFIG_WATCHDOG_MS_MAX = 10, 10_000
+CONFIG_LIMIT_ABS_MAX = 2 * math.pi
+CONFIG_LIMITS = ("pan_min", "pan_max", "tilt_min", "tilt_max")
+CONFIG_RATES = ("vmax_pan", "vmax_tilt", "amax_pan", "amax_tilt")
+
+
+def config_problems(cfg: Config) -> list[tuple[str, str]]:
+    """(field, reason) for each CONFIG value the device would refuse or the wire cannot carry faithfully.
+
+    Values are judged as they arrive on the wire: rounded to micro-units (a rate that rounds to 0 is
+    refused; a value beyond int32 micro-units would be saturated). Empty when the device accepts ``cfg``
+    with exactly these values.
+    """
+    out: list[tuple[str, str]] = []
+    for name in CONFIG_LIMITS + CONFIG_RATES:
+        v = getattr(cfg, name)
+        if not math.isfinite(v) or not I32_MIN <= round(v * MICRO) <= I32_MAX:
+            out.append((name, f"{v:g} does not fit the wire's int32 micro-units (±{I32_MAX / MICRO:g})"))
+    if out:
+        return out
+    wire = Config.from_raw(cfg.raw())
+    for name in CONFIG_LIMITS:
+        if abs(getattr(wire, name)) > CONFIG_LIMIT_ABS_MAX:
+            out.append((name, f"{getattr(wire, name):g} rad is beyond ±2π"))
+    for lo, hi in (("pan_min", "pan_max"), ("tilt_min", "tilt_max")):
+        if not getattr(wire, lo) < getattr(wire, hi):
+            out.append((hi, f"{hi} must exceed {lo} on the wire (µrad resolution)"))
+    for name in CONFIG_RATES:
+        if getattr(wire, name) <= 0:
+            out.append((name, f"{getattr(cfg, name):g} rounds to {to_micro(getattr(cfg, name))} micro-units "
+                              "on the wire; must be > 0"))
+    if not CONFIG_WATCHDOG_MS_MIN <= cfg.watchdog_ms <= CONFIG_WATCHDOG_MS_MAX:
+        out.append(("watchdog_ms", f"{cfg.watchdog_ms} ms is outside [{CONFIG_WATCHDOG_MS_MIN}, "
+                                   f"{CONFIG_WATCHDOG_MS_MAX}]"))
+    return out
+
+
 MESSAGE_TYPES: dict[int, type[Message]] = {
     cls.TYPE: cls for cls in (Hello, Config, Enable, Setpoint, Heartbeat, ClearFault, State, Identity, Ack)
 }

@@ -176,3 +176,19 @@ def optical_frame_from_direction(c: np.ndarray, up: np.ndarray | None = None) ->
     x = normalize(x)
     y = np.cross(z, x)
     return np.stack([x, y, z], axis=-1)
+
+
+MAX_COORDINATE = 1e7  # [m]: positions beyond this (10 000 km) are refused as out of range (maps, paths, poses)
+
+
+def safe_unit_quats(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(unit quaternions (N, 4), usable (N,) bool) of quaternions ``q`` (N, 4), scaled by their largest
+    component first so that finite values of any magnitude (1e300 or 1e-300) normalise without overflow;
+    rows that are non-finite or zero are unusable (returned as given)."""
+    q = np.asarray(q, dtype=float).reshape(-1, 4)
+    with np.errstate(over="ignore", invalid="ignore"):
+        scale = np.max(np.abs(q), axis=1)
+        usable = np.isfinite(q).all(axis=1) & (scale > 0)
+        r = q / np.where(usable, scale, 1.0)[:, None]
+        norms = np.where(usable, np.sqrt(np.einsum("ij,ij->i", r, r)), 1.0)
+    return np.where(usable[:, None], r / norms[:, None], q), usable

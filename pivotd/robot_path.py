@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from pivotd.errors import InputError
-from pivotd.geometry import matrix_to_quat, normalize, yaw_to_matrix
+from pivotd.geometry import MAX_COORDINATE, matrix_to_quat, normalize, safe_unit_quats, yaw_to_matrix
 from pivotd.maps.formats import read_numeric_text
 
 
@@ -38,21 +38,23 @@ def load_path(path: str | Path) -> PathData:
     arr = read_numeric_text(path, (3, 8), what="path")
     if arr.shape[0] == 0:
         raise InputError(f"{path}: path is empty (no waypoint rows)")
+    xyz = arr[:, :3] if arr.shape[1] == 3 else arr[:, 1:4]
+    far = np.max(np.abs(xyz), axis=1) > MAX_COORDINATE
+    if far.any():
+        raise InputError(f"{path}: row {int(np.argmax(far)) + 1} has a position beyond ±{MAX_COORDINATE:g} m")
     if arr.shape[1] == 3:
         return PathData(positions=np.ascontiguousarray(arr))
-    quats = arr[:, [5, 6, 7, 4]]
-    norms = np.linalg.norm(quats, axis=1)
-    if np.any(norms < 1e-6):
-        raise InputError(f"{path}: row {int(np.argmax(norms < 1e-6)) + 1} has a zero quaternion")
+    quats, usable = safe_unit_quats(arr[:, [5, 6, 7, 4]])
+    if not usable.all():
+        raise InputError(f"{path}: row {int(np.argmax(~usable)) + 1} has a zero quaternion")
     stamps = arr[:, 0]
     # FIF stamps are integer nanoseconds; plain seconds pass through.
     if np.nanmax(np.abs(stamps)) > 1e12:
-        stamps = (stamps - stamps[0]) * 1e-9
-    return PathData(
-        positions=np.ascontiguousarray(arr[:, 1:4]),
-        quats=quats / norms[:, None],
-        stamps=stamps,
-    )
+        with np.errstate(over="ignore"):
+            stamps = (stamps - stamps[0]) * 1e-9
+        if not np.isfinite(stamps).all():
+            raise InputError(f"{path}: row {int(np.argmax(~np.isfinite(stamps))) + 1} has a timestamp out of range")
+    return PathData(positions=np.ascontiguousarray(arr[:, 1:4]), quats=quats, stamps=stamps)
 
 
 def project_onto_polyline(positions: np.ndarray, arc: np.ndarray, point: np.ndarray,

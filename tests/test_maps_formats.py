@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import numpy as np
 import plyfile
@@ -118,7 +119,10 @@ def _message(exc: pytest.ExceptionInfo) -> str:
         ("nanv.ply", "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
          "end_header\n1 2 3\n1 inf 3\n", r"nanv\.ply: vertex 1 is not finite"),
         ("short.ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
-         "end_header\n1 2 3\n", r"short\.ply: corrupt or truncated PLY at vertex 1"),
+         "end_header\n1 2 3\n" + " " * 20 + "\n", r"short\.ply: corrupt or truncated PLY at vertex 1"),
+        ("huge.ply", "ply\nformat ascii 1.0\nelement vertex 2147483648\nproperty float x\nproperty float y\n"
+         "property float z\nend_header\n1 2 3\n", r"huge\.ply: corrupt or truncated PLY at vertex 1: the header claims "
+         r"2147483648 'vertex' elements, the 6 data bytes hold at most 1"),
         ("map.las", "whatever", r"map\.las: unknown map format"),
     ],
 )
@@ -190,16 +194,18 @@ def test_points3d_name_with_other_extension_is_not_colmap(tmp_path):
 
 
 def test_text_fast_and_line_parsers_agree(tmp_path, fif_dir):
-    from pivotd.maps.formats import _parse_clean_text, read_numeric_text
+    from pivotd.maps.formats import _parse_clean_lines, _parse_lines, read_numeric_text
 
     mixed = tmp_path / "mixed.txt"
     mixed.write_text("# header\n1 2 3\n\n4,5,6\n7\t8 9\n")
-    assert _parse_clean_text(mixed.read_text(), (3, 4)) is None  # mixed separators: line parser
+    assert _parse_clean_lines(mixed.read_text(), 3, None) is None  # mixed separators
     np.testing.assert_array_equal(read_numeric_text(mixed, (3, 4), "landmark"), [[1, 2, 3], [4, 5, 6], [7, 8, 9]])
     text = (fif_dir / "ycorridor_6x20_points_w.txt").read_text()
-    fast = _parse_clean_text(text, (3, 4))
+    lines = text.splitlines(True)
+    fast = _parse_clean_lines(text, 3, None)
     assert fast is not None and fast.shape[0] > 900
+    np.testing.assert_array_equal(_parse_lines(Path("x"), text, 0, 3).reshape(-1, 3), fast)
     slow = tmp_path / "slow.txt"
-    slow.write_text(text.rstrip("\n") + "\n1 2 x\n")  # one bad trailing line forces the line parser
-    with pytest.raises(InputError, match=r"slow\.txt:\d+: not a number"):
+    slow.write_text("".join(lines).rstrip("\n") + "\n1 2 x\n")  # one bad trailing line forces the line parser
+    with pytest.raises(InputError, match=rf"slow\.txt:{len(lines) + 1}: not a number"):
         read_numeric_text(slow, (3, 4), "landmark")

@@ -19,6 +19,7 @@ BENCHES: dict[str, str] = {
     "motion": "per-cycle cost of gimbal kinematics and Ruckig setpoint generation",
     "bus": "Zenoh/ROS 2 bus codec costs and loopback delivery latency",
     "localization": "simulated visual localization success per camera policy (needs pivotd[bench])",
+    "fuzz": "pivotd plan/check over mutated maps, paths and configs: tracebacks, time, reader memory",
 }
 
 

@@ -4,7 +4,7 @@ Decoders turn a CDR payload into a small frozen dataclass or raise :class:`Messa
 ``reason`` is a short token used for per-topic drop counters: ``malformed`` (not CDR of the type),
 ``wrong_type``, ``nonfinite`` (NaN/inf pose or path), ``zero_quaternion``, ``wrong_frame``,
 ``oversized`` (cloud above the point limit), ``bad_fields`` (cloud without float x/y/z), ``empty``
-(path without poses).
+(path without poses), ``out_of_range`` (a pose or path position beyond ±MAX_COORDINATE m).
 
 Frames: ``frame_id`` is compared with the expected frame ignoring a leading ``/``. An empty
 ``frame_id`` is accepted as the expected frame unless ``accept_empty_frame`` is False. ``None`` as the
@@ -26,13 +26,14 @@ from pivotd.bus.topics import ODOMETRY as ODOMETRY
 from pivotd.bus.topics import POSE_STAMPED as POSE_STAMPED
 from pivotd.bus.topics import POSE_TYPES as POSE_TYPES
 from pivotd.errors import PivotdError
-from pivotd.geometry import matrix_to_quat, optical_frame_from_direction
+from pivotd.geometry import MAX_COORDINATE, matrix_to_quat, optical_frame_from_direction, safe_unit_quats
 
 PATH = "nav_msgs/msg/Path"
 POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 
 _FLOAT32, _FLOAT64 = 7, 8  # sensor_msgs/PointField datatypes
+_MAX_STAMP_NS = (2**31 - 1) * 1_000_000_000 + 999_999_999
 _FIELD_DTYPES = {_FLOAT32: "f4", _FLOAT64: "f8"}
 
 
@@ -88,8 +89,10 @@ def stamp_to_seconds(stamp: object) -> float:
 
 
 def seconds_to_stamp(t: float) -> object:
-    """Seconds -> builtin_interfaces/Time (floor to whole nanoseconds; negative times clamp to 0)."""
-    ns = max(0, round(float(t) * 1e9))
+    """Seconds -> builtin_interfaces/Time (rounded to whole nanoseconds; clamped to [0, 2³¹ s − 1 ns])."""
+    t = float(t)
+    t = min(max(t, 0.0), 2.0**31) if t == t else 0.0  # builtin_interfaces/Time holds int32 sec; NaN -> 0
+    ns = min(round(t * 1e9), _MAX_STAMP_NS)
     return _t("builtin_interfaces/msg/Time")(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
@@ -136,10 +139,12 @@ def _pose_arrays(pose: object, topic: str, what: str) -> tuple[np.ndarray, np.nd
     quat = np.array([q.x, q.y, q.z, q.w], dtype=float)
     if not (np.all(np.isfinite(position)) and np.all(np.isfinite(quat))):
         raise MessageError(topic, "nonfinite", f"{what} has a NaN or infinite value")
-    n = float(np.linalg.norm(quat))
-    if n < 1e-6:
+    if np.max(np.abs(position)) > MAX_COORDINATE:
+        raise MessageError(topic, "out_of_range", f"{what} position beyond ±{MAX_COORDINATE:g} m")
+    unit, usable = safe_unit_quats(quat)
+    if not usable[0]:
         raise MessageError(topic, "zero_quaternion", f"{what} has a zero quaternion")
-    return position, quat / n
+    return position, unit[0]
 
 
 # --------------------------------------------------------------------------------------------- decoders
@@ -173,9 +178,12 @@ def decode_path(payload: bytes, topic: str, expected_frame: str | None = "map",
     if not np.all(np.isfinite(positions)):
         bad = int(np.argmax(~np.all(np.isfinite(positions), axis=1)))
         raise MessageError(topic, "nonfinite", f"path pose {bad} has a NaN or infinite position")
-    norms = np.linalg.norm(quats, axis=1)
-    unusable = ~np.isfinite(norms) | (norms < 1e-6)
-    quats = np.where(unusable[:, None], np.array([0.0, 0.0, 0.0, 1.0]), quats / np.where(unusable, 1.0, norms)[:, None])
+    far = np.max(np.abs(positions), axis=1) > MAX_COORDINATE
+    if far.any():
+        raise MessageError(topic, "out_of_range", f"path pose {int(np.argmax(far))} has a position beyond "
+                                                  f"±{MAX_COORDINATE:g} m")
+    unit, usable = safe_unit_quats(quats)
+    quats = np.where(usable[:, None], unit, np.array([0.0, 0.0, 0.0, 1.0]))
     return PathMsg(stamp=stamp_to_seconds(msg.header.stamp), frame_id=frame,  # type: ignore[attr-defined]
                    positions=positions, quats=quats)
 

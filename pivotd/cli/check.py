@@ -13,7 +13,9 @@ import sys
 import numpy as np
 
 from pivotd.config import Config, load_config
+from pivotd.errors import ConfigError, InputError
 from pivotd.maps.formats import LandmarkCloud, load_landmarks
+from pivotd.maps.occlusion import OccupancyGrid
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -23,8 +25,24 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
     cloud = load_landmarks(cfg.map.file) if cfg.map.file is not None else None
+    _check_occupancy(cfg, cloud)
     sys.stdout.write("\n".join(summary_lines(cfg, cloud)) + "\n")
     return 0
+
+
+def _check_occupancy(cfg: Config, cloud: LandmarkCloud | None) -> None:
+    """Build the occupancy grid the daemon will build, so that a voxel too small for the map's extent fails here."""
+    f = cfg.map.filters
+    if f.occlusion_voxel is None:
+        return
+    points = load_landmarks(f.occupancy_file).points if f.occupancy_file is not None else (
+        cloud.points if cloud is not None else None)
+    if points is None:
+        return
+    try:
+        OccupancyGrid.from_points(points, f.occlusion_voxel)
+    except InputError as exc:
+        raise ConfigError(f"{cfg.source}: map.filters.occlusion_voxel: {exc}") from None
 
 
 def _deg(rad: float) -> str:

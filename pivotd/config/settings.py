@@ -14,11 +14,14 @@ import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from firmware_proto.messages import Config as ConfigMessage
+from firmware_proto.messages import config_problems
 from pivotd.bus.topics import POSE_TYPES, BusTopics, status_key_for
 from pivotd.config.yaml_reader import Section, read_yaml
 from pivotd.errors import ConfigError, InputError
 from pivotd.gimbal.kinematics import JointLimits, Mount
 from pivotd.gimbal.motion import AxisLimits
+from pivotd.maps.occlusion import voxel_problem
 from pivotd.pivot.steps import MAX_STEP_RANGE_DEG
 
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
@@ -312,8 +315,51 @@ def load_config(path: str | Path) -> Config:
         sim=_sim(root.section("sim")) if root.has("sim") else None,
         source=path.resolve(),
     )
+    _check_wire(root, cfg.gimbal, cfg.motion)
     root.finish()
     return cfg
+
+
+# CONFIG message field -> (YAML key path, factor from the field's SI unit to the key's unit)
+_WIRE_KEYS = {
+    "pan_min": (("gimbal", "limits", "pan_min_deg"), math.degrees(1.0)),
+    "pan_max": (("gimbal", "limits", "pan_max_deg"), math.degrees(1.0)),
+    "tilt_min": (("gimbal", "limits", "tilt_min_deg"), math.degrees(1.0)),
+    "tilt_max": (("gimbal", "limits", "tilt_max_deg"), math.degrees(1.0)),
+    "vmax_pan": (("motion", "pan", "max_velocity_deg_s"), math.degrees(1.0)),
+    "vmax_tilt": (("motion", "tilt", "max_velocity_deg_s"), math.degrees(1.0)),
+    "amax_pan": (("motion", "pan", "max_acceleration_deg_s2"), math.degrees(1.0)),
+    "amax_tilt": (("motion", "tilt", "max_acceleration_deg_s2"), math.degrees(1.0)),
+    "watchdog_ms": (("gimbal", "watchdog_ms"), 1.0),
+}
+
+
+def wire_config(gimbal: GimbalConfig, motion: MotionConfig) -> ConfigMessage:
+    """The CONFIG message the device receives for these settings: joint limits, and the motion limits as the
+    device's rate limits (PROTOCOL.md §4)."""
+    lim = gimbal.limits
+    return ConfigMessage(
+        pan_min=lim.pan_min, pan_max=lim.pan_max, tilt_min=lim.tilt_min, tilt_max=lim.tilt_max,
+        vmax_pan=motion.pan.max_velocity, vmax_tilt=motion.tilt.max_velocity,
+        amax_pan=motion.pan.max_acceleration, amax_tilt=motion.tilt.max_acceleration,
+        watchdog_ms=gimbal.watchdog_ms,
+    )
+
+
+def _check_wire(root: Section, gimbal: GimbalConfig, motion: MotionConfig) -> None:
+    """Refuse settings the gimbal protocol cannot carry or the device would refuse (so ``check`` passing
+    means the device accepts the CONFIG); the error names the YAML key. Only for the ``pivot`` backend, whose
+    device receives this message."""
+    if gimbal.backend != "pivot":
+        return
+    msg = wire_config(gimbal, motion)
+    for field_name, reason in config_problems(msg):
+        keys, factor = _WIRE_KEYS[field_name]
+        section = root
+        for part in keys[:-1]:
+            section = section.section(part)
+        value = getattr(msg, field_name) * factor
+        raise section.error(keys[-1], f"{value:g} cannot be sent to the gimbal: {reason}")
 
 
 def _zenoh(s: Section) -> ZenohConfig:
@@ -325,8 +371,21 @@ def _zenoh(s: Section) -> ZenohConfig:
     scouting = s.boolean("multicast_scouting", d.multicast_scouting)
     if mode == "client" and not connect and not scouting and config_file is None:
         raise s.error("connect", "client mode needs a router endpoint (or multicast_scouting: true)")
+    if config_file is not None:
+        _check_zenoh_file(s, mode, connect, listen, config_file, scouting)
     s.finish()
     return ZenohConfig(mode, connect, listen, config_file, scouting)
+
+
+def _check_zenoh_file(s: Section, mode: str, connect: tuple[str, ...], listen: tuple[str, ...], config_file: Path,
+                      scouting: bool) -> None:
+    """Parse ``zenoh.config_file`` with Zenoh's own loader, overlaid with the other keys as the daemon does."""
+    from pivotd.bus.session import build_config
+
+    try:
+        build_config(mode, connect, listen, config_file, scouting)
+    except ConfigError as exc:
+        raise s.error("config_file", str(exc)) from None
 
 
 def _topics(s: Section) -> BusTopics:
@@ -370,11 +429,14 @@ def _map(s: Section) -> MapConfig:
     if max_range <= min_range:
         raise f.error("max_range", f"must be > min_range ({min_range:g})")
     view_deg = f.number("max_view_angle_deg", None, min=0.0, max=180.0, min_open=True)
+    voxel = f.number("occlusion_voxel", None, min=0.0, min_open=True)
+    if voxel is not None and (problem := voxel_problem(voxel, max_range)):
+        raise f.error("occlusion_voxel", problem)
     filters = MapFilters(
         min_range=min_range,
         max_range=max_range,
         max_view_angle=None if view_deg is None else math.radians(view_deg),
-        occlusion_voxel=f.number("occlusion_voxel", None, min=0.0, min_open=True),
+        occlusion_voxel=voxel,
         occupancy_file=f.path_value("occupancy_file", None),
     )
     f.finish()

@@ -32,44 +32,121 @@ class Node:
     line: int | None
 
 
-def _convert(node: yaml.Node, file: Path, constructor: yaml.constructor.SafeConstructor) -> Node:
-    line = node.start_mark.line + 1
-    if isinstance(node, yaml.MappingNode):
+MAX_DEPTH = 64  # nesting levels of mappings and sequences
+MAX_NODES = 100_000  # values after alias expansion (a config has a few hundred)
+MAX_BYTES = 1 << 20  # size of a config file
+
+
+class _BoundedLoader(yaml.SafeLoader):
+    """SafeLoader refusing documents nested deeper than MAX_DEPTH: flow collections in the scanner, any node
+    in the composer (which recurses per level)."""
+
+    _depth = 0
+
+    def fetch_flow_collection_start(self, TokenClass: type) -> None:
+        # The scanner looks ahead to the end of a flow collection (it may be a key), quadratically in its
+        # depth: refuse deep flow nesting while scanning, before the composer sees anything.
+        if self.flow_level >= MAX_DEPTH:
+            raise _LimitError(self.line + 1, f"nesting deeper than {MAX_DEPTH} levels")
+        super().fetch_flow_collection_start(TokenClass)
+
+    def compose_node(self, parent: yaml.Node | None, index: Any) -> yaml.Node | None:
+        if self._depth >= MAX_DEPTH:
+            mark = self.peek_event().start_mark
+            raise _LimitError(mark.line + 1, f"nesting deeper than {MAX_DEPTH} levels")
+        self._depth += 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+
+class _LimitError(Exception):
+    def __init__(self, line: int, problem: str) -> None:
+        super().__init__(problem)
+        self.line = line
+        self.problem = problem
+
+
+class _Converter:
+    """Turns a composed YAML graph into :class:`Node` values, expanding aliases with a budget.
+
+    An alias that refers to one of its own enclosing nodes (a recursive alias) and a document that
+    expands to more than MAX_NODES values (an alias "bomb") are refused.
+    """
+
+    def __init__(self, file: Path) -> None:
+        self.file = file
+        self.constructor = yaml.constructor.SafeConstructor()
+        self.count = 0
+        self.open: set[int] = set()  # ids of the nodes being converted (the current path from the root)
+
+    def convert(self, node: yaml.Node) -> Node:
+        line = node.start_mark.line + 1
+        self.count += 1
+        if self.count > MAX_NODES:
+            raise _LimitError(line, f"more than {MAX_NODES} values after expanding aliases")
+        if not isinstance(node, yaml.MappingNode | yaml.SequenceNode):
+            return Node(self.constructor.construct_object(node, deep=True), line)
+        if id(node) in self.open:
+            raise _LimitError(line, "recursive alias (a node that contains itself)")
+        self.open.add(id(node))
+        try:
+            if isinstance(node, yaml.SequenceNode):
+                return Node([self.convert(item) for item in node.value], line)
+            return Node(self._mapping(node), line)
+        finally:
+            self.open.discard(id(node))
+
+    def _mapping(self, node: yaml.MappingNode) -> dict[str, Node]:
         out: dict[str, Node] = {}
         for key_node, value_node in node.value:
-            key = constructor.construct_object(key_node, deep=True)
             key_line = key_node.start_mark.line + 1
+            key = self.constructor.construct_object(key_node) if isinstance(key_node, yaml.ScalarNode) else None
             if not isinstance(key, str):
-                raise ConfigError(f"{file}:{key_line}: key {key!r} is not a string")
+                shown = repr(key) if isinstance(key_node, yaml.ScalarNode) else f"({key_node.id})"
+                raise ConfigError(f"{self.file}:{key_line}: key {shown} is not a string")
             if key in out:
-                raise ConfigError(f"{file}:{key_line}: {key}: duplicate key")
-            value = _convert(value_node, file, constructor)
+                raise ConfigError(f"{self.file}:{key_line}: {key}: duplicate key")
+            value = self.convert(value_node)
             out[key] = Node(value.value, key_line)  # errors point at the key's line
-        return Node(out, line)
-    if isinstance(node, yaml.SequenceNode):
-        return Node([_convert(item, file, constructor) for item in node.value], line)
-    return Node(constructor.construct_object(node, deep=True), line)
+        return out
 
 
 def read_yaml(path: Path) -> Node:
-    """Parse one YAML document into a :class:`Node` tree; an empty file gives an empty mapping."""
+    """Parse one YAML document into a :class:`Node` tree; an empty file gives an empty mapping.
+
+    Bounded: at most MAX_BYTES of text, MAX_DEPTH levels of nesting and MAX_NODES values after alias
+    expansion; recursive aliases are refused. Every problem is a one-line ConfigError naming the file.
+    """
     try:
+        size = path.stat().st_size
+        if size > MAX_BYTES:
+            raise ConfigError(f"{path}: config file is {size} bytes, more than the {MAX_BYTES} a config may have")
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such config file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: cannot read config file ({exc})") from None
     try:
-        root = yaml.compose(text, Loader=yaml.SafeLoader)
+        loader = _BoundedLoader(text)
+        try:
+            root = loader.get_single_node()
+        finally:
+            loader.dispose()
         if root is None:
             return Node({}, 1)
-        return _convert(root, path, yaml.constructor.SafeConstructor())
+        return _Converter(path).convert(root)
+    except _LimitError as exc:
+        raise ConfigError(f"{path}:{exc.line}: YAML refused: {exc.problem}") from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
         raise ConfigError(f"{where}: YAML syntax error: {exc.problem or exc}") from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: YAML error: {exc}") from None
+    except (RecursionError, ValueError, OverflowError) as exc:  # e.g. a timestamp scalar out of range
+        raise ConfigError(f"{path}: YAML value cannot be read ({type(exc).__name__}: {exc})") from None
 
 
 class Section:
@@ -214,7 +291,10 @@ class Section:
             return None
         if value == "":
             raise self.error(key, "must not be empty")
-        path = Path(value).expanduser()
+        try:
+            path = Path(value).expanduser()
+        except RuntimeError:  # "~user/..." naming no known user, or no home directory
+            raise self.error(key, f"cannot expand {value.split('/')[0]!r}: no such user or home directory") from None
         if not path.is_absolute():
             path = self.file.resolve().parent / path
         if must_exist and not path.exists():

@@ -12,8 +12,8 @@ import math
 import time
 from collections.abc import Callable
 
-from firmware_proto.messages import Config as ConfigMessage
 from pivotd.config import Config
+from pivotd.config.settings import wire_config
 from pivotd.daemon.control import ControlLoop, ControlSettings
 from pivotd.daemon.planner import PlannerSettings, RecedingHorizonPlanner
 from pivotd.errors import ConfigError
@@ -86,18 +86,7 @@ def build_planner(cfg: Config) -> RecedingHorizonPlanner:
 
 def build_link_config(cfg: Config) -> LinkConfig:
     """CONFIG limits for the device: joint limits, and the motion limits as the device's rate limits."""
-    lim, mo = cfg.gimbal.limits, cfg.motion
-    return LinkConfig(ConfigMessage(
-        pan_min=lim.pan_min,
-        pan_max=lim.pan_max,
-        tilt_min=lim.tilt_min,
-        tilt_max=lim.tilt_max,
-        vmax_pan=mo.pan.max_velocity,
-        vmax_tilt=mo.tilt.max_velocity,
-        amax_pan=mo.pan.max_acceleration,
-        amax_tilt=mo.tilt.max_acceleration,
-        watchdog_ms=cfg.gimbal.watchdog_ms,
-    ))
+    return LinkConfig(wire_config(cfg.gimbal, cfg.motion))
 
 
 def build_motion(cfg: Config) -> MotionGenerator:

@@ -23,23 +23,26 @@ from __future__ import annotations
 
 import array
 import logging
+import math
 import struct
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
 
 from pivotd.errors import InputError
-from pivotd.geometry import quat_to_matrix
+from pivotd.geometry import MAX_COORDINATE, quat_to_matrix, safe_unit_quats
 from pivotd.maps.formats import LandmarkCloud, make_cloud
 
 log = logging.getLogger(__name__)
 
 _POINT_HEAD = 51  # id, xyz, rgb, error, track_length
 _TRACK_ELEM = 8
-_BLOCK = 1 << 18  # landmarks per vectorised block of direction averaging
+_BLOCK = 1 << 13  # landmarks per vectorised block of direction averaging (temporaries ~40 B per observation)
 _HEAD_BLOCK = 1 << 14  # records per block when reading heads (a multiple of 8; ~1 MB of file stays cached)
 _TRACK_BLOCK = 1 << 12  # records per block when reading tracks (a multiple of 4)
 _IMAGE_HEAD = struct.Struct("<idddddddi")  # 64 bytes
+_I32_MIN, _I32_MAX = -(1 << 31), (1 << 31) - 1
 
 
 def resolve_model(path: Path) -> tuple[Path, Path | None]:
@@ -70,11 +73,12 @@ def load_colmap(path: Path) -> LandmarkCloud:
         xyz, lengths, track_img = read_points3d_bin(points_file, with_tracks=images_file is not None)
     else:
         xyz, lengths, track_img = read_points3d_txt(points_file)
-    directions = None
-    if images_file is not None:
-        ids, centers = read_images_bin(images_file) if images_file.suffix == ".bin" else read_images_txt(images_file)
-        directions = observation_directions(xyz, lengths, track_img, ids, centers)
-    return make_cloud(points_file, xyz, None, directions, row_name="point")
+    cloud = make_cloud(points_file, xyz, None, None, row_name="point")  # validated before any arithmetic
+    if images_file is None:
+        return cloud
+    ids, centers = read_images_bin(images_file) if images_file.suffix == ".bin" else read_images_txt(images_file)
+    directions = observation_directions(cloud.points, lengths, track_img, ids, centers)
+    return LandmarkCloud(cloud.points, cloud.weights, directions)
 
 
 # --- points3D ---------------------------------------------------------------------------------
@@ -176,10 +180,14 @@ def read_points3d_bin(path: Path, with_tracks: bool = True) -> tuple[np.ndarray,
 
 
 def read_points3d_txt(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Same as :func:`read_points3d_bin` for ``points3D.txt``; errors name the line."""
-    xyz: list[list[float]] = []
-    lengths: list[int] = []
-    track_img: list[np.ndarray] = []
+    """Same as :func:`read_points3d_bin` for ``points3D.txt``; errors name the line.
+
+    Values go straight into typed arrays (8 bytes per number), so memory stays a small multiple of the
+    file size whatever its content.
+    """
+    xyz = array.array("d")
+    lengths = array.array("q")
+    track_img = array.array("i")
     for lineno, line in _text_lines(path):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
@@ -192,17 +200,20 @@ def read_points3d_txt(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         try:
             p = [float(f) for f in fields[1:4]]
             int(fields[0])
-            track = np.array([int(f) for f in fields[8::2]], dtype=np.int32)
+            track = [int(f) for f in fields[8::2]]
         except ValueError:
             raise InputError(f"{path}:{lineno}: not a number in {line.strip()[:80]!r}") from None
-        if not np.isfinite(p).all():
+        if not all(math.isfinite(v) for v in p):
             raise InputError(f"{path}:{lineno}: coordinate is not finite (NaN or inf)")
-        lengths.append(track.shape[0])
-        track_img.append(track)
-        xyz.append(p)
-    arr = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
-    img = np.concatenate(track_img) if track_img else np.zeros(0, np.int32)
-    return arr, np.asarray(lengths, dtype=np.int64), img
+        try:
+            track_img.extend(track)
+        except OverflowError:
+            bad = next(v for v in track if not _I32_MIN <= v <= _I32_MAX)
+            raise InputError(f"{path}:{lineno}: image id {bad} is out of range (COLMAP ids are 32-bit)") from None
+        lengths.append(len(track))
+        xyz.extend(p)
+    return (np.frombuffer(xyz, dtype=np.float64).reshape(-1, 3), np.frombuffer(lengths, dtype=np.int64),
+            np.frombuffer(track_img, dtype=np.int32))
 
 
 # --- images -----------------------------------------------------------------------------------
@@ -210,8 +221,8 @@ def read_points3d_txt(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def camera_centers(qwxyz: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Camera centres (K, 3) = -R(q)ᵀ t from world-to-camera quaternions (K, 4) (w, x, y, z) and t (K, 3)."""
-    R = quat_to_matrix(np.asarray(qwxyz, dtype=float)[:, [1, 2, 3, 0]])
-    return -np.einsum("kji,kj->ki", R, np.asarray(t, dtype=float))
+    q, _ = safe_unit_quats(np.asarray(qwxyz, dtype=float)[:, [1, 2, 3, 0]])
+    return -np.einsum("kji,kj->ki", quat_to_matrix(q), np.asarray(t, dtype=float))
 
 
 def read_images_bin(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -247,15 +258,18 @@ def read_images_bin(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 def read_images_txt(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Image ids (K,) and camera centres (K, 3) from ``images.txt``; errors name the line."""
-    lines = [(n, s) for n, s in _text_lines(path) if not s.lstrip().startswith("#")]
-    ids: list[int] = []
-    poses: list[list[float]] = []
-    # Each image takes two lines; the keypoint line may be empty. Skip blank lines between images.
-    i = 0
-    while i < len(lines):
-        lineno, line = lines[i]
+    ids = array.array("i")
+    poses = array.array("d")
+    # Each image takes two lines; the keypoint line (possibly empty) follows its header line.
+    # Blank lines between images are skipped.
+    keypoints_next = False
+    for lineno, line in _text_lines(path):
+        if line.lstrip().startswith("#"):
+            continue
+        if keypoints_next:
+            keypoints_next = False
+            continue
         if not line.strip():
-            i += 1
             continue
         fields = line.split()
         if len(fields) < 10:
@@ -263,32 +277,41 @@ def read_images_txt(path: Path) -> tuple[np.ndarray, np.ndarray]:
                 f"{path}:{lineno}: expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, got {len(fields)} fields"
             )
         try:
-            ids.append(int(fields[0]))
-            poses.append([float(f) for f in fields[1:8]])
+            image_id = int(fields[0])
+            pose = [float(f) for f in fields[1:8]]
             int(fields[8])
         except ValueError:
             raise InputError(f"{path}:{lineno}: not a number in {line.strip()[:80]!r}") from None
-        i += 2
-    arr = np.asarray(poses, dtype=float).reshape(-1, 7)
-    id_arr = np.asarray(ids, dtype=np.int64)
+        if not _I32_MIN <= image_id <= _I32_MAX:
+            raise InputError(f"{path}:{lineno}: image id {image_id} is out of range (COLMAP ids are 32-bit)")
+        ids.append(image_id)
+        poses.extend(pose)
+        keypoints_next = True
+    arr = np.frombuffer(poses, dtype=np.float64).reshape(-1, 7)
+    id_arr = np.frombuffer(ids, dtype=np.int32).astype(np.int64)
     _check_poses(path, id_arr, arr, "image")
     return id_arr, camera_centers(arr[:, :4], arr[:, 4:])
 
 
 def _check_poses(path: Path, ids: np.ndarray, poses: np.ndarray, what: str) -> None:
-    bad = ~np.isfinite(poses).all(axis=1) | (np.linalg.norm(poses[:, :4], axis=1) < 1e-9)
+    _, usable = safe_unit_quats(poses[:, :4])
+    bad = ~np.isfinite(poses).all(axis=1) | ~usable
     if bad.any():
         raise InputError(f"{path}: {what} {int(ids[np.argmax(bad)])} has a non-finite pose or zero quaternion")
+    far = np.abs(poses[:, 4:]).max(axis=1, initial=0.0) > MAX_COORDINATE
+    if far.any():
+        raise InputError(f"{path}: {what} {int(ids[np.argmax(far)])} has a translation beyond ±{MAX_COORDINATE:g} m")
     if ids.size and ids.min() < 0:
         raise InputError(f"{path}: {what} id {int(ids.min())} is negative")
 
 
-def _text_lines(path: Path) -> list[tuple[int, str]]:
+def _text_lines(path: Path) -> Iterator[tuple[int, str]]:
+    """(1-based line number, line) of a text file, read lazily; errors name the file."""
     try:
-        text = path.read_text()
+        with open(path) as fh:
+            yield from enumerate(fh, start=1)
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read ({exc})") from None
-    return list(enumerate(text.splitlines(), start=1))
 
 
 # --- directions -------------------------------------------------------------------------------
@@ -307,9 +330,7 @@ def observation_directions(
     out = np.zeros((n, 3), dtype=np.float32)
     if track_img.size == 0 or image_ids.size == 0:
         return out
-    top = int(max(image_ids.max(), track_img.max()))
-    lookup = np.full(top + 2, -1, dtype=np.int64)
-    lookup[image_ids] = np.arange(image_ids.size)
+    to_row = _image_rows(image_ids)
     centers32 = np.concatenate([centers, np.zeros((1, 3))]).astype(np.float32)  # row K: unknown image
     first = np.concatenate([[0], np.cumsum(lengths)])
     missing = 0
@@ -319,7 +340,7 @@ def observation_directions(
         if first[b] == first[a]:
             continue
         img = track_img[first[a]:first[b]]
-        cam = lookup[np.clip(img, -1, top + 1)]
+        cam = to_row(img)
         unknown = cam < 0
         cam[unknown] = image_ids.size
         missing += int(unknown.sum())
@@ -336,3 +357,24 @@ def observation_directions(
     if missing:
         log.info("%d observations refer to images missing from the model; ignored", missing)
     return out
+
+
+def _image_rows(image_ids: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """Function mapping image ids (T,) to rows of ``image_ids`` (K,) (-1 where unknown).
+
+    A dense lookup table when the ids are compact (the usual 1..K, at most 2K + 1024 entries), else a
+    binary search over the sorted ids: memory never follows the largest id a (corrupt) file names.
+    """
+    top = int(image_ids.max())
+    if top < 2 * image_ids.size + 1024:
+        lookup = np.full(top + 2, -1, dtype=np.int64)
+        lookup[image_ids] = np.arange(image_ids.size)
+        return lambda img: lookup[np.clip(img, -1, top + 1)]
+    order = np.argsort(image_ids, kind="stable")
+    sorted_ids = image_ids[order]
+
+    def rows(img: np.ndarray) -> np.ndarray:
+        pos = np.minimum(np.searchsorted(sorted_ids, img), sorted_ids.size - 1)
+        return np.where(sorted_ids[pos] == img, order[pos], -1)
+
+    return rows

@@ -12,16 +12,20 @@ would shift every landmark index the user may refer to. An empty map is an error
 
 from __future__ import annotations
 
+import array
 import io
 import logging
+import os
 import re
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from tokenize import TokenError
 
 import numpy as np
 
 from pivotd.errors import InputError
+from pivotd.geometry import MAX_COORDINATE
 
 log = logging.getLogger(__name__)
 
@@ -82,7 +86,7 @@ def load_landmarks(
         cloud = cloud_from_array(path, _read_npy(path))
     elif suffix in TEXT_SUFFIXES:
         _no_weight_property(path, weight_property, "text maps")
-        cloud = cloud_from_array(path, read_numeric_text(path, (3, 4), what="landmark"))
+        cloud = cloud_from_array(path, read_numeric_text(path, (3, 4), what="landmark", dtype=POINT_DTYPE))
     else:
         raise InputError(
             f"{path}: unknown map format '{suffix or path.name}' "
@@ -102,14 +106,64 @@ def _no_weight_property(path: Path, weight_property: str | None, what: str) -> N
         )
 
 
+class CappedReader(io.BufferedReader):
+    """A binary file whose ``read(n)`` never asks for more than the bytes left: a length field read from a
+    corrupt file cannot make a reader allocate more than the file holds (``BufferedReader.read(n)``
+    allocates n bytes before reading)."""
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(io.FileIO(path, "r"))
+        self._size = os.fstat(self.fileno()).st_size
+
+    def read(self, size: int | None = -1) -> bytes:
+        if size is not None and size > 0:
+            size = min(size, max(0, self._size - self.tell()))
+            if size == 0:
+                return b""
+        return super().read(size)
+
+
 def _read_npy(path: Path) -> np.ndarray:
+    """The array of a ``.npy`` file, memory-mapped; its header is checked against the file size first."""
+    shape, dtype, offset = _npy_header(path)
+    if len(shape) != 2 or shape[1] not in (3, 4) or not (
+        np.issubdtype(dtype, np.integer) or np.issubdtype(dtype, np.floating)
+    ):
+        raise InputError(f"{path}: expected a numeric (N,3) or (N,4) array, got {dtype} {shape}")
+    need = shape[0] * shape[1] * dtype.itemsize  # Python ints: no overflow
+    have = path.stat().st_size - offset
+    if need > have:
+        raise InputError(f"{path}: header claims a {dtype} {shape} array of {need} bytes, the file holds {have}")
+    if shape[0] == 0:
+        return np.zeros((0, shape[1]), dtype)
     try:
-        arr = np.load(path, allow_pickle=False, mmap_mode="r")
+        return np.load(path, allow_pickle=False, mmap_mode="r")
     except (ValueError, OSError, EOFError) as exc:
-        raise InputError(f"{path}: not a readable .npy array ({exc})") from None
-    if arr.ndim != 2 or arr.shape[1] not in (3, 4) or not np.issubdtype(arr.dtype, np.number):
-        raise InputError(f"{path}: expected a numeric (N,3) or (N,4) array, got {arr.dtype} {arr.shape}")
-    return arr
+        raise InputError(f"{path}: not a readable .npy array ({' '.join(str(exc).split())})") from None
+
+
+def _npy_header(path: Path) -> tuple[tuple[int, ...], np.dtype, int]:
+    """(shape, dtype, data offset) from a ``.npy`` header; any malformed header is an InputError."""
+    try:
+        with CappedReader(path) as fh:
+            version = np.lib.format.read_magic(fh)
+            if version == (1, 0):
+                shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
+            elif version in ((2, 0), (3, 0)):
+                shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
+            else:
+                raise ValueError(f"unsupported .npy version {version}")
+            offset = fh.tell()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc})") from None
+    # A corrupt header is Python literal syntax parsed by numpy: it surfaces as any of these.
+    except (ValueError, SyntaxError, TokenError, OverflowError, TypeError, KeyError, EOFError,
+            UnicodeDecodeError, RecursionError, MemoryError) as exc:
+        detail = " ".join(str(exc).split())[:120]
+        raise InputError(f"{path}: not a readable .npy array (bad header: {type(exc).__name__}: {detail})") from None
+    if not all(isinstance(d, int) and d >= 0 for d in shape):
+        raise InputError(f"{path}: not a readable .npy array (bad shape {shape})")
+    return tuple(shape), np.dtype(dtype), offset
 
 
 def first_nonfinite_row(arr: np.ndarray) -> int | None:
@@ -117,10 +171,19 @@ def first_nonfinite_row(arr: np.ndarray) -> int | None:
     if arr.shape[0] == 0:
         return None
     # Column sums in float64 propagate NaN/inf and cannot overflow for float32 data: one fast pass.
-    if all(np.isfinite(arr[:, k].sum(dtype=np.float64)) for k in range(arr.shape[1])):
+    with np.errstate(over="ignore", invalid="ignore"):
+        clean = all(np.isfinite(arr[:, k].sum(dtype=np.float64)) for k in range(arr.shape[1]))
+    if clean:
         return None
     bad = ~np.isfinite(arr).all(axis=1)
     return int(np.argmax(bad)) if bad.any() else None
+
+
+def first_far_row(points: np.ndarray) -> int | None:
+    """Index of the first row of finite ``points`` (N, 3) with a coordinate beyond ±MAX_COORDINATE, or None."""
+    if points.shape[0] == 0 or all(np.abs(points[:, k]).max() <= MAX_COORDINATE for k in range(3)):
+        return None
+    return int(np.argmax((np.abs(points) > MAX_COORDINATE).any(axis=1)))
 
 
 def make_cloud(
@@ -145,14 +208,19 @@ def make_cloud(
     for name, arr, shape in (("weights", weights, (n,)), ("directions", directions, (n, 3))):
         if arr is not None and np.shape(arr) != shape:
             raise InputError(f"{path}: expected {name} of shape {shape}, got {np.shape(arr)}")
-    points = np.ascontiguousarray(points, dtype=POINT_DTYPE)
+    with np.errstate(over="ignore", invalid="ignore"):  # values beyond float32 become inf: reported below
+        points = np.ascontiguousarray(points, dtype=POINT_DTYPE)
     bad = first_nonfinite_row(points)
     if bad is not None:
-        raise InputError(f"{path}: {row_name} {bad + row_base} is not finite (NaN or inf)")
+        raise InputError(f"{path}: {row_name} {bad + row_base} is not finite (NaN, inf or beyond ±3.4e38)")
+    far = first_far_row(points)
+    if far is not None:
+        raise InputError(f"{path}: {row_name} {far + row_base} lies beyond ±{MAX_COORDINATE:g} m")
     if weights is None:
         weights = np.ones(points.shape[0], POINT_DTYPE)
     else:
-        weights = np.ascontiguousarray(weights, dtype=POINT_DTYPE)
+        with np.errstate(over="ignore", invalid="ignore"):
+            weights = np.ascontiguousarray(weights, dtype=POINT_DTYPE)
         bad = first_nonfinite_row(weights[:, None])
         if bad is not None:
             raise InputError(f"{path}: {row_name} {bad + row_base} has a non-finite weight")
@@ -171,62 +239,96 @@ def cloud_from_array(path: Path, arr: np.ndarray) -> LandmarkCloud:
 
 
 _SPLIT = re.compile(r"[,\s]+")
+_TEXT_BLOCK = 1 << 18  # characters parsed per block (memory stays ~ the parsed numbers)
 
 
-def read_numeric_text(path: Path, columns: tuple[int, ...], what: str) -> np.ndarray:
+def read_numeric_text(path: Path, columns: tuple[int, ...], what: str, dtype: type = np.float64) -> np.ndarray:
     """Parse rows of numbers separated by spaces, tabs or commas; ``#`` starts a comment line.
 
     Every row must have one of ``columns`` fields (the first data row fixes the count) and be
-    finite. Returns an (N, C) float64 array; errors name the file and 1-based line number.
+    finite. Returns an (N, C) array of ``dtype`` (float64 or float32; values beyond float32 become inf);
+    errors name the file and 1-based line number. The file is read in blocks of about _TEXT_BLOCK
+    characters, so memory is the parsed numbers plus one block.
     """
+    values = array.array("d" if np.dtype(dtype) == np.float64 else "f")
+    ncols: int | None = None
+    delimiter: str | None = None
+    lineno = 0
     try:
-        text = path.read_text()
+        with open(path) as fh:
+            while True:
+                block = fh.read(_TEXT_BLOCK)
+                if not block:
+                    break
+                if not block.endswith("\n"):
+                    block += fh.readline()  # complete the last line
+                if ncols is None:
+                    found = _first_data_line(block)
+                    if found is not None:
+                        delimiter = "," if "," in found[1] else None
+                        ncols = _column_count(path, lineno + found[0], found[1], columns, what)
+                if ncols is not None:
+                    parsed = _parse_clean_lines(block, ncols, delimiter)
+                    if parsed is None:
+                        parsed = _parse_lines(path, block, lineno, ncols)
+                    with np.errstate(over="ignore"):
+                        values.frombytes(parsed.astype(dtype, copy=False).tobytes())
+                lineno += block.count("\n")
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read ({exc})") from None
-    fast = _parse_clean_text(text, columns)
-    if fast is not None:
-        return fast
-    rows: list[list[float]] = []
-    ncols = None
-    for lineno, raw in enumerate(text.splitlines(), start=1):
+    if ncols is None:
+        return np.zeros((0, columns[0]), dtype)
+    return np.frombuffer(values, dtype=dtype).reshape(-1, ncols)
+
+
+def _first_data_line(block: str) -> tuple[int, str] | None:
+    """(1-based line number within ``block``, line) of its first non-blank, non-comment line."""
+    for k, line in enumerate(io.StringIO(block), start=1):
+        if line.strip() and not line.lstrip().startswith("#"):
+            return k, line
+    return None
+
+
+def _column_count(path: Path, lineno: int, line: str, columns: tuple[int, ...], what: str) -> int:
+    n = len([f for f in _SPLIT.split(line.strip()) if f])
+    if n not in columns:
+        raise InputError(
+            f"{path}:{lineno}: expected {' or '.join(map(str, columns))} columns in a {what} row, got {n}"
+        )
+    return n
+
+
+def _parse_lines(path: Path, block: str, lineno: int, ncols: int) -> np.ndarray:
+    """Line-by-line parse of one block of text (lines after ``lineno``); errors name the offending line."""
+    out = array.array("d")
+    for k, raw in enumerate(io.StringIO(block), start=lineno + 1):
         line = raw.strip()
         if not line or line.startswith("#"):
             continue
         fields = [f for f in _SPLIT.split(line) if f]
-        if ncols is None:
-            if len(fields) not in columns:
-                raise InputError(
-                    f"{path}:{lineno}: expected {' or '.join(map(str, columns))} columns in a {what} row, "
-                    f"got {len(fields)}"
-                )
-            ncols = len(fields)
-        elif len(fields) != ncols:
-            raise InputError(f"{path}:{lineno}: expected {ncols} columns, got {len(fields)}")
+        if len(fields) != ncols:
+            raise InputError(f"{path}:{k}: expected {ncols} columns, got {len(fields)}")
         try:
-            values = [float(f) for f in fields]
+            row = [float(f) for f in fields]
         except ValueError:
-            raise InputError(f"{path}:{lineno}: not a number in {line!r}") from None
-        if not all(np.isfinite(values)):
-            raise InputError(f"{path}:{lineno}: value is not finite (NaN or inf)")
-        rows.append(values)
-    if ncols is None:
-        return np.zeros((0, columns[0]))
-    return np.asarray(rows, dtype=np.float64)
+            raise InputError(f"{path}:{k}: not a number in {line[:80]!r}") from None
+        if not all(np.isfinite(row)):
+            raise InputError(f"{path}:{k}: value is not finite (NaN or inf)")
+        out.extend(row)
+    return np.frombuffer(out, dtype=np.float64)
 
 
-def _parse_clean_text(text: str, columns: tuple[int, ...]) -> np.ndarray | None:
-    """Fast path for well-formed files (numpy's C parser); None when anything is off, so that the
+def _parse_clean_lines(block: str, ncols: int, delimiter: str | None) -> np.ndarray | None:
+    """Fast path for a well-formed block (numpy's C parser); None when anything is off, so that the
     line-by-line parser can name the offending line."""
-    first = next((ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")), None)
-    if first is None:
-        return None
-    delimiter = "," if "," in first else None
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            arr = np.loadtxt(io.StringIO(text), dtype=np.float64, comments="#", delimiter=delimiter, ndmin=2)
+            arr = np.loadtxt(io.StringIO(block), dtype=np.float64, comments="#", delimiter=delimiter, ndmin=2)
     except ValueError:
         return None
-    if arr.shape[1] not in columns or first_nonfinite_row(arr) is not None:
+    if arr.size == 0:
+        return arr.reshape(0)
+    if arr.shape[1] != ncols or first_nonfinite_row(arr) is not None:
         return None
     return arr

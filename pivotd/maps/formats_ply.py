@@ -7,13 +7,14 @@ ignored. Weights come from ``weight_property`` (error when missing) or, by defau
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 import plyfile
 
 from pivotd.errors import InputError
-from pivotd.maps.formats import LandmarkCloud, make_cloud
+from pivotd.maps.formats import CappedReader, LandmarkCloud, make_cloud
 
 DEFAULT_WEIGHT_PROPERTY = "weight"
 
@@ -21,15 +22,18 @@ DEFAULT_WEIGHT_PROPERTY = "weight"
 def load_ply(path: Path, *, weight_property: str | None = None) -> LandmarkCloud:
     """Read vertex x, y, z (and a weight) from a PLY file; errors name the file and the vertex row."""
     try:
-        with open(path, "rb") as fh:
-            ply = plyfile.PlyData.read(fh, mmap=False)
+        with CappedReader(path) as fh:  # list lengths read from the file cannot over-allocate
+            _check_counts(path, fh)
+            fh.seek(0)
+            with np.errstate(all="ignore"):  # out-of-range values become inf / wrap; make_cloud rejects them
+                ply = plyfile.PlyData.read(fh, mmap="c")  # binary scalar elements: one vectorised copy
     except plyfile.PlyElementParseError as exc:
-        where = f"vertex {exc.row}" if exc.row is not None else "data"
+        where = f"{exc.element.name} {exc.row}" if exc.row is not None else "data"
         raise InputError(f"{path}: corrupt or truncated PLY at {where} ({exc.message})") from None
     except plyfile.PlyHeaderParseError as exc:
         raise InputError(f"{path}: bad PLY header ({exc})") from None
-    except (ValueError, OSError, EOFError, UnicodeDecodeError, IndexError) as exc:
-        raise InputError(f"{path}: not a readable PLY file ({exc})") from None
+    except (ValueError, OSError, EOFError, UnicodeDecodeError, IndexError, TypeError, OverflowError) as exc:
+        raise InputError(f"{path}: not a readable PLY file ({' '.join(str(exc).split())[:120]})") from None
     try:
         vertex = ply["vertex"]
     except KeyError:
@@ -56,6 +60,32 @@ def load_ply(path: Path, *, weight_property: str | None = None) -> LandmarkCloud
         _check_scalar(path, vertex, name)
         weights = np.asarray(data[name], dtype=np.float32)
     return make_cloud(path, points, weights, row_name="vertex")
+
+
+def _check_counts(path: Path, fh) -> None:
+    """Reject element counts the file cannot hold, before plyfile allocates arrays for them.
+
+    Each element needs at least its scalar properties and list lengths in binary, or one character and a
+    separator per property in ASCII (an element without properties counts one byte: plyfile would loop
+    over its count).
+    """
+    header = plyfile.PlyData._parse_header(fh)  # plyfile's own parser (what PlyData.read calls)
+    body = os.fstat(fh.fileno()).st_size - fh.tell()
+    need = 0
+    for element in header.elements:
+        if header.text:
+            per = 2 * len(element.properties)
+        else:
+            per = sum(np.dtype(p.list_dtype()[0] if isinstance(p, plyfile.PlyListProperty) else p.val_dtype).itemsize
+                      for p in element.properties)
+        per = max(per, 1)
+        if need + int(element.count) * per > body + 1:  # + 1: an ASCII file may end without a newline
+            fit = max(0, body + 1 - need) // per
+            raise InputError(
+                f"{path}: corrupt or truncated PLY at {element.name} {fit}: the header claims {element.count} "
+                f"'{element.name}' elements, the {body} data bytes hold at most {fit}"
+            )
+        need += int(element.count) * per
 
 
 def _check_scalar(path: Path, vertex: plyfile.PlyElement, name: str) -> None:

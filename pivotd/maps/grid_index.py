@@ -14,12 +14,15 @@ horizon are processed in one vectorised pass.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 _QUERY_GROUP = 8  # waypoints per vectorised query batch
 DENSE_CELLS_PER_POINT = 2  # dense offset table (8 B per cell) while cells ≤ this × landmarks
+MAX_CELLS = 1 << 62  # linear cell keys stay int64; far wider extents get a coarser cell
+_BRUTE_COLUMNS_PER_POINT = 4  # a query visiting more columns than this × points tests every point instead
 
 
 @dataclass(frozen=True)
@@ -63,11 +66,12 @@ class GridIndex:
             index = GridIndex(np.zeros(3), float(cell), np.ones(3, np.int64), empty, np.zeros(1, np.int64))
             return index, np.zeros(0, np.int64)
         lo, hi = column_bounds(points)
+        cell = cell_for_extent(lo, hi, float(cell))
         origin = lo - 0.5 * cell
-        dims = np.floor((hi - origin) / cell).astype(np.int64) + 2
+        dims = grid_dims(origin, hi, cell)
         keys = cell_keys(points, origin, cell, dims)
         order = np.argsort(keys)
-        ncells = int(np.prod(dims))
+        ncells = math.prod(int(d) for d in dims)
         if ncells <= DENSE_CELLS_PER_POINT * m:
             counts = np.bincount(keys, minlength=ncells)
             starts = np.zeros(ncells + 1, dtype=np.int64)
@@ -162,6 +166,11 @@ class GridIndex:
         n = waypoints.shape[0]
         if self.count == 0 or n == 0:
             return np.zeros(0, np.int64), np.zeros(n, np.int64)
+        span = 2.0 * (math.ceil(max_range / self.cell) + 1) + 1 if math.isfinite(max_range) else math.inf
+        if span * span > _BRUTE_COLUMNS_PER_POINT * self.count + 4096:
+            # A range that is huge relative to the cell (or a grid coarsened for an absurd extent): the
+            # column stencil would outnumber the points, so test every point.
+            return _query_all(points, waypoints, min_range, max_range)
         if n > _QUERY_GROUP:
             # A few waypoints at a time keep the temporaries cache-sized (measured ~1.8× faster on a
             # 40-waypoint horizon than one batch); results are concatenated in waypoint order.
@@ -204,6 +213,39 @@ class GridIndex:
         return out, counts
 
 
+def _query_all(points: np.ndarray, waypoints: np.ndarray, min_range: float, max_range: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`GridIndex.query` by testing every point (same float32 distance test as the boundary cells)."""
+    lo2, hi2 = np.float32(min_range * min_range), np.float32(max_range * max_range)
+    w32 = np.asarray(waypoints, dtype=np.float32)
+    blocks = []
+    for i in range(w32.shape[0]):
+        d2 = np.square(points[:, 0] - w32[i, 0])
+        d2 += np.square(points[:, 1] - w32[i, 1])
+        d2 += np.square(points[:, 2] - w32[i, 2])
+        blocks.append(np.flatnonzero((d2 <= hi2) & (d2 >= lo2)))
+    return np.concatenate(blocks).astype(np.int64), np.array([b.size for b in blocks], np.int64)
+
+
+def grid_dims(origin: np.ndarray, hi: np.ndarray, cell: float) -> np.ndarray:
+    """Cell counts (3,) int64 of a grid from ``origin`` (3,) covering up to ``hi`` (3,) [m], plus one cell.
+
+    Raises OverflowError when a count does not fit int64 (see :func:`cell_for_extent`)."""
+    return np.array(_dims(origin, hi, cell), dtype=np.int64)
+
+
+def _dims(origin: np.ndarray, hi: np.ndarray, cell: float) -> list[int]:
+    return [math.floor((float(h) - float(o)) / cell) + 2 for o, h in zip(origin, hi, strict=True)]
+
+
+def cell_for_extent(lo: np.ndarray, hi: np.ndarray, cell: float, max_cells: int = MAX_CELLS) -> float:
+    """``cell`` [m], doubled until a grid over [lo, hi] (3,) has at most ``max_cells`` cells (Python ints:
+    no overflow however far apart the points are)."""
+    while math.prod(_dims(lo - 0.5 * cell, hi, cell)) > max_cells:
+        cell *= 2.0
+    return cell
+
+
 def column_bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-axis (min (3,), max (3,)) float64 of ``points`` (M, 3), M ≥ 1 (column-wise: fast on row-major data)."""
     lo = np.array([float(points[:, k].min()) for k in range(3)])
@@ -216,7 +258,7 @@ def cell_keys(points: np.ndarray, origin: np.ndarray, cell: float, dims: np.ndar
 
     int32 when the grid has fewer than 2³¹ cells, else int64. Points must lie inside the grid.
     """
-    ktype = np.int32 if int(np.prod(dims)) < (1 << 31) else np.int64
+    ktype = np.int32 if math.prod(int(d) for d in dims) < (1 << 31) else np.int64
     key = np.zeros(points.shape[0], dtype=ktype)
     inv = 1.0 / cell
     for k, mult in ((0, int(dims[1]) * int(dims[2])), (1, int(dims[2])), (2, 1)):

@@ -25,16 +25,31 @@ by sample count, so there is no per-ray or per-sample Python loop.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from pivotd.maps.grid_index import cell_keys, column_bounds
+from pivotd.errors import InputError
+from pivotd.maps.grid_index import cell_keys, column_bounds, grid_dims
 
 _FRAC_BITS = 12  # fixed-point fraction bits of sample coordinates (voxel units)
 _CHUNK_RAYS = 2048  # rays per vectorised batch (sorted by sample count to limit padding)
 _OWN_MARGIN = 0.01  # voxels
 DENSE_LIMIT = 1 << 28  # voxels; above this the grid stores sorted occupied keys instead of a dense array
+MAX_AXIS_VOXELS = 1 << 16  # voxels along one axis of the grid (bounds the samples of any ray)
+MAX_RAY_VOXELS = 4096  # max_range / voxel accepted in a configuration (samples per ray ≤ this)
+_BATCH_SAMPLES = 1 << 21  # samples per vectorised batch (work buffers ≈ 13 B per sample)
+
+
+def voxel_problem(voxel: float, max_range: float) -> str | None:
+    """Why an occlusion ``voxel`` [m] is unusable with rays up to ``max_range`` [m] long (None when fine)."""
+    if not (math.isfinite(voxel) and voxel > 0):
+        return f"must be a finite size > 0 m, got {voxel!r}"
+    if math.isfinite(max_range) and max_range / voxel > MAX_RAY_VOXELS:
+        return (f"{voxel:g} m makes a {max_range:g} m ray {max_range / voxel:.3g} voxels long, more than "
+                f"{MAX_RAY_VOXELS}; use a voxel ≥ {max_range / MAX_RAY_VOXELS:.3g} m")
+    return None
 
 
 @dataclass(frozen=True)
@@ -58,9 +73,16 @@ class OccupancyGrid:
             return cls(np.zeros(3), float(voxel), np.full(3, 3, np.int64), np.zeros(27, bool), None)
         lo, hi = column_bounds(points)
         origin = lo - 1.5 * voxel  # ≥ one empty voxel of padding on every side, robust to rounding
-        dims = np.floor((hi - origin) / voxel).astype(np.int64) + 2
+        extent = float(np.max(hi - lo))
+        if extent / voxel > MAX_AXIS_VOXELS - 4:  # before any integer conversion: the ratio may be astronomic
+            raise InputError(
+                f"occlusion voxel {voxel:g} m is too small for the occupancy extent of {extent:.4g} m: "
+                f"{extent / voxel:.3g} voxels along an axis, at most {MAX_AXIS_VOXELS - 4} (use a voxel ≥ "
+                f"{extent / (MAX_AXIS_VOXELS - 4):.3g} m)"
+            )
+        dims = grid_dims(origin, hi, voxel)
         keys = cell_keys(points, origin, voxel, dims)
-        total = int(np.prod(dims))
+        total = math.prod(int(d) for d in dims)
         if total <= DENSE_LIMIT:
             dense = np.zeros(total, dtype=bool)
             dense[keys] = True
@@ -151,7 +173,7 @@ class OccupancyGrid:
         if active.size == 0:
             return out
         # Fixed-point voxel coordinates: sample j of ray i is at o_i + j·δ_i, δ = d / m.
-        small = int(self.dims.max()) < (1 << (31 - _FRAC_BITS)) - 1 and int(np.prod(self.dims)) < (1 << 31)
+        small = int(self.dims.max()) < (1 << (31 - _FRAC_BITS)) - 1 and math.prod(int(d) for d in self.dims) < (1 << 31)
         itype = np.int32 if small else np.int64  # fixed-point coordinates and keys share one width
         scale = float(1 << _FRAC_BITS)
         o_fp = np.floor(o[active] * scale).astype(itype)
@@ -162,16 +184,22 @@ class OccupancyGrid:
         ny, nz = int(self.dims[1]), int(self.dims[2])
         strides = (ny * nz, nz, 1)
         ktype = itype
-        # Work buffers reused across batches (fresh large arrays would cost page faults every time).
-        cap = min(order.size, _CHUNK_RAYS) * int(counts.max())
+        # Work buffers reused across batches (fresh large arrays would cost page faults every time); batches of
+        # long rays hold fewer rays, so a batch never exceeds _BATCH_SAMPLES samples (or one ray).
+        cap = max(min(min(order.size, _CHUNK_RAYS) * int(counts.max()), _BATCH_SAMPLES), int(counts.max()))
         jj_buf = np.empty(cap, dtype=itype)
         c_buf = np.empty(cap, dtype=itype)
         key_buf = np.empty(cap, dtype=ktype)
         occ_buf = np.empty(cap, dtype=bool)
         lane = np.arange(int(counts.max()), dtype=itype)
-        for lo_ in range(0, order.size, _CHUNK_RAYS):
+        lo_ = 0
+        while lo_ < order.size:
             chunk = order[lo_:lo_ + _CHUNK_RAYS]
             width = int(counts[chunk[-1]])  # sorted by count: the last ray is the longest
+            if chunk.size * width > cap:
+                chunk = chunk[:max(1, cap // width)]
+                width = int(counts[chunk[-1]])
+            lo_ += chunk.size
             shape = (chunk.size, width)
             size = chunk.size * width
             jj = jj_buf[:size].reshape(shape)
