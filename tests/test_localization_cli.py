@@ -19,6 +19,7 @@ def _bench(*args: str, tmp_path: Path) -> subprocess.CompletedProcess:
                           cwd=tmp_path, capture_output=True, text=True, timeout=240)
 
 
+@pytest.mark.slow  # seconds of CPU: in `make test`, not in `make test-fast`
 def test_small_run_writes_table_json_and_goals(tmp_path):
     out = tmp_path / "loc.json"
     r = _bench("--scenes", "fif_four_walls", "--policies", "forward,pivot", "--seeds", "2",

@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from pivotd.config import load_config
 from pivotd.geometry import angle_between
@@ -63,6 +64,7 @@ def pointing_errors_deg(sway_deg: float, sway_hz: float) -> np.ndarray:
     return np.degrees(np.array(errors))
 
 
+@pytest.mark.slow  # seconds of CPU: in `make test`, not in `make test-fast`
 def test_body_turns_and_sway_are_compensated():
     # ±1° at 1 Hz is within Spot's configured tilt limits (270°/s², 1800°/s³); uncompensated it alone
     # would swing the view by up to ±1.4°.
@@ -71,6 +73,7 @@ def test_body_turns_and_sway_are_compensated():
     assert np.median(errors) < 0.05, np.median(errors)
 
 
+@pytest.mark.slow  # seconds of CPU: in `make test`, not in `make test-fast`
 def test_unfollowable_gait_wobble_is_damped_not_amplified():
     # ±3° at 1.8 Hz needs ~6.4 rad/s² and ~50 rad/s³: beyond the limits. Full feed-forward of such a
     # reference drives the loop into a limit cycle of ~10°; scaled by feasibility, the error stays below

@@ -63,6 +63,7 @@ def test_unknown_family_is_rejected():
         hard_scene("cave")
 
 
+@pytest.mark.slow  # seconds of CPU: in `make test`, not in `make test-fast`
 def test_bench_hard_rows_judge_both_methods_against_the_reference(capsys):
     from pivotd.bench.montecarlo import hard_rows
 

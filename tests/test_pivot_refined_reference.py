@@ -13,6 +13,7 @@ def _bearings(scene, pose):
     return normalize(scene.points - scene.path[pose])
 
 
+@pytest.mark.slow  # seconds of CPU: in `make test`, not in `make test-fast`
 def test_covering_radius_bounds_the_distance_to_the_grid():
     rng = np.random.default_rng(0)
     for res in (2.0, 5.0):

@@ -158,6 +158,7 @@ def test_plan_lambda_zero_has_single_pose_quality(tmp_path, max_range):
     assert json.loads(stdout)["visible_mean"] == pytest.approx(ours.mean())
 
 
+@pytest.mark.slow  # seconds of CPU: in `make test`, not in `make test-fast`
 def test_plan_max_step_is_validated_and_respected(tmp_path):
     sc = competing_clusters_path()
     np.savetxt(tmp_path / "map.txt", sc.points, fmt="%.6f")
