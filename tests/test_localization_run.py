@@ -14,6 +14,8 @@ from pivotd.localization.simulate import run_policy
 from pivotd.localization.stack import load_config, setpoint_dynamics
 from pivotd.localization.world import World
 
+pytestmark = pytest.mark.slow  # seconds of CPU in all: `make test`, not `make test-fast`
+
 REPO = Path(__file__).resolve().parent.parent
 DEMO = REPO / "config" / "demo.yaml"
 
@@ -23,7 +25,6 @@ def _settings(scene: str, policies: tuple[PolicyName, ...], seed: int) -> BenchS
                          cfg=load_config(DEMO), fif_dir=REPO / "tests" / "data" / "fif", max_duration=4.0)
 
 
-@pytest.mark.slow  # seconds of CPU: in `make test`, not in `make test-fast`
 def test_a_run_is_reproducible_from_its_seed():
     st = _settings("corridor", (PolicyName.FORWARD, PolicyName.PIVOT, PolicyName.RANDOM), 5)
     a, b = run_scene(st, "corridor"), run_scene(st, "corridor")

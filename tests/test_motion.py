@@ -274,6 +274,7 @@ def test_smooth_plan_is_tracked_with_a_small_lag_and_smooth_jerk():
     assert np.all(np.sqrt(np.mean(jerk**2, axis=0)) < 0.1 * JMAX)
 
 
+@pytest.mark.slow  # property run, seconds of CPU: `make test`, not `make test-fast`
 @settings(max_examples=25, deadline=None)
 @given(
     seed=st.integers(0, 2**31 - 1),

@@ -8,6 +8,8 @@ from pivotd.pivot.brute import refined_view
 from pivotd.pivot.scenes import HARD_FAMILIES, hard_path, hard_scene
 from pivotd.pivot.view import optimize_view
 
+pytestmark = pytest.mark.slow  # seconds of CPU in all: `make test`, not `make test-fast`
+
 
 def _ratios(family, seed, poses, scale, alpha):
     scene = hard_scene(family, seed, poses=poses, scale=scale)
@@ -63,7 +65,6 @@ def test_unknown_family_is_rejected():
         hard_scene("cave")
 
 
-@pytest.mark.slow  # seconds of CPU: in `make test`, not in `make test-fast`
 def test_bench_hard_rows_judge_both_methods_against_the_reference(capsys):
     from pivotd.bench.montecarlo import hard_rows
 

@@ -14,6 +14,8 @@ from pivotd.pivot.scenes import competing_clusters_path
 from pivotd.pivot.steps import limit_steps, step_angles
 from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
 
+pytestmark = pytest.mark.slow  # seconds of CPU in all: `make test`, not `make test-fast`
+
 PLAN = TrajectoryOptions(distance_weights=False)  # the objective of `pivotd plan`: hard counts
 
 

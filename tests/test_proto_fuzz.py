@@ -2,12 +2,15 @@
 
 import binascii
 
+import pytest
 from cobs import cobs
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from firmware_proto import codec
 from firmware_proto.messages import MAX_BODY, Ack, Heartbeat, Setpoint, State
+
+pytestmark = pytest.mark.slow  # seconds of CPU in all: `make test`, not `make test-fast`
 
 i32 = st.integers(-(2**31), 2**31 - 1)
 u8 = st.integers(0, 255)
