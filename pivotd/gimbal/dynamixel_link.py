@@ -30,6 +30,7 @@ from pivotd.gimbal import dynamixel_table as ct
 from pivotd.gimbal.interface import GimbalMode, GimbalState, LinkState
 from pivotd.gimbal.kinematics import JointLimits
 from pivotd.gimbal.motion import AxisLimits
+from pivotd.gimbal.supervisor import SupervisedLink
 
 log = logging.getLogger(__name__)
 
@@ -67,64 +68,28 @@ class _BusError(Exception):
     """A transaction failed (no answer, CRC) or a servo refused it."""
 
 
-class DynamixelGimbal:
+class DynamixelGimbal(SupervisedLink):
     """Two servos as a pan–tilt unit (see the module docstring); a GimbalInterface. Thread-safe."""
 
+    _thread_name = "gimbal-dynamixel"
+
     def __init__(self, port: str, settings: DynamixelSettings, baudrate: int = 57600) -> None:
+        super().__init__(port, settings.reconnect_backoff_s,
+                         ("setpoints_sent", "sync_writes", "sync_reads", "comm_errors", "reconnects", "link_losses",
+                          "reboots", "goals_dropped", "write_errors"))
         self.port_name = port
         self.settings = settings
         self.baudrate = baudrate
         self._sdk = load_sdk()
         self._ph = self._sdk.PacketHandler(2.0)
         self._port: Any = None
-        self._link_state = LinkState.STOPPED
-        self._state: GimbalState | None = None
-        self._last_error: str | None = None
-        self._cond = threading.Condition()
-        self._stopping = threading.Event()
-        self._thread: threading.Thread | None = None
         self._goals: collections.deque[tuple[float, float]] = collections.deque(maxlen=_GOAL_QUEUE)
         self._wake = threading.Event()
         self._requests: queue.Queue = queue.Queue()
-        self._want_enabled = True
         self._torque = (False, False)
         self._hw_errors = (0, 0)
-        self._ever_up = False
-        self._n = dict.fromkeys(("setpoints_sent", "sync_writes", "sync_reads", "comm_errors", "reconnects",
-                                 "link_losses", "reboots", "goals_dropped", "write_errors"), 0)
 
     # ------------------------------------------------------------------ GimbalInterface
-    @property
-    def link_state(self) -> LinkState:
-        return self._link_state
-
-    @property
-    def state(self) -> GimbalState | None:
-        return self._state
-
-    @property
-    def last_error(self) -> str | None:
-        return self._last_error
-
-    def start(self) -> None:
-        if self._thread is not None and self._thread.is_alive():
-            return
-        self._stopping.clear()
-        self._set_link_state(LinkState.CONNECTING)
-        self._thread = threading.Thread(target=self._run, name="gimbal-dynamixel", daemon=True)
-        self._thread.start()
-
-    def stop(self, disable: bool = True) -> None:
-        """Torque off (if ``disable`` and up), close the port, stop the bus thread."""
-        if disable and self._link_state == LinkState.UP:
-            self.set_enabled(False)
-        self._stopping.set()
-        self._wake.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-            self._thread = None
-        self._set_link_state(LinkState.STOPPED)
-
     def send_setpoint(self, pan: float, tilt: float, pan_rate: float = 0.0, tilt_rate: float = 0.0) -> int | None:
         """Hand the next Goal Positions (clamped into the joint limits) to the bus thread; the servos take no rate
         feed-forward in Position Control Mode, so the rates are not sent."""
@@ -181,57 +146,11 @@ class DynamixelGimbal:
                 done.set()
 
     # ------------------------------------------------------------------ bus thread
-    def _set_link_state(self, value: LinkState) -> None:
-        with self._cond:
-            if self._link_state != value:
-                log.info("gimbal link %s: %s", self.port_name, value)
-            self._link_state = value
-            self._cond.notify_all()
+    def _interrupt(self) -> None:
+        self._wake.set()
 
-    def wait_up(self, timeout: float) -> bool:
-        """Block until the link is up (True) or ``timeout`` seconds passed / it became incompatible (False)."""
-        deadline = time.monotonic() + timeout
-        with self._cond:
-            while self._link_state != LinkState.UP:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0 or self._link_state in (LinkState.INCOMPATIBLE, LinkState.STOPPED):
-                    return False
-                self._cond.wait(remaining)
-            return True
-
-    def _run(self) -> None:
-        first, maximum = self.settings.reconnect_backoff_s
-        delay = first
-        while not self._stopping.is_set():
-            if self._link_state != LinkState.DOWN:
-                self._set_link_state(LinkState.CONNECTING)
-            result = LinkState.DOWN
-            if self._open():
-                try:
-                    result = self._configure()
-                except Exception as exc:
-                    self._last_error = f"servos at {self.port_name}: {exc}"
-                    result = LinkState.DOWN
-                if result is LinkState.UP:
-                    delay = first
-                    if self._ever_up:
-                        self._n["reconnects"] += 1
-                    self._ever_up = True
-                    self._set_link_state(LinkState.UP)
-                    self._cycle_until_lost()
-                    if not self._stopping.is_set():
-                        self._n["link_losses"] += 1
-                        log.warning("gimbal link %s lost: %s", self.port_name, self._last_error)
-                self._close()
-                if result is LinkState.INCOMPATIBLE:
-                    self._set_link_state(LinkState.INCOMPATIBLE)
-                    return
-            if self._stopping.is_set():
-                return
-            self._set_link_state(LinkState.DOWN)
-            self._drain_requests()
-            self._stopping.wait(delay)
-            delay = min(maximum, delay * 2)
+    def _on_down(self) -> None:
+        self._drain_requests()
 
     def _drain_requests(self) -> None:
         while True:
@@ -242,7 +161,8 @@ class DynamixelGimbal:
             box.append(False)
             done.set()
 
-    def _open(self) -> bool:
+    def _open(self) -> Any | None:
+        """The opened PortHandler, or None."""
         try:
             port = self._sdk.PortHandler(self.port_name)
             if not port.openPort() or not port.setBaudRate(self.baudrate):
@@ -250,11 +170,18 @@ class DynamixelGimbal:
         except Exception as exc:
             self._last_error = f"cannot open servo bus {self.port_name}: {exc}"
             log.debug(self._last_error)
-            return False
+            return None
         self._port = port
-        return True
+        return port
 
-    def _close(self) -> None:
+    def _handshake(self, port: Any) -> LinkState:
+        try:
+            return self._configure()
+        except Exception as exc:
+            self._last_error = f"servos at {self.port_name}: {exc}"
+            return LinkState.DOWN
+
+    def _close(self, port: Any) -> None:
         if self._port is not None:
             with contextlib.suppress(Exception):
                 self._port.closePort()
@@ -383,9 +310,9 @@ class DynamixelGimbal:
         mode = GimbalMode.FAULT if errors else GimbalMode.ENABLED if all(self._torque) else GimbalMode.DISABLED
         st = GimbalState(values[0][0], values[1][0], values[0][1], values[1][1], mode, ct.hardware_faults(errors),
                          0, int(now * 1e6) & 0xFFFFFFFF, now)
-        with self._cond:
+        with self._changed:
             self._state = st
-            self._cond.notify_all()
+            self._changed.notify_all()
         return True
 
     def _write_goal(self, goal: tuple[float, float]) -> None:
@@ -412,7 +339,8 @@ class DynamixelGimbal:
                 self._write_goal(goal)
         return self._read_state()
 
-    def _cycle_until_lost(self) -> None:
+    def _monitor(self, port: Any) -> None:
+        """Bus cycles until the servos stop answering, the port fails or the link stops."""
         s = self.settings
         last_ok = time.monotonic()
         cycle = 0

@@ -20,7 +20,7 @@ import threading
 import time
 import zlib
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import serial
 
@@ -41,12 +41,11 @@ from firmware_proto.messages import (
 )
 from firmware_proto.urlhandler import register as _register_mock_url
 from pivotd.gimbal.interface import GimbalState, LinkState
+from pivotd.gimbal.supervisor import Connection, SupervisedLink
 
 _register_mock_url()
 
 log = logging.getLogger(__name__)
-
-_TX_QUEUE = 64  # frames waiting for the writer; setpoints beyond this are dropped (port stalled)
 
 
 @dataclass(frozen=True)
@@ -61,21 +60,6 @@ class LinkConfig:
     reconnect_backoff_s: tuple = (0.1, 2.0)  # (first, max) delay between connection attempts
 
 
-@dataclass
-class _Connection:
-    """One open port and its threads."""
-
-    port: serial.SerialBase
-    tx: queue.Queue = field(default_factory=lambda: queue.Queue(_TX_QUEUE))
-    closing: threading.Event = field(default_factory=threading.Event)
-    error: str | None = None
-    threads: list = field(default_factory=list)
-
-    @property
-    def alive(self) -> bool:
-        return self.error is None and not self.closing.is_set()
-
-
 class _Pending:
     """An outstanding request waiting for its ACK (or IDENTITY)."""
 
@@ -84,90 +68,38 @@ class _Pending:
         self.reply: Message | None = None
 
 
-class GimbalLink:
+class GimbalLink(SupervisedLink):
     """Serial link to one gimbal speaking pivotd's protocol (see the module docstring); a
     :class:`~pivotd.gimbal.interface.GimbalInterface`. Thread-safe."""
 
+    _thread_name = "gimbal-link"
+
     def __init__(self, url: str, config: LinkConfig, baudrate: int = 115200) -> None:
+        super().__init__(url, config.reconnect_backoff_s,
+                         ("frames_sent", "frames_received", "setpoints_sent", "retries", "reconnects", "link_losses",
+                          "ack_failures", "tx_overflow", "rtt_samples"))
         self.url = url
         self.config = config
         self.baudrate = baudrate
         self._cfg_msg = config.limits
         self._cfg_msg.pack()  # fail early on limits that do not fit the wire format
-        self._lock = threading.Lock()
-        self._changed = threading.Condition(self._lock)
         self._seq_lock = threading.Lock()
-        self._link_state = LinkState.STOPPED
-        self._state: GimbalState | None = None
         self._identity: Identity | None = None
-        self._last_error: str | None = None
-        self._conn: _Connection | None = None
-        self._stopping = threading.Event()
-        self._manager: threading.Thread | None = None
-        self._want_enabled = True
+        self._conn: Connection | None = None
         self._seq = 0
         self._pending: dict[tuple[int, int], _Pending] = {}
         self._hello: _Pending | None = None
         self._sent_at: list[float | None] = [None] * 256
         self._decoder = codec.StreamDecoder()
         self._last_state_rx = 0.0
-        self._n = dict.fromkeys(("frames_sent", "frames_received", "setpoints_sent", "retries", "reconnects",
-                                 "link_losses", "ack_failures", "tx_overflow", "rtt_samples"), 0)
         self._rtt_last = self._rtt_sum = self._rtt_max = 0.0
-        self._ever_up = False
         self._listeners: list[Callable[[GimbalState], None]] = []
 
     # ------------------------------------------------------------------ public API
-    def start(self) -> None:
-        """Connect, handshake and keep reconnecting on a background thread; returns immediately."""
-        if self._manager is not None and self._manager.is_alive():
-            return
-        self._stopping.clear()
-        self._set_link_state(LinkState.CONNECTING)
-        self._manager = threading.Thread(target=self._run, name="gimbal-link", daemon=True)
-        self._manager.start()
-
-    def stop(self, disable: bool = True) -> None:
-        """Disable the gimbal (if ``disable`` and the link is up), close the port, stop all threads."""
-        if disable and self.link_state == LinkState.UP:
-            self.set_enabled(False)
-        self._stopping.set()
-        if self._manager is not None:
-            self._manager.join(timeout=5.0)
-            self._manager = None
-        self._set_link_state(LinkState.STOPPED)
-
-    @property
-    def link_state(self) -> LinkState:
-        """The connection state (see :class:`~pivotd.gimbal.interface.LinkState`)."""
-        return self._link_state
-
-    @property
-    def state(self) -> GimbalState | None:
-        """The latest STATE received, or None before the first one (kept while the link is down: check
-        ``link_state`` and ``rx_time`` before trusting it)."""
-        return self._state
-
     @property
     def identity(self) -> Identity | None:
         """The device's IDENTITY from the last handshake."""
         return self._identity
-
-    @property
-    def last_error(self) -> str | None:
-        """One-line description of the last connection/handshake problem."""
-        return self._last_error
-
-    def wait_up(self, timeout: float) -> bool:
-        """Block until the link is up (True) or ``timeout`` seconds passed / it became incompatible (False)."""
-        deadline = time.monotonic() + timeout
-        with self._changed:
-            while self._link_state != LinkState.UP:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0 or self._link_state in (LinkState.INCOMPATIBLE, LinkState.STOPPED):
-                    return False
-                self._changed.wait(remaining)
-            return True
 
     def wait_state(self, predicate: Callable[[GimbalState], bool], timeout: float) -> GimbalState | None:
         """Block until a received STATE satisfies ``predicate(state)``; return it, or None on timeout.
@@ -242,85 +174,34 @@ class GimbalLink:
         return out
 
     # ------------------------------------------------------------------ internals
-    def _set_link_state(self, value: LinkState) -> None:
-        with self._changed:
-            if self._link_state != value:
-                log.info("gimbal link %s: %s", self.url, value)
-            self._link_state = value
-            self._changed.notify_all()
-
     def _next_seq(self) -> int:
         with self._seq_lock:
             seq = self._seq
             self._seq = (seq + 1) & 0xFF
         return seq
 
-    def _enqueue(self, conn: _Connection, frame: bytes) -> bool:
-        try:
-            conn.tx.put_nowait(frame)
-            return True
-        except queue.Full:
-            self._n["tx_overflow"] += 1
-            return False
-
-    def _run(self) -> None:
-        first, maximum = self.config.reconnect_backoff_s
-        delay = first
-        while not self._stopping.is_set():
-            if self._link_state != LinkState.DOWN:
-                self._set_link_state(LinkState.CONNECTING)
-            conn = self._open()
-            if conn is not None:
-                result = self._handshake(conn)
-                if result is LinkState.UP:
-                    delay = first
-                    if self._ever_up:
-                        self._n["reconnects"] += 1
-                    self._ever_up = True
-                    self._set_link_state(LinkState.UP)
-                    self._monitor(conn)
-                    if not self._stopping.is_set():
-                        self._n["link_losses"] += 1
-                        log.warning("gimbal link %s lost: %s", self.url, conn.error or "closed")
-                self._close(conn)
-                if result is LinkState.INCOMPATIBLE:
-                    self._set_link_state(LinkState.INCOMPATIBLE)
-                    return
-            if self._stopping.is_set():
-                return
-            self._set_link_state(LinkState.DOWN)
-            self._stopping.wait(delay)
-            delay = min(maximum, delay * 2)
-
-    def _open(self) -> _Connection | None:
+    def _open(self) -> Connection | None:
         try:
             port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=0.05, write_timeout=0.5)
         except (serial.SerialException, OSError, ValueError) as exc:
             self._last_error = f"cannot open gimbal port {self.url}: {exc}"
             log.debug(self._last_error)
             return None
-        conn = _Connection(port)
+        conn = Connection(port)
         conn.tx.put_nowait(b"\x00")  # ends any partial frame the device still holds from before
         self._decoder.reset()
         self._conn = conn
-        for target, name in ((self._reader, "gimbal-rx"), (self._writer, "gimbal-tx")):
-            t = threading.Thread(target=target, args=(conn,), name=name, daemon=True)
-            conn.threads.append(t)
-            t.start()
+        conn.start_threads(((self._reader, "gimbal-rx"), (self._writer, "gimbal-tx")))
         return conn
 
-    def _close(self, conn: _Connection) -> None:
-        conn.closing.set()
-        with contextlib.suppress(queue.Full):
-            conn.tx.put_nowait(None)  # wake the writer; it also watches ``closing``
-        for t in conn.threads:
-            t.join(timeout=2.0)
+    def _close(self, conn: Connection) -> None:
+        conn.stop_threads()
         with contextlib.suppress(serial.SerialException, OSError):
             conn.port.close()
         if self._conn is conn:
             self._conn = None
 
-    def _monitor(self, conn: _Connection) -> None:
+    def _monitor(self, conn: Connection) -> None:
         self._last_state_rx = time.monotonic()
         while not self._stopping.is_set() and conn.alive:
             if time.monotonic() - self._last_state_rx > self.config.state_timeout_s:
@@ -329,7 +210,10 @@ class GimbalLink:
             self._stopping.wait(0.02)
         self._last_error = conn.error
 
-    def _handshake(self, conn: _Connection) -> LinkState:
+    def _loss_reason(self, conn: Connection) -> str:
+        return conn.error or "closed"
+
+    def _handshake(self, conn: Connection) -> LinkState:
         """HELLO → IDENTITY → CONFIG → (ENABLE); returns the resulting LinkState (UP, DOWN or INCOMPATIBLE)."""
         ident = self._request_identity(conn)
         if ident is None:
@@ -368,7 +252,7 @@ class GimbalLink:
         n = self.config.ack_retries + 1 if timeout is None else max(1, int(timeout / per + 0.999))
         return n, per
 
-    def _request_identity(self, conn: _Connection) -> Identity | None:
+    def _request_identity(self, conn: Connection) -> Identity | None:
         pending = _Pending()
         self._hello = pending
         try:
@@ -385,7 +269,7 @@ class GimbalLink:
         finally:
             self._hello = None
 
-    def _request(self, msg: Message, timeout: float | None, conn: _Connection | None = None,
+    def _request(self, msg: Message, timeout: float | None, conn: Connection | None = None,
                  expect_value: int | None = None) -> Ack | None:
         """Send ``msg`` and wait for its ACK, resending the same frame (same seq) on timeout."""
         conn = conn or self._conn
@@ -417,7 +301,7 @@ class GimbalLink:
         finally:
             self._pending.pop(key, None)
 
-    def _writer(self, conn: _Connection) -> None:
+    def _writer(self, conn: Connection) -> None:
         while not conn.closing.is_set():
             try:
                 frame = conn.tx.get(timeout=0.1)
@@ -432,7 +316,7 @@ class GimbalLink:
                 conn.error = f"write failed: {exc}"
                 return
 
-    def _reader(self, conn: _Connection) -> None:
+    def _reader(self, conn: Connection) -> None:
         port = conn.port
         while not conn.closing.is_set():
             try:

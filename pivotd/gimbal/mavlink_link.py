@@ -22,13 +22,14 @@ import os
 import queue
 import threading
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 from pivotd.errors import ConfigError
 from pivotd.gimbal import mavlink_frames as mf
 from pivotd.gimbal.interface import GimbalMode, GimbalState, LinkState
 from pivotd.gimbal.kinematics import JointLimits
+from pivotd.gimbal.supervisor import Connection, SupervisedLink
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +41,6 @@ MSG_GIMBAL_DEVICE_ATTITUDE_STATUS = 285
 ATTITUDE_INTERVAL_US = 20_000  # asked of the manager: 50 Hz attitude status (best effort, not required)
 MAV_RESULT_ACCEPTED = 0
 CONTROL_TAKE, CONTROL_RELEASE, CONTROL_UNCHANGED = None, -3.0, -1.0
-_TX_QUEUE = 64
 
 
 def command_message(mavlink: Any, target: tuple[int, int], command: int, *params: float) -> Any:
@@ -104,35 +104,20 @@ class MavlinkSettings:
     reconnect_backoff_s: tuple = (0.1, 2.0)
 
 
-@dataclass
-class _Connection:
-    port: Any  # a pymavlink mavfile
-    tx: queue.Queue = field(default_factory=lambda: queue.Queue(_TX_QUEUE))
-    closing: threading.Event = field(default_factory=threading.Event)
-    error: str | None = None
-    threads: list = field(default_factory=list)
-
-    @property
-    def alive(self) -> bool:
-        return self.error is None and not self.closing.is_set()
-
-
-class MavlinkGimbal:
+class MavlinkGimbal(SupervisedLink):
     """A gimbal behind a MAVLink gimbal manager (see the module docstring); thread-safe, never blocks senders."""
 
+    _thread_name = "gimbal-mavlink"
+
     def __init__(self, url: str, settings: MavlinkSettings, baudrate: int = 115200) -> None:
+        super().__init__(url, settings.reconnect_backoff_s,
+                         ("messages_sent", "messages_received", "setpoints_sent", "heartbeats_received", "retries",
+                          "reconnects", "link_losses", "command_failures", "tx_overflow", "rate_unknown"))
         self.url = url
         self.settings = settings
         self.baudrate = baudrate
         self._mavutil = load_mavutil()
-        self._lock = threading.Condition()
-        self._link_state = LinkState.STOPPED
-        self._state: GimbalState | None = None
-        self._last_error: str | None = None
-        self._conn: _Connection | None = None
-        self._stopping = threading.Event()
-        self._manager_thread: threading.Thread | None = None
-        self._want_enabled = True
+        self._conn: Connection | None = None
         self._in_control = False
         self._manager: tuple[int, int] | None = None  # (system, component) of the gimbal manager
         self._info: Any = None
@@ -140,47 +125,12 @@ class MavlinkGimbal:
         self._waiters: dict[str, list[tuple[Any, threading.Event, list]]] = {}
         self._last_state_rx = 0.0
         self._faults = 0
-        self._ever_up = False
-        self._n = dict.fromkeys(("messages_sent", "messages_received", "setpoints_sent", "heartbeats_received",
-                                 "retries", "reconnects", "link_losses", "command_failures", "tx_overflow",
-                                 "rate_unknown"), 0)
 
     # ------------------------------------------------------------------ GimbalInterface
-    @property
-    def link_state(self) -> LinkState:
-        return self._link_state
-
-    @property
-    def state(self) -> GimbalState | None:
-        return self._state
-
-    @property
-    def last_error(self) -> str | None:
-        return self._last_error
-
     @property
     def device_limits(self) -> JointLimits | None:
         """The joint ranges the manager reported at the last handshake."""
         return self._device_limits
-
-    def start(self) -> None:
-        """Connect, handshake and keep reconnecting on a background thread; returns immediately."""
-        if self._manager_thread is not None and self._manager_thread.is_alive():
-            return
-        self._stopping.clear()
-        self._set_link_state(LinkState.CONNECTING)
-        self._manager_thread = threading.Thread(target=self._run, name="gimbal-mavlink", daemon=True)
-        self._manager_thread.start()
-
-    def stop(self, disable: bool = True) -> None:
-        """Release control (if ``disable`` and up), close the connection, stop all threads."""
-        if disable and self._link_state == LinkState.UP:
-            self.set_enabled(False)
-        self._stopping.set()
-        if self._manager_thread is not None:
-            self._manager_thread.join(timeout=5.0)
-            self._manager_thread = None
-        self._set_link_state(LinkState.STOPPED)
 
     def send_setpoint(self, pan: float, tilt: float, pan_rate: float = 0.0, tilt_rate: float = 0.0) -> int | None:
         """Queue one GIMBAL_MANAGER_SET_PITCHYAW (joint limits enforced here too); its count, or None."""
@@ -224,67 +174,12 @@ class MavlinkGimbal:
         mav = self._mavutil.mavlink
         return getattr(mav, f"MAVLink_{name}_message")(*args)
 
-    def _set_link_state(self, value: LinkState) -> None:
-        with self._lock:
-            if self._link_state != value:
-                log.info("gimbal link %s: %s", self.url, value)
-            self._link_state = value
-            self._lock.notify_all()
-
-    def wait_up(self, timeout: float) -> bool:
-        """Block until the link is up (True) or ``timeout`` seconds passed / it became incompatible (False)."""
-        deadline = time.monotonic() + timeout
-        with self._lock:
-            while self._link_state != LinkState.UP:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0 or self._link_state in (LinkState.INCOMPATIBLE, LinkState.STOPPED):
-                    return False
-                self._lock.wait(remaining)
-            return True
-
-    def _enqueue(self, conn: _Connection, msg: Any) -> bool:
-        try:
-            conn.tx.put_nowait(msg)
-            return True
-        except queue.Full:
-            self._n["tx_overflow"] += 1
-            return False
-
     def _heartbeat_msg(self) -> Any:
         mav = self._mavutil.mavlink
         return self._mav_msg("heartbeat", mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0, 0,
                              mav.MAV_STATE_ACTIVE, 3)
 
-    def _run(self) -> None:
-        first, maximum = self.settings.reconnect_backoff_s
-        delay = first
-        while not self._stopping.is_set():
-            if self._link_state != LinkState.DOWN:
-                self._set_link_state(LinkState.CONNECTING)
-            conn = self._open()
-            if conn is not None:
-                result = self._handshake(conn)
-                if result is LinkState.UP:
-                    delay = first
-                    if self._ever_up:
-                        self._n["reconnects"] += 1
-                    self._ever_up = True
-                    self._set_link_state(LinkState.UP)
-                    self._monitor(conn)
-                    if not self._stopping.is_set():
-                        self._n["link_losses"] += 1
-                        log.warning("gimbal link %s lost: %s", self.url, conn.error or "closed")
-                self._close(conn)
-                if result is LinkState.INCOMPATIBLE:
-                    self._set_link_state(LinkState.INCOMPATIBLE)
-                    return
-            if self._stopping.is_set():
-                return
-            self._set_link_state(LinkState.DOWN)
-            self._stopping.wait(delay)
-            delay = min(maximum, delay * 2)
-
-    def _open(self) -> _Connection | None:
+    def _open(self) -> Connection | None:
         s = self.settings
         try:
             port = self._mavutil.mavlink_connection(self.url, baud=self.baudrate, source_system=s.system_id,
@@ -293,27 +188,20 @@ class MavlinkGimbal:
             self._last_error = f"cannot open MAVLink connection {self.url}: {exc}"
             log.debug(self._last_error)
             return None
-        conn = _Connection(port)
+        conn = Connection(port)
         self._conn = conn
-        for target, name in ((self._reader, "gimbal-mavlink-rx"), (self._writer, "gimbal-mavlink-tx")):
-            t = threading.Thread(target=target, args=(conn,), name=name, daemon=True)
-            conn.threads.append(t)
-            t.start()
+        conn.start_threads(((self._reader, "gimbal-mavlink-rx"), (self._writer, "gimbal-mavlink-tx")))
         return conn
 
-    def _close(self, conn: _Connection) -> None:
-        conn.closing.set()
-        with contextlib.suppress(queue.Full):
-            conn.tx.put_nowait(None)
-        for t in conn.threads:
-            t.join(timeout=2.0)
+    def _close(self, conn: Connection) -> None:
+        conn.stop_threads()
         with contextlib.suppress(Exception):
             conn.port.close()
         if self._conn is conn:
             self._conn = None
         self._in_control = False
 
-    def _handshake(self, conn: _Connection) -> LinkState:
+    def _handshake(self, conn: Connection) -> LinkState:
         """HEARTBEAT, GIMBAL_MANAGER_INFORMATION (limits, capabilities), take control."""
         s = self.settings
         self._manager = None
@@ -363,10 +251,10 @@ class MavlinkGimbal:
                  math.degrees(device.pan_max), math.degrees(device.tilt_min), math.degrees(device.tilt_max))
         return LinkState.UP
 
-    def _command(self, conn: _Connection, command: int, target: tuple[int, int], *params: float) -> Any:
+    def _command(self, conn: Connection, command: int, target: tuple[int, int], *params: float) -> Any:
         return command_message(self._mavutil.mavlink, target, command, *params)
 
-    def _configure(self, conn: _Connection, take: bool, timeout: float | None) -> bool:
+    def _configure(self, conn: Connection, take: bool, timeout: float | None) -> bool:
         """MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE: us as primary control, or remove us; True on MAV_RESULT_ACCEPTED."""
         s, manager = self.settings, self._manager
         if manager is None:
@@ -393,13 +281,13 @@ class MavlinkGimbal:
     def _wait_for(self, msg_type: str, predicate: Any, timeout: float) -> Any:
         event, box = threading.Event(), []
         entry = (predicate, event, box)
-        with self._lock:
+        with self._changed:
             self._waiters.setdefault(msg_type, []).append(entry)
         try:
             event.wait(timeout)
             return box[0] if box else None
         finally:
-            with self._lock:
+            with self._changed:
                 self._waiters[msg_type].remove(entry)
 
     def _from_target(self, msg: Any) -> bool:
@@ -411,7 +299,7 @@ class MavlinkGimbal:
         dev = self.settings.gimbal_device_id
         return not dev or dev in (msg.get_srcComponent(), getattr(msg, "gimbal_device_id", 0))
 
-    def _monitor(self, conn: _Connection) -> None:
+    def _monitor(self, conn: Connection) -> None:
         s = self.settings
         self._last_state_rx = time.monotonic()
         next_hb = time.monotonic() + s.heartbeat_period_s
@@ -426,7 +314,10 @@ class MavlinkGimbal:
             self._stopping.wait(0.02)
         self._last_error = conn.error
 
-    def _writer(self, conn: _Connection) -> None:
+    def _loss_reason(self, conn: Connection) -> str:
+        return conn.error or "closed"
+
+    def _writer(self, conn: Connection) -> None:
         mav = conn.port.mav
         while not conn.closing.is_set():
             try:
@@ -442,7 +333,7 @@ class MavlinkGimbal:
                 conn.error = f"write failed: {exc}"
                 return
 
-    def _reader(self, conn: _Connection) -> None:
+    def _reader(self, conn: Connection) -> None:
         while not conn.closing.is_set():
             try:
                 msg = conn.port.recv_match(blocking=True, timeout=0.05)
@@ -466,7 +357,7 @@ class MavlinkGimbal:
             self._in_control = (msg.primary_control_sysid, msg.primary_control_compid) == (s.system_id,
                                                                                            s.component_id)
             self._refresh_mode()
-        with self._lock:
+        with self._changed:
             waiters = list(self._waiters.get(kind, ()))
         for predicate, event, box in waiters:
             if not event.is_set() and predicate(msg):
@@ -496,7 +387,7 @@ class MavlinkGimbal:
         self._faults = mf.device_faults(msg.failure_flags)
         st = GimbalState(pan, tilt, pan_rate, tilt_rate, self._mode(), self._faults, 0,
                          (int(msg.time_boot_ms) * 1000) & 0xFFFFFFFF, now)
-        with self._lock:
+        with self._changed:
             self._state = st
             self._last_state_rx = now
-            self._lock.notify_all()
+            self._changed.notify_all()
