@@ -105,6 +105,7 @@ class Daemon:
         self._needs_restart: tuple[str, ...] = ()  # changed settings that wait for a restart
         self._last_error = ""
         self._clear_attempts = 0
+        self._fault_episodes = 0  # faults seen since start (each run of FAULT states counts once)
         self._last_clear = 0.0
         self._last_link_error: str | None = None
         self._rl = RateLimitedLog(log)
@@ -269,6 +270,8 @@ class Daemon:
         if st.mode == GimbalMode.FAULT or st.faults:
             if now - self._last_clear >= 1.0:
                 self._last_clear = now
+                if self._clear_attempts == 0:
+                    self._fault_episodes += 1
                 self._clear_attempts += 1
                 log.warning("gimbal fault bits 0x%04x (%s), mode %s: sending CLEAR_FAULT (attempt %d)",
                             st.faults, ", ".join(fault_names(st.faults)) or "none", MODE_NAMES.get(st.mode, st.mode),
@@ -308,6 +311,7 @@ class Daemon:
                 "age_s": round(time.monotonic() - st.rx_time, 3),
             },
             "clear_fault_attempts": self._clear_attempts,
+            "fault_episodes": self._fault_episodes,
             "planner": {
                 "plans": self._plans,
                 "solve_ms_p50": _percentile_ms(list(self._solve), 50),
