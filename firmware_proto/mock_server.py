@@ -215,8 +215,12 @@ def make_transport(args: argparse.Namespace) -> PtyTransport | TcpTransport | Se
     return PtyTransport(args.link)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+def parse_simulator_args(parser: argparse.ArgumentParser,
+                         argv: list[str] | None) -> tuple[argparse.Namespace, FaultInjector]:
+    """Parse the options every device simulator shares (``--verbose``, ``--state-hz``, ``--drop``,
+    ``--latency-ms``, ``--seed``, ``--disconnect-after``/``--reconnect-after``, ``--corrupt`` where the
+    parser has it), set up logging on stderr and build the fault injector; bad values exit through
+    ``parser.error``."""
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -225,9 +229,15 @@ def main(argv: list[str] | None = None) -> int:
     if args.reconnect_after is not None and args.disconnect_after is None:
         parser.error("--reconnect-after needs --disconnect-after")
     try:
-        injector = FaultInjector(args.drop, args.corrupt, args.latency_ms / 1000.0, args.seed)
+        injector = FaultInjector(args.drop, getattr(args, "corrupt", 0.0), args.latency_ms / 1000.0, args.seed)
     except ValueError as exc:
         parser.error(str(exc))
+    return args, injector
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args, injector = parse_simulator_args(parser, argv)
     msg_log = CsvMessageLog(args.log) if args.log else None
     model = DeviceModel(state_hz=args.state_hz, info=DeviceInfo(version=args.protocol_version), on_message=msg_log)
     device = RealTimeDevice(model, injector, args.fault_at, faults_from_first_frame=args.from_first_frame)

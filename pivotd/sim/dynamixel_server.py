@@ -15,8 +15,8 @@ import sys
 import threading
 import time
 
-from firmware_proto.mock_server import PtyTransport, parse_fault_at
-from firmware_proto.realtime import CsvMessageLog, FaultInjector
+from firmware_proto.mock_server import PtyTransport, parse_fault_at, parse_simulator_args
+from firmware_proto.realtime import CsvMessageLog
 from pivotd.sim.dynamixel_device import DynamixelChain
 
 log = logging.getLogger("mock_gimbal.dynamixel")
@@ -45,17 +45,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, stream=sys.stderr,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    args, injector = parse_simulator_args(parser, argv)
     if args.pan_id == args.tilt_id:
         parser.error("--pan-id and --tilt-id must differ")
-    if args.reconnect_after is not None and args.disconnect_after is None:
-        parser.error("--reconnect-after needs --disconnect-after")
-    try:
-        injector = FaultInjector(args.drop, 0.0, args.latency_ms / 1000.0, args.seed)
-    except ValueError as exc:
-        parser.error(str(exc))
     msg_log = CsvMessageLog(args.log) if args.log else None
     chain = DynamixelChain((args.pan_id, args.tilt_id), args.pan_id, args.tilt_id, args.state_hz, msg_log)
     transport = PtyTransport(args.link)

@@ -21,7 +21,7 @@ import threading
 import time
 from typing import Any
 
-from firmware_proto.mock_server import parse_fault_at
+from firmware_proto.mock_server import parse_fault_at, parse_simulator_args
 from firmware_proto.realtime import CsvMessageLog, FaultInjector
 from pivotd.gimbal.kinematics import JointLimits
 from pivotd.gimbal.mavlink_link import load_mavutil
@@ -159,17 +159,7 @@ class MavlinkServer:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, stream=sys.stderr,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    if args.state_hz <= 0:
-        parser.error("--state-hz must be > 0")
-    if args.reconnect_after is not None and args.disconnect_after is None:
-        parser.error("--reconnect-after needs --disconnect-after")
-    try:
-        injector = FaultInjector(args.drop, args.corrupt, args.latency_ms / 1000.0, args.seed)
-    except ValueError as exc:
-        parser.error(str(exc))
+    args, injector = parse_simulator_args(parser, argv)
     host, _, port = args.udp.rpartition(":")
     if not port.isdigit():
         parser.error(f"--udp expects HOST:PORT, got {args.udp!r}")
