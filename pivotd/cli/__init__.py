@@ -19,6 +19,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "check": ("pivotd.cli.check", "validate a config, load its map, print a summary"),
     "plan": ("pivotd.cli.plan", "optimize viewing directions offline for a map and a path"),
     "bench": ("pivotd.bench", "run a benchmark"),
+    "status": ("pivotd.cli.status", "show running daemons' status, asked over Zenoh"),
+    "plot": ("pivotd.cli.plot", "draw figures from an MCAP recording"),
 }
 
 
