@@ -1,0 +1,155 @@
+"""Reading a daemon's MCAP recording (``pivotd --record``) into arrays for figures.
+
+Times are the recording's log times (the daemon's wall clock when it received or sent a message) in seconds
+since the first recorded message, so inputs from other machines and the daemon's own outputs share one clock.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pivotd.bus import messages as m
+from pivotd.config import Config, load_config
+from pivotd.daemon.recorder import JOINT_COMMAND_TOPIC, METADATA_NAME
+from pivotd.errors import InputError, PivotdError
+from pivotd.maps.formats import load_landmarks
+
+
+@dataclass(frozen=True)
+class JointSeries:
+    """Pan/tilt samples: times t (N,) [s], angles (N, 2) [rad], rates (N, 2) [rad/s] (NaN when not sent)."""
+
+    t: np.ndarray
+    angles: np.ndarray
+    rates: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+
+@dataclass(frozen=True)
+class Recording:
+    """What a recording holds for plotting: the run's config, body poses (times (P,) [s], positions (P, 3) [m],
+    quaternions (P, 4) x y z w), measured joints (``joint_states``), commanded joints (the setpoints sent; empty
+    in recordings made before they were recorded) and the landmarks (M, 3) [m] the run planned against."""
+
+    path: Path
+    cfg: Config
+    pose_t: np.ndarray
+    pose_pos: np.ndarray
+    pose_quat: np.ndarray
+    measured: JointSeries
+    commanded: JointSeries
+    landmarks: np.ndarray
+
+
+def _empty_joints() -> JointSeries:
+    return JointSeries(np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2)))
+
+
+def _joints(rows: list[tuple[float, object]]) -> JointSeries:
+    """JointState messages (log time, message) -> pan/tilt series (the joints named pan/tilt, else the first two)."""
+    t, angles, rates = [], [], []
+    for time_s, msg in rows:
+        names = list(msg.name)
+        idx = [names.index("pan"), names.index("tilt")] if {"pan", "tilt"} <= set(names) else [0, 1]
+        pos = np.asarray(msg.position, float)
+        vel = np.asarray(msg.velocity, float)
+        if pos.shape[0] <= max(idx):
+            continue
+        t.append(time_s)
+        angles.append(pos[idx])
+        rates.append(vel[idx] if vel.shape[0] > max(idx) else (np.nan, np.nan))
+    if not t:
+        return _empty_joints()
+    return JointSeries(np.asarray(t), np.asarray(angles), np.asarray(rates, float))
+
+
+def read_recording(path: str | Path, config: str | Path | None = None) -> Recording:
+    """Read ``path`` (an MCAP file written by ``pivotd --record``) with the config it names in its metadata, or
+    ``config`` when given. Raises :class:`InputError` naming the file on anything missing or unreadable."""
+    path = Path(path)
+    try:
+        from mcap.reader import make_reader
+    except ImportError:
+        raise InputError("reading MCAP needs the 'mcap' package: pip install 'pivotd[record]'") from None
+    try:
+        fh = path.open("rb")
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    with fh:
+        try:
+            reader = make_reader(fh)
+            meta = {rec.name: dict(rec.metadata) for rec in reader.iter_metadata()}
+            cfg = _config(path, meta, config)
+            t = cfg.topics
+            wanted = {t.pose, t.joint_states, t.landmarks, JOINT_COMMAND_TOPIC}
+            poses: list[tuple[float, m.PoseSample]] = []
+            measured: list[tuple[float, object]] = []
+            commanded: list[tuple[float, object]] = []
+            cloud = None
+            t0 = None
+            for schema, channel, message in reader.iter_messages(topics=sorted(wanted), log_time_order=True):
+                time_s = message.log_time * 1e-9
+                t0 = time_s if t0 is None else t0
+                topic = channel.topic
+                try:
+                    if topic == t.pose and schema.name in m.POSE_TYPES:
+                        poses.append((time_s, m.decode_pose(message.data, schema.name, topic, None)))
+                    elif topic in (t.joint_states, JOINT_COMMAND_TOPIC) and schema.name == m.JOINT_STATE:
+                        msg = m.deserialize(message.data, m.JOINT_STATE, topic)
+                        (measured if topic == t.joint_states else commanded).append((time_s, msg))
+                    elif topic == t.landmarks and schema.name == m.POINT_CLOUD2:
+                        cloud = message.data
+                except m.MessageError:
+                    continue  # the daemon dropped it too
+        except PivotdError:
+            raise
+        except Exception as exc:  # the mcap reader raises many kinds on damaged files
+            raise InputError(f"{path}: not a readable MCAP recording ({' '.join(str(exc).split())[:200]})") from None
+    if not poses:
+        raise InputError(f"{path}: no poses on {t.pose} (the run's pose topic) in the recording")
+    if not measured:
+        raise InputError(f"{path}: no joint states on {t.joint_states} in the recording")
+    t0 = float(t0 or 0.0)
+    landmarks = _landmarks(path, cfg, cloud)
+    return Recording(
+        path=path, cfg=cfg,
+        pose_t=np.array([p[0] for p in poses]) - t0,
+        pose_pos=np.array([p[1].position for p in poses], float),
+        pose_quat=np.array([p[1].quat for p in poses], float),
+        measured=_shift(_joints(measured), t0),
+        commanded=_shift(_joints(commanded), t0),
+        landmarks=landmarks,
+    )
+
+
+def _shift(series: JointSeries, t0: float) -> JointSeries:
+    return JointSeries(series.t - t0, series.angles, series.rates)
+
+
+def _config(path: Path, meta: dict[str, dict[str, str]], override: str | Path | None) -> Config:
+    if override is not None:
+        return load_config(override)
+    recorded = (meta.get(METADATA_NAME) or {}).get("config")
+    if not recorded:
+        raise InputError(f"{path}: the recording names no config file; pass --config FILE (the run's config)")
+    if not Path(recorded).is_file():
+        raise InputError(f"{path}: the run's config {recorded} is not there any more; pass --config FILE")
+    return load_config(recorded)
+
+
+def _landmarks(path: Path, cfg: Config, cloud_payload: bytes | None) -> np.ndarray:
+    """The map file's landmarks plus the last landmark cloud received over the bus (a map-less run's map)."""
+    parts = []
+    if cfg.map.file is not None:
+        parts.append(load_landmarks(cfg.map.file, weight_property=cfg.map.weight_property).points)
+    if cloud_payload is not None:
+        parts.append(m.decode_cloud(cloud_payload, cfg.topics.landmarks, None, cfg.topics.max_cloud_points).points)
+    if not parts:
+        raise InputError(f"{path}: no landmarks: the config has no map file and none were received on "
+                         f"{cfg.topics.landmarks}")
+    return np.concatenate([np.asarray(p, float).reshape(-1, 3) for p in parts])
