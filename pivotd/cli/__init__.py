@@ -59,6 +59,10 @@ def main(argv: list[str] | None = None) -> int:
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
+    if getattr(args, "json", None):  # machine-readable runs: no progress lines on the terminal
+        from pivotd.progress import silence
+
+        silence()
     module = importlib.import_module(COMMANDS[args.command][0])
     try:
         return int(module.run(args) or 0)
