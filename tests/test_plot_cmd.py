@@ -99,6 +99,7 @@ def test_recording_reads_back_and_views_match_a_brute_force_count(tmp_path):
     assert (seen[:, 0] > 2).any() and (seen[:, 0] < -2).any() and not (seen[:, 0] < -30).any()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("which", [*FIGURES, "all"])
 def test_each_figure_renders_with_its_axes_and_data(tmp_path, which):
     rec_path, _ = write_run(tmp_path)
@@ -166,6 +167,7 @@ def plot_cli(*args: str) -> subprocess.CompletedProcess:
                           env=child_env(MPLBACKEND="Agg"), cwd=str(REPO), timeout=120)
 
 
+@pytest.mark.slow
 def test_cli_writes_the_png_and_names_bad_input(tmp_path):
     rec_path, config = write_run(tmp_path)
     out = plot_cli(str(rec_path), "--figure", "visibility", "--dpi", "30")

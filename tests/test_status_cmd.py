@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 
+import pytest
 from support import PYTHON, REPO, child_env, free_tcp_port
 
 from pivotd.cli.status import dropped_inputs, format_table
@@ -57,6 +58,7 @@ def run_status(*args: str) -> subprocess.CompletedProcess:
                           env=child_env(), cwd=str(REPO), timeout=60)
 
 
+@pytest.mark.slow
 def test_no_router_is_one_line_error():
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"  # nobody listens there
     out = run_status("--connect", endpoint, "--timeout", "0.5")
@@ -66,6 +68,7 @@ def test_no_router_is_one_line_error():
                                                    f"{endpoint})"), out.stderr
 
 
+@pytest.mark.slow
 def test_bad_options_are_one_line_errors():
     out = run_status("--connect", "nonsense")
     assert out.returncode == 2 and out.stderr.strip().endswith("invalid Zenoh --connect endpoint 'nonsense' "
