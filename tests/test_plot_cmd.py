@@ -188,3 +188,17 @@ def test_cli_writes_the_png_and_names_bad_input(tmp_path):
     out = plot_cli(str(rec_path), "-o", str(tmp_path / "y.png"), "--config", str(tmp_path / "moved.yaml"),
                    "--figure", "joints", "--dpi", "20")
     assert out.returncode == 0 and png_size(tmp_path / "y.png") == (180, 90)
+
+
+def test_a_recording_cut_short_is_read_up_to_its_last_complete_chunk(tmp_path):
+    """A daemon killed while recording leaves no summary and half a chunk; the complete chunks still plot."""
+    rec_path, _ = write_run(tmp_path)
+    full = read_recording(rec_path)
+    data = rec_path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.8)])
+    part = read_recording(cut)
+    assert len(part.measured) == len(full.measured)  # written before the setpoints
+    assert 0 < len(part.commanded) < len(full.commanded)  # the setpoints come last: cut
+    np.testing.assert_array_equal(part.commanded.angles, full.commanded.angles[: len(part.commanded)])
+    save_figure(build_figure(part, "joints"), tmp_path / "cut.png", dpi=20)

@@ -20,6 +20,8 @@ from pivotd.errors import InputError
 
 log = logging.getLogger(__name__)
 
+#: MCAP chunk size [bytes]: a daemon killed while recording loses at most the chunk being filled (a few s)
+CHUNK_BYTES = 128 * 1024
 #: recording-only channel of the setpoints sent to the gimbal (not published on the bus)
 JOINT_COMMAND_TOPIC = "/pivot/joint_command"
 #: MCAP metadata record written at the start: ``config`` (absolute path of the config file), ``name``
@@ -42,7 +44,7 @@ class Recorder:
         except OSError as exc:
             raise InputError(f"--record {path}: cannot write ({exc.strerror})") from None
         self._typestore = get_typestore(Stores.ROS2_HUMBLE)
-        self._writer = Writer(self._file)
+        self._writer = Writer(self._file, chunk_size=CHUNK_BYTES)
         self._writer.start(profile="ros2", library="pivotd")
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}

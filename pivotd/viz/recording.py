@@ -6,6 +6,7 @@ since the first recorded message, so inputs from other machines and the daemon's
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -14,8 +15,10 @@ import numpy as np
 from pivotd.bus import messages as m
 from pivotd.config import Config, load_config
 from pivotd.daemon.recorder import JOINT_COMMAND_TOPIC, METADATA_NAME
-from pivotd.errors import InputError, PivotdError
+from pivotd.errors import InputError
 from pivotd.maps.formats import load_landmarks
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -53,7 +56,7 @@ def _empty_joints() -> JointSeries:
 def _joints(rows: list[tuple[float, object]]) -> JointSeries:
     """JointState messages (log time, message) -> pan/tilt series (the joints named pan/tilt, else the first two)."""
     t, angles, rates = [], [], []
-    for time_s, msg in rows:
+    for time_s, msg in sorted(rows, key=lambda r: r[0]):
         names = list(msg.name)
         idx = [names.index("pan"), names.index("tilt")] if {"pan", "tilt"} <= set(names) else [0, 1]
         pos = np.asarray(msg.position, float)
@@ -68,54 +71,75 @@ def _joints(rows: list[tuple[float, object]]) -> JointSeries:
     return JointSeries(np.asarray(t), np.asarray(angles), np.asarray(rates, float))
 
 
-def read_recording(path: str | Path, config: str | Path | None = None) -> Recording:
-    """Read ``path`` (an MCAP file written by ``pivotd --record``) with the config it names in its metadata, or
-    ``config`` when given. Raises :class:`InputError` naming the file on anything missing or unreadable."""
-    path = Path(path)
+def _records(path: Path) -> tuple[list, bool]:
+    """Every record of the MCAP file in file order, chunks unpacked, and whether the file ended early (a daemon
+    killed while recording leaves no summary and maybe half a chunk: what was complete is kept)."""
     try:
-        from mcap.reader import make_reader
+        from mcap.records import DataEnd, Footer
+        from mcap.stream_reader import StreamReader
     except ImportError:
         raise InputError("reading MCAP needs the 'mcap' package: pip install 'pivotd[record]'") from None
     try:
         fh = path.open("rb")
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    out: list = []
     with fh:
         try:
-            reader = make_reader(fh)
-            meta = {rec.name: dict(rec.metadata) for rec in reader.iter_metadata()}
-            cfg = _config(path, meta, config)
-            t = cfg.topics
-            wanted = {t.pose, t.joint_states, t.landmarks, JOINT_COMMAND_TOPIC}
-            poses: list[tuple[float, m.PoseSample]] = []
-            measured: list[tuple[float, object]] = []
-            commanded: list[tuple[float, object]] = []
-            cloud = None
-            t0 = None
-            for schema, channel, message in reader.iter_messages(topics=sorted(wanted), log_time_order=True):
-                time_s = message.log_time * 1e-9
-                t0 = time_s if t0 is None else t0
-                topic = channel.topic
-                try:
-                    if topic == t.pose and schema.name in m.POSE_TYPES:
-                        poses.append((time_s, m.decode_pose(message.data, schema.name, topic, None)))
-                    elif topic in (t.joint_states, JOINT_COMMAND_TOPIC) and schema.name == m.JOINT_STATE:
-                        msg = m.deserialize(message.data, m.JOINT_STATE, topic)
-                        (measured if topic == t.joint_states else commanded).append((time_s, msg))
-                    elif topic == t.landmarks and schema.name == m.POINT_CLOUD2:
-                        cloud = message.data
-                except m.MessageError:
-                    continue  # the daemon dropped it too
-        except PivotdError:
-            raise
-        except Exception as exc:  # the mcap reader raises many kinds on damaged files
-            raise InputError(f"{path}: not a readable MCAP recording ({' '.join(str(exc).split())[:200]})") from None
+            for record in StreamReader(fh).records:
+                out.append(record)
+                if isinstance(record, DataEnd | Footer):
+                    return out, False
+        except Exception as exc:  # the mcap reader raises many kinds on damaged or cut files
+            if not out:
+                reason = " ".join(str(exc).split())[:200] or type(exc).__name__
+                raise InputError(f"{path}: not a readable MCAP recording ({reason})") from None
+    return out, True
+
+
+def read_recording(path: str | Path, config: str | Path | None = None) -> Recording:
+    """Read ``path`` (an MCAP file written by ``pivotd --record``) with the config it names in its metadata, or
+    ``config`` when given. A file cut short (the daemon was killed) is read up to its last complete chunk.
+    Raises :class:`InputError` naming the file on anything missing or unreadable."""
+    from mcap.records import Channel, Message, Metadata, Schema
+
+    path = Path(path)
+    records, truncated = _records(path)
+    meta = {r.name: dict(r.metadata) for r in records if isinstance(r, Metadata)}
+    cfg = _config(path, meta, config)
+    t = cfg.topics
+    schemas = {r.id: r.name for r in records if isinstance(r, Schema)}
+    channels = {r.id: (r.topic, schemas.get(r.schema_id, "")) for r in records if isinstance(r, Channel)}
+    poses: list[tuple[float, m.PoseSample]] = []
+    measured: list[tuple[float, object]] = []
+    commanded: list[tuple[float, object]] = []
+    cloud = None
+    t0 = None
+    for record in records:
+        if not isinstance(record, Message) or record.channel_id not in channels:
+            continue
+        topic, msgtype = channels[record.channel_id]
+        time_s = record.log_time * 1e-9
+        t0 = time_s if t0 is None else min(t0, time_s)
+        try:
+            if topic == t.pose and msgtype in m.POSE_TYPES:
+                poses.append((time_s, m.decode_pose(record.data, msgtype, topic, None)))
+            elif topic in (t.joint_states, JOINT_COMMAND_TOPIC) and msgtype == m.JOINT_STATE:
+                msg = m.deserialize(record.data, m.JOINT_STATE, topic)
+                (measured if topic == t.joint_states else commanded).append((time_s, msg))
+            elif topic == t.landmarks and msgtype == m.POINT_CLOUD2:
+                cloud = record.data
+        except m.MessageError:
+            continue  # the daemon dropped it too
+    if truncated:
+        log.warning("%s: the recording ends early (no summary); using the %d complete messages", path,
+                    len(poses) + len(measured) + len(commanded))
     if not poses:
         raise InputError(f"{path}: no poses on {t.pose} (the run's pose topic) in the recording")
     if not measured:
         raise InputError(f"{path}: no joint states on {t.joint_states} in the recording")
+    poses.sort(key=lambda p: p[0])
     t0 = float(t0 or 0.0)
-    landmarks = _landmarks(path, cfg, cloud)
     return Recording(
         path=path, cfg=cfg,
         pose_t=np.array([p[0] for p in poses]) - t0,
@@ -123,7 +147,7 @@ def read_recording(path: str | Path, config: str | Path | None = None) -> Record
         pose_quat=np.array([p[1].quat for p in poses], float),
         measured=_shift(_joints(measured), t0),
         commanded=_shift(_joints(commanded), t0),
-        landmarks=landmarks,
+        landmarks=_landmarks(path, cfg, cloud),
     )
 
 
