@@ -71,11 +71,27 @@ def _joints(rows: list[tuple[float, object]]) -> JointSeries:
     return JointSeries(np.asarray(t), np.asarray(angles), np.asarray(rates, float))
 
 
-def _records(path: Path) -> tuple[list, bool]:
-    """Every record of the MCAP file in file order, chunks unpacked, and whether the file ended early (a daemon
-    killed while recording leaves no summary and maybe half a chunk: what was complete is kept)."""
+#: message types a figure uses; other channels (view plans, paths, ...) are skipped while reading
+_PLOTTED_TYPES = (*m.POSE_TYPES, m.JOINT_STATE, m.POINT_CLOUD2)
+
+
+@dataclass
+class _Contents:
+    """One pass over a recording: metadata, (topic, ROS type, log time [ns], CDR) of the plotted types (the last
+    cloud per topic only), the first log time [ns], and whether the file ended early."""
+
+    metadata: dict[str, dict[str, str]]
+    messages: list[tuple[str, str, int, bytes]]
+    clouds: dict[str, bytes]
+    first_ns: int | None
+    truncated: bool
+
+
+def _read_mcap(path: Path) -> _Contents:
+    """Stream the MCAP file's records (chunks unpacked; no index needed). A file cut short (a daemon killed
+    while recording leaves no summary and maybe half a chunk) keeps what was complete."""
     try:
-        from mcap.records import DataEnd, Footer
+        from mcap.records import Channel, DataEnd, Footer, Message, Metadata, Schema
         from mcap.stream_reader import StreamReader
     except ImportError:
         raise InputError("reading MCAP needs the 'mcap' package: pip install 'pivotd[record]'") from None
@@ -83,54 +99,61 @@ def _records(path: Path) -> tuple[list, bool]:
         fh = path.open("rb")
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
-    out: list = []
+    out = _Contents({}, [], {}, None, True)
+    schemas: dict[int, str] = {}
+    channels: dict[int, tuple[str, str]] = {}
+    seen = 0
     with fh:
         try:
             for record in StreamReader(fh).records:
-                out.append(record)
-                if isinstance(record, DataEnd | Footer):
-                    return out, False
+                seen += 1
+                if isinstance(record, Message):
+                    out.first_ns = record.log_time if out.first_ns is None else min(out.first_ns, record.log_time)
+                    topic, msgtype = channels.get(record.channel_id, ("", ""))
+                    if msgtype == m.POINT_CLOUD2:
+                        out.clouds[topic] = record.data
+                    elif msgtype in _PLOTTED_TYPES:
+                        out.messages.append((topic, msgtype, record.log_time, record.data))
+                elif isinstance(record, Channel):
+                    channels[record.id] = (record.topic, schemas.get(record.schema_id, ""))
+                elif isinstance(record, Schema):
+                    schemas[record.id] = record.name
+                elif isinstance(record, Metadata):
+                    out.metadata[record.name] = dict(record.metadata)
+                elif isinstance(record, DataEnd | Footer):
+                    out.truncated = False
+                    break
         except Exception as exc:  # the mcap reader raises many kinds on damaged or cut files
-            if not out:
+            if not seen:
                 reason = " ".join(str(exc).split())[:200] or type(exc).__name__
                 raise InputError(f"{path}: not a readable MCAP recording ({reason})") from None
-    return out, True
+    return out
 
 
 def read_recording(path: str | Path, config: str | Path | None = None) -> Recording:
     """Read ``path`` (an MCAP file written by ``pivotd --record``) with the config it names in its metadata, or
     ``config`` when given. A file cut short (the daemon was killed) is read up to its last complete chunk.
     Raises :class:`InputError` naming the file on anything missing or unreadable."""
-    from mcap.records import Channel, Message, Metadata, Schema
-
     path = Path(path)
-    records, truncated = _records(path)
-    meta = {r.name: dict(r.metadata) for r in records if isinstance(r, Metadata)}
-    cfg = _config(path, meta, config)
+    contents = _read_mcap(path)
+    cfg = _config(path, contents.metadata, config)
     t = cfg.topics
-    schemas = {r.id: r.name for r in records if isinstance(r, Schema)}
-    channels = {r.id: (r.topic, schemas.get(r.schema_id, "")) for r in records if isinstance(r, Channel)}
     poses: list[tuple[float, m.PoseSample]] = []
     measured: list[tuple[float, object]] = []
     commanded: list[tuple[float, object]] = []
-    cloud = None
-    t0 = None
-    for record in records:
-        if not isinstance(record, Message) or record.channel_id not in channels:
-            continue
-        topic, msgtype = channels[record.channel_id]
-        time_s = record.log_time * 1e-9
-        t0 = time_s if t0 is None else min(t0, time_s)
+    for topic, msgtype, log_ns, data in contents.messages:
+        time_s = log_ns * 1e-9
         try:
             if topic == t.pose and msgtype in m.POSE_TYPES:
-                poses.append((time_s, m.decode_pose(record.data, msgtype, topic, None)))
+                poses.append((time_s, m.decode_pose(data, msgtype, topic, None)))
             elif topic in (t.joint_states, JOINT_COMMAND_TOPIC) and msgtype == m.JOINT_STATE:
-                msg = m.deserialize(record.data, m.JOINT_STATE, topic)
+                msg = m.deserialize(data, m.JOINT_STATE, topic)
                 (measured if topic == t.joint_states else commanded).append((time_s, msg))
-            elif topic == t.landmarks and msgtype == m.POINT_CLOUD2:
-                cloud = record.data
         except m.MessageError:
             continue  # the daemon dropped it too
+    truncated = contents.truncated
+    cloud = contents.clouds.get(t.landmarks)
+    t0 = (contents.first_ns or 0) * 1e-9
     if truncated:
         log.warning("%s: the recording ends early (no summary); using the %d complete messages", path,
                     len(poses) + len(measured) + len(commanded))
@@ -139,7 +162,6 @@ def read_recording(path: str | Path, config: str | Path | None = None) -> Record
     if not measured:
         raise InputError(f"{path}: no joint states on {t.joint_states} in the recording")
     poses.sort(key=lambda p: p[0])
-    t0 = float(t0 or 0.0)
     return Recording(
         path=path, cfg=cfg,
         pose_t=np.array([p[0] for p in poses]) - t0,
