@@ -75,5 +75,8 @@ def test_bad_options_are_one_line_errors():
                                                                "(expected e.g. tcp/127.0.0.1:7447)")
     out = run_status("--timeout", "0")
     assert out.returncode == 2 and out.stderr.strip() == "pivotd status: error: --timeout 0.0: must be > 0"
+    out = run_status("--name", "robot*")
+    assert out.returncode == 2 and out.stderr.strip() == (
+        "pivotd status: error: --name 'robot*': a daemon name has letters, digits, '_' and '-' only")
     out = run_status("--name", "a", "--all")
     assert out.returncode == 2 and "not allowed with argument" in out.stderr

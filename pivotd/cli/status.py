@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import time
 from typing import Any, TextIO
@@ -71,9 +72,13 @@ def _target(args: argparse.Namespace) -> tuple[list[str], str]:
         if not endpoints:  # reach the daemon where it listens (on this host) or where it connects
             endpoints = [_local(e) for e in cfg.zenoh.listen] + list(cfg.zenoh.connect)
     from pivotd.bus.session import validate_endpoint
+    from pivotd.config.settings import NAME_PATTERN
 
     endpoints = [validate_endpoint(e, "--connect endpoint") for e in endpoints or [DEFAULT_CONNECT]]
-    return endpoints, name or "pivotd"
+    name = name or "pivotd"
+    if not re.fullmatch(NAME_PATTERN, name):
+        raise InputError(f"--name {name!r}: a daemon name has letters, digits, '_' and '-' only")
+    return endpoints, name
 
 
 def _local(endpoint: str) -> str:

@@ -35,6 +35,7 @@ GIMBAL_BACKENDS_UNAVAILABLE: tuple[str, ...] = ()
 MAVLINK_URL_PREFIXES = ("udpin:", "udpout:", "udp:", "tcp:", "tcpin:")
 
 _NAME_RE = r"[A-Za-z0-9_][A-Za-z0-9_\-]*"
+NAME_PATTERN = _NAME_RE  # of the config's ``name`` (also what ``pivotd status --name`` accepts)
 _TOPIC_RE = r"/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*"
 _NAMESPACE_RE = r"/|(/[A-Za-z_][A-Za-z0-9_]*)+"
 _FRAME_RE = r"[A-Za-z_][A-Za-z0-9_/]*"
