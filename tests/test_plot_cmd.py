@@ -93,6 +93,10 @@ def test_recording_reads_back_and_views_match_a_brute_force_count(tmp_path):
     flt = run.cfg.map.filters
     expected = visible_counts(run.landmarks, cams, dirs, run.cfg.pivot.half_angle, flt.min_range, flt.max_range)
     np.testing.assert_array_equal(views.n_pivot, expected)
+    fwd = np.array([joints_to_world_direction(0.0, 0.0, run.pose_quat[k], mount) for k in i])
+    np.testing.assert_array_equal(views.n_forward, visible_counts(run.landmarks, cams, fwd, run.cfg.pivot.half_angle,
+                                                                  flt.min_range, flt.max_range))
+    np.testing.assert_allclose(views.cameras, cams, atol=1e-12)
     assert views.n_pivot.max() > 50 and views.n_forward.max() > 0
     # the sweep looks at both walls; the far cluster is never seen
     seen = run.landmarks[views.seen]

@@ -14,9 +14,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pivotd.gimbal.kinematics import camera_position, joints_to_world_direction
+from pivotd.geometry import pan_tilt_to_direction
+from pivotd.gimbal.kinematics import base_from_world, camera_position
 from pivotd.sim.analysis import in_cone
 from pivotd.viz.recording import Recording
+
+_FRAMES_PER_BATCH = 256  # frames whose candidate pairs are tested together (bounds the temporaries)
 
 
 @dataclass(frozen=True)
@@ -45,10 +48,10 @@ def camera_views(run: Recording, max_frames: int = 1500) -> Views:
         keep = keep[np.linspace(0, keep.size - 1, max_frames).round().astype(int)]
     mount = cfg.gimbal.mount
     quats = run.pose_quat[i[keep]]
-    cams = np.array([camera_position(p, q, mount) for p, q in zip(run.pose_pos[i[keep]], quats, strict=True)])
-    piv = np.array([joints_to_world_direction(a[0], a[1], q, mount) for a, q in zip(js.angles[keep], quats,
-                                                                                    strict=True)])
-    fwd = np.array([joints_to_world_direction(0.0, 0.0, q, mount) for q in quats])
+    cams = camera_position(run.pose_pos[i[keep]], quats, mount).reshape(-1, 3)  # batched: (F, 3)
+    to_world = base_from_world(quats, mount).reshape(-1, 3, 3)  # world -> base; its transpose maps back
+    piv = np.einsum("fji,fj->fi", to_world, pan_tilt_to_direction(js.angles[keep, 0], js.angles[keep, 1]))
+    fwd = np.einsum("fji,fj->fi", to_world, pan_tilt_to_direction(np.zeros(keep.size), np.zeros(keep.size)))
     flt = cfg.map.filters
     alpha = cfg.pivot.half_angle
     points = run.landmarks
@@ -57,12 +60,16 @@ def camera_views(run: Recording, max_frames: int = 1500) -> Views:
     n_fwd = np.zeros(keep.size, np.int64)
     if keep.size and points.shape[0]:
         tree = cKDTree(points)
-        for k, near in enumerate(tree.query_ball_point(cams, flt.max_range)):
-            near = np.asarray(near, dtype=np.int64)
-            rel = points[near] - cams[k]
-            vis = in_cone(rel, piv[k], alpha, flt.min_range, flt.max_range)
-            seen[near[vis]] = True
-            n_piv[k] = int(vis.sum())
-            n_fwd[k] = int(in_cone(rel, fwd[k], alpha, flt.min_range, flt.max_range).sum())
+        for start in range(0, keep.size, _FRAMES_PER_BATCH):
+            frames = np.arange(start, min(start + _FRAMES_PER_BATCH, keep.size))
+            pairs = cKDTree(cams[frames]).sparse_distance_matrix(tree, flt.max_range, output_type="ndarray")
+            frame_of = start + pairs["i"].astype(np.int64)  # one (frame, landmark) pair per candidate
+            idx = pairs["j"].astype(np.int64)
+            rel = (points[idx] - cams[frame_of])[:, None, :]
+            vis = in_cone(rel, piv[frame_of], alpha, flt.min_range, flt.max_range)[:, 0]
+            vis_fwd = in_cone(rel, fwd[frame_of], alpha, flt.min_range, flt.max_range)[:, 0]
+            seen[idx[vis]] = True
+            n_piv[frames] = np.bincount(frame_of[vis] - start, minlength=frames.size)
+            n_fwd[frames] = np.bincount(frame_of[vis_fwd] - start, minlength=frames.size)
     shape3 = (keep.size, 3)
     return Views(js.t[keep], cams.reshape(shape3), piv.reshape(shape3), fwd.reshape(shape3), n_piv, n_fwd, seen)
