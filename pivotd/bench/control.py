@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pivotd.progress import with_progress
+
 REPO = Path(__file__).resolve().parents[2]
 DEMO = REPO / "config" / "demo.yaml"
 
@@ -124,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
     prio = f", SCHED_FIFO {args.realtime_priority}" if args.realtime_priority else ""
     with tempfile.TemporaryDirectory(prefix="pivotd-bench-") as tmp_s:
         tmp = Path(tmp_s)
-        for backend in args.backend:
+        for backend in with_progress(args.backend, "control runs, one per backend"):
             endpoint = f"tcp/127.0.0.1:{free_port()}"
             device_log = tmp / f"gimbal_{backend}.csv"
             gimbal, port = start_gimbal_simulator(backend, device_log, tmp / f"mock_gimbal_{backend}.log")

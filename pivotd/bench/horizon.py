@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pivotd.progress import with_progress
+
 
 def _visible_full(snap, plan, retained, alpha: float) -> int:
     """Hard visible count summed over the horizon, over the full retained sets."""
@@ -104,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
     prev, prev_anchor = plan, anchor
     total, cpu, query, retained_counts, union_counts, quality = [], [], [], [], [], []
     full = RecedingHorizonPlanner(replace(settings, max_landmarks_per_waypoint=None), Mount(), limits)
-    for k in range(1, replans + 1):
+    for k in with_progress(range(1, replans + 1), "replans"):
         s = (k * args.step) % max(s_max, 1e-9)
         if s < args.step:  # wrapped around: start a new pass with a fresh path version
             planner.set_path(sc.path, None, k + 1)

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from pivotd.bench._stats import best_of, median, percentile, steady_heap, timed
+from pivotd.progress import with_progress
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +74,7 @@ def _level_rows(levels: list[int], pose_idx: np.ndarray, alpha: float, res: floa
     poses = monte_carlo_poses()[pose_idx]
     counts = monte_carlo_levels()
     rows, detail = [], {}
-    for level in levels:
+    for level in with_progress(levels, "Monte Carlo map sizes"):
         pts = monte_carlo_map(level)
         t_piv, t_bf, ratio, d_piv, d_bf = [], [], [], [], []
         for t in poses:
@@ -121,7 +122,7 @@ def hard_rows(seeds: int, poses: int, alpha: float, res: float, repeats: int = 3
     from pivotd.pivot.view import optimize_view
 
     rows = []
-    for family in HARD_FAMILIES:
+    for family in with_progress(HARD_FAMILIES, "hard scene families"):
         t_piv, t_grid, ratio, grid_ratio, gap, exact, sizes = [], [], [], [], [], 0, []
         for seed in range(seeds):
             scene = hard_scene(family, seed, poses)
@@ -288,7 +289,7 @@ def pareto_rows(limits_deg: tuple[float, ...] = (5.0, 10.0), families: bool = Tr
     grid = sphere_grid(2.0)
     opts = TrajectoryOptions(distance_weights=False)
     rows = []
-    for name, pts, way, half_deg in scenes:
+    for name, pts, way, half_deg in with_progress(scenes, "trajectory scenes"):
         alpha = math.radians(half_deg)
         variants = {
             "polish": lambda pts=pts, way=way, alpha=alpha: optimize_trajectory(pts, way, alpha, 0.6, options=opts),

@@ -2,8 +2,9 @@
 
 :class:`PivotBus` declares one rmw_zenoh node with subscriptions for the pose, path, landmarks and
 targets, publishers for joint states and the view plan, and a plain Zenoh publisher + queryable for
-status. Subscription callbacks run on Zenoh's threads: they decode, validate and hand the typed
-message to the daemon's callback; anything wrong is dropped, counted and logged (rate limited).
+status. The map layers also take the latest stored sample at start (:mod:`pivotd.bus.stored`).
+Subscription callbacks run on Zenoh's threads: they decode, validate and hand the typed message to the
+daemon's callback; anything wrong is dropped, counted and logged (rate limited).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import zenoh
 from pivotd.bus import messages as m
 from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.bus.ros import QoS, RosNode, msgtype_of_key
+from pivotd.bus.stored import fetch_stored
 from pivotd.bus.topics import BusTopics, normalize_topic
 
 log = logging.getLogger(__name__)
@@ -61,8 +63,10 @@ class PivotBus:
                 topics.path, m.PATH, self._take_path), sub_qos, any_type=True))
             for layer in CLOUD_LAYERS:
                 topic = getattr(topics, layer)
-                self._entities.append(self.node.subscriber(topic, m.POINT_CLOUD2, self._handler(
-                    topic, m.POINT_CLOUD2, self._cloud_taker(layer)), QoS(depth=2), any_type=True))
+                handler = self._handler(topic, m.POINT_CLOUD2, self._cloud_taker(layer))
+                sub = self.node.subscriber(topic, m.POINT_CLOUD2, handler, QoS(depth=2), any_type=True)
+                self._entities.append(sub)
+                fetch_stored(session, sub.key, handler, lambda t=sub.topic: self._received(t))
             # Public for observers (liveliness, matching); publish through the methods below.
             self.joint_state_publisher = self.node.publisher(topics.joint_states, m.JOINT_STATE, QoS(depth=10))
             self.view_plan_publisher = self.node.publisher(topics.view_plan, m.PATH, QoS(depth=1))
@@ -131,6 +135,10 @@ class PivotBus:
         with self._lock:
             c = self._counters.setdefault(topic, {"received": 0, "accepted": 0})
             c[what] = c.get(what, 0) + 1
+
+    def _received(self, topic: str) -> int:
+        with self._lock:
+            return self._counters.get(topic, {}).get("received", 0)
 
     def counters(self) -> dict[str, dict[str, int]]:
         """Per input topic: ``received``, ``accepted`` and ``dropped_<reason>`` counts (a copy)."""

@@ -22,6 +22,21 @@ def status_key_for(name: str) -> str:
     return f"pivot/{name}/status"
 
 
+def normalize_namespace(namespace: str) -> str:
+    """A ROS namespace with one leading slash and no trailing slash (``/`` for the root); rejects bad names."""
+    stripped = namespace.strip().strip("/")
+    return "/" if not stripped else normalize_topic(stripped)
+
+
+def resolve_topic(topic: str, namespace: str = "/") -> str:
+    """ROS name resolution: a relative ``topic`` (no leading slash) lives under ``namespace``; an absolute one
+    is used as it is. ``resolve_topic("odom", "/robot1") == "/robot1/odom"``."""
+    if topic.strip().startswith("/"):
+        return normalize_topic(topic)
+    ns = normalize_namespace(namespace)
+    return normalize_topic(topic if ns == "/" else f"{ns}/{topic.strip()}")
+
+
 def normalize_topic(topic: str) -> str:
     """Fully qualified topic name with one leading slash and no trailing slash; rejects empty chunks."""
     stripped = topic.strip().strip("/")
@@ -36,20 +51,22 @@ class BusTopics:
 
     The fields from ``domain_id`` to ``max_cloud_points`` are the keys of the config's ``topics`` section
     (same names and defaults). ``status_key`` follows the config's ``name`` (:func:`status_key_for`).
-    The last three are settings for code that builds its own bus (tests, tools) and keep their defaults
-    in the daemon: ``accept_empty_frame``: messages with an empty ``frame_id`` are taken as being in
-    ``frame_id``; ``namespace``: ROS namespace of pivotd's node; ``humble``: publish with rmw_zenoh's
-    Humble key form (no type hash) instead of RIHS01 hashes. ``frame_id`` None accepts any frame.
+    ``namespace`` is the ROS namespace of pivotd's node (the config's ``topics.namespace``): relative topic
+    names, such as the defaults, resolve under it on construction (:func:`resolve_topic`), so the fields
+    hold fully qualified names. The last two are settings for code that builds its own bus (tests, tools)
+    and keep their defaults in the daemon: ``accept_empty_frame``: messages with an empty ``frame_id`` are
+    taken as being in ``frame_id``; ``humble``: publish with rmw_zenoh's Humble key form (no type hash)
+    instead of RIHS01 hashes. ``frame_id`` None accepts any frame.
     """
 
     domain_id: int = 0
-    pose: str = "/odom"
+    pose: str = "odom"
     pose_type: str = ODOMETRY
-    path: str = "/plan"
-    landmarks: str = "/pivot/landmarks"
-    targets: str = "/pivot/targets"
-    joint_states: str = "/pivot/joint_states"
-    view_plan: str = "/pivot/view_plan"
+    path: str = "plan"
+    landmarks: str = "pivot/landmarks"
+    targets: str = "pivot/targets"
+    joint_states: str = "pivot/joint_states"
+    view_plan: str = "pivot/view_plan"
     frame_id: str | None = "map"
     max_cloud_points: int = 1_000_000
     status_key: str = status_key_for("pivotd")
@@ -64,8 +81,9 @@ class BusTopics:
             raise ConfigError(f"max_cloud_points must be >= 1, got {self.max_cloud_points}")
         if not isinstance(self.domain_id, int) or not 0 <= self.domain_id <= 232:
             raise ConfigError(f"domain_id must be an integer in 0..232, got {self.domain_id!r}")
+        object.__setattr__(self, "namespace", normalize_namespace(self.namespace))
         for name in TOPIC_FIELDS:
-            normalize_topic(getattr(self, name))
+            object.__setattr__(self, name, resolve_topic(getattr(self, name), self.namespace))
         key = self.status_key
         if not key or key.startswith("/") or key.endswith("/") or any(c in key for c in "*$?# "):
             raise ConfigError(f"status_key {key!r} is not a plain Zenoh key such as pivot/pivotd/status")

@@ -19,6 +19,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "check": ("pivotd.cli.check", "validate a config, load its map, print a summary"),
     "plan": ("pivotd.cli.plan", "optimize viewing directions offline for a map and a path"),
     "bench": ("pivotd.bench", "run a benchmark"),
+    "status": ("pivotd.cli.status", "show running daemons' status, asked over Zenoh"),
+    "plot": ("pivotd.cli.plot", "draw figures from an MCAP recording"),
 }
 
 
@@ -57,6 +59,10 @@ def main(argv: list[str] | None = None) -> int:
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
+    if getattr(args, "json", None):  # machine-readable runs: no progress lines on the terminal
+        from pivotd.progress import silence
+
+        silence()
     module = importlib.import_module(COMMANDS[args.command][0])
     try:
         return int(module.run(args) or 0)

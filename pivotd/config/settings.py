@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 from firmware_proto.messages import Config as ConfigMessage
@@ -35,7 +35,9 @@ GIMBAL_BACKENDS_UNAVAILABLE: tuple[str, ...] = ()
 MAVLINK_URL_PREFIXES = ("udpin:", "udpout:", "udp:", "tcp:", "tcpin:")
 
 _NAME_RE = r"[A-Za-z0-9_][A-Za-z0-9_\-]*"
+NAME_PATTERN = _NAME_RE  # of the config's ``name`` (also what ``pivotd status --name`` accepts)
 _TOPIC_RE = r"/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*"
+_NAMESPACE_RE = r"/|(/[A-Za-z_][A-Za-z0-9_]*)+"
 _FRAME_RE = r"[A-Za-z_][A-Za-z0-9_/]*"
 _ENDPOINT_RE = re.compile(r"(?P<proto>[a-z][a-z0-9\-]*)/(?P<addr>[^#]+)(#.*)?")
 _IP_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws")
@@ -390,12 +392,15 @@ def _check_zenoh_file(s: Section, mode: str, connect: tuple[str, ...], listen: t
 
 def _topics(s: Section) -> BusTopics:
     d = BusTopics()
+    relative = {f.name: f.default for f in fields(BusTopics)}  # the defaults as written: relative names
     help_topic = "a ROS 2 topic name such as /pivot/landmarks"
 
     def topic(key: str) -> str:
-        return s.string(key, getattr(d, key), pattern=_TOPIC_RE, pattern_help=help_topic)
+        return s.string(key, relative[key], pattern=_TOPIC_RE, pattern_help=help_topic)
 
     out = BusTopics(
+        namespace=s.string("namespace", d.namespace, pattern=_NAMESPACE_RE,
+                           pattern_help="a ROS namespace such as /robot1"),
         domain_id=s.number("domain_id", d.domain_id, min=0, max=232, integer=True),
         pose=topic("pose"),
         pose_type=s.string("pose_type", d.pose_type, choices=POSE_TYPES),

@@ -243,6 +243,8 @@ class Daemon:
                 self._last_error = f"control: {exc}"
                 continue
             self.state = tick.mode
+            if tick.setpoint is not None and self._recorder is not None:
+                self._record_setpoint(tick.setpoint)
             # The loop ticked without an exception: it is alive (link-down included, it reconnects by
             # itself), so systemd's watchdog is fed; a stuck or crashing loop stops feeding it.
             if wd_period and now - last_wd >= wd_period:
@@ -284,6 +286,17 @@ class Daemon:
             log.info("gimbal is disabled: sending ENABLE")
             if link.set_enabled(True) and self.control is not None:
                 self.control.invalidate()
+
+    def _record_setpoint(self, setpoint: tuple[float, float, float, float]) -> None:
+        """Record the setpoint just sent (pan, tilt [rad], rates [rad/s]) on the recording's command channel."""
+        from pivotd.bus.messages import JOINT_STATE, encode_joint_state
+        from pivotd.daemon.recorder import JOINT_COMMAND_TOPIC
+
+        pan, tilt, pan_rate, tilt_rate = setpoint
+        stamp = time.time()
+        self._recorder.write(JOINT_COMMAND_TOPIC, JOINT_STATE,
+                             encode_joint_state(stamp, ["pan", "tilt"], [pan, tilt], [pan_rate, tilt_rate]),
+                             int(stamp * 1e9))
 
     def status(self) -> dict:
         """The JSON status document published on ``pivot/<name>/status``."""
@@ -422,9 +435,10 @@ class Daemon:
         self.session = open_session(mode=z.mode, connect=z.connect, listen=z.listen, config_file=z.config_file,
                                     multicast_scouting=z.multicast_scouting)
         if self.overrides.record is not None:
-            from pivotd.daemon.recorder import Recorder
+            from pivotd.daemon.recorder import METADATA_NAME, Recorder
 
             self._recorder = Recorder(self.overrides.record)
+            self._recorder.add_metadata(METADATA_NAME, {"name": cfg.name, "config": str(cfg.source or "")})
         self.bus = PivotBus(self.session, cfg.topics, node_name=cfg.name, on_pose=self._on_pose,
                             on_path=self._on_path, on_cloud=self._on_cloud,
                             on_raw=self._recorder.write if self._recorder is not None else None)

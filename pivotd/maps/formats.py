@@ -26,6 +26,7 @@ import numpy as np
 
 from pivotd.errors import InputError
 from pivotd.geometry import MAX_COORDINATE
+from pivotd.progress import Progress
 
 log = logging.getLogger(__name__)
 
@@ -255,13 +256,14 @@ def read_numeric_text(path: Path, columns: tuple[int, ...], what: str, dtype: ty
     delimiter: str | None = None
     lineno = 0
     try:
-        with open(path) as fh:
+        with open(path) as fh, Progress(f"reading {path.name}", os.fstat(fh.fileno()).st_size, "B") as progress:
             while True:
                 block = fh.read(_TEXT_BLOCK)
                 if not block:
                     break
                 if not block.endswith("\n"):
                     block += fh.readline()  # complete the last line
+                progress.advance(len(block))  # characters: bytes for the ASCII of numeric text
                 if ncols is None:
                     found = _first_data_line(block)
                     if found is not None:

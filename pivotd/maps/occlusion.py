@@ -32,10 +32,12 @@ import numpy as np
 
 from pivotd.errors import InputError
 from pivotd.maps.grid_index import cell_keys, column_bounds, grid_dims
+from pivotd.progress import Progress
 
 _FRAC_BITS = 12  # fixed-point fraction bits of sample coordinates (voxel units)
 _CHUNK_RAYS = 2048  # rays per vectorised batch (sorted by sample count to limit padding)
 _OWN_MARGIN = 0.01  # voxels
+_BUILD_CHUNK = 1 << 20  # points per step while building the grid
 DENSE_LIMIT = 1 << 28  # voxels; above this the grid stores sorted occupied keys instead of a dense array
 MAX_AXIS_VOXELS = 1 << 16  # voxels along one axis of the grid (bounds the samples of any ray)
 MAX_RAY_VOXELS = 4096  # max_range / voxel accepted in a configuration (samples per ray ≤ this)
@@ -81,13 +83,21 @@ class OccupancyGrid:
                 f"{extent / (MAX_AXIS_VOXELS - 4):.3g} m)"
             )
         dims = grid_dims(origin, hi, voxel)
-        keys = cell_keys(points, origin, voxel, dims)
         total = math.prod(int(d) for d in dims)
-        if total <= DENSE_LIMIT:
-            dense = np.zeros(total, dtype=bool)
-            dense[keys] = True
+        dense = np.zeros(total, dtype=bool) if total <= DENSE_LIMIT else None
+        parts = []
+        n = points.shape[0]
+        with Progress("occupancy grid", n, "points") as progress:
+            for start in range(0, n, _BUILD_CHUNK):  # chunks bound the temporaries and report progress
+                keys = cell_keys(points[start:start + _BUILD_CHUNK], origin, voxel, dims)
+                if dense is not None:
+                    dense[keys] = True
+                else:
+                    parts.append(np.unique(keys))
+                progress.update(min(n, start + _BUILD_CHUNK))
+        if dense is not None:
             return cls(origin, float(voxel), dims, dense, None)
-        return cls(origin, float(voxel), dims, None, np.unique(keys).astype(np.int64))
+        return cls(origin, float(voxel), dims, None, np.unique(np.concatenate(parts)).astype(np.int64))
 
     @property
     def occupied_count(self) -> int:

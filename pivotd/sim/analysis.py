@@ -159,16 +159,21 @@ def visible_counts(points: np.ndarray, cameras: np.ndarray, directions: np.ndarr
     from ``cameras`` (T, 3), counting only landmarks at a distance in [min_range, max_range] [m]."""
     points = np.asarray(points, float)
     out = np.zeros(cameras.shape[0], dtype=np.int64)
-    cos_a = np.cos(half_angle)
     for start in range(0, cameras.shape[0], chunk):
-        cam = cameras[start:start + chunk]
-        d = directions[start:start + chunk] / np.linalg.norm(directions[start:start + chunk], axis=1, keepdims=True)
-        rel = points[None, :, :] - cam[:, None, :]
-        dist = np.linalg.norm(rel, axis=2)
-        cos_t = np.einsum("tmk,tk->tm", rel, d) / np.maximum(dist, 1e-12)
-        ok = (dist >= min_range) & (dist <= max_range) & (dist > 1e-9) & (cos_t >= cos_a)
+        rel = points[None, :, :] - cameras[start:start + chunk, None, :]
+        ok = in_cone(rel, directions[start:start + chunk], half_angle, min_range, max_range)
         out[start:start + chunk] = ok.sum(axis=1)
     return out
+
+
+def in_cone(rel: np.ndarray, directions: np.ndarray, half_angle: float, min_range: float = 0.0,
+            max_range: float = np.inf) -> np.ndarray:
+    """Which landmarks lie in the cone: ``rel`` (..., M, 3) landmark minus camera [m], ``directions`` (..., 3)
+    optical axes (any length); returns (..., M) bool for half-angle [rad] and distance in [min_range, max_range]."""
+    d = directions / np.linalg.norm(directions, axis=-1, keepdims=True)
+    dist = np.linalg.norm(rel, axis=-1)
+    cos_t = np.einsum("...mk,...k->...m", rel, d) / np.maximum(dist, 1e-12)
+    return (dist >= min_range) & (dist <= max_range) & (dist > 1e-9) & (cos_t >= np.cos(half_angle))
 
 
 def analyse_run(cfg: Config, obs: Observations, device_log: Path) -> tuple[dict, dict]:

@@ -6,7 +6,8 @@ mavlink`` / ``dynamixel`` the MAVLink gimbal manager on UDP / the DYNAMIXEL serv
 ``tools/sim_pose`` on the S-shaped hallway, both talking Zenoh on loopback only. While the robot
 walks, a live status line shows what the daemon reports. Afterwards it prints a summary: landmarks
 visible per frame with PIVOT versus a forward-facing camera on the same route, setpoints sent, worst
-velocity/acceleration/jerk versus the limits, and writes a PNG plot.
+velocity/acceleration/jerk versus the limits, and draws its recording (``run.mcap``) as ``pivotd plot``
+does.
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ from pivotd.bus.probe import BusProbe
 from pivotd.config import Config, load_config
 from pivotd.sim.analysis import analyse_run
 from pivotd.sim.launch import REPO, SIMULATED_BACKENDS, derive_config, free_port, spawn, start_gimbal_simulator
+from pivotd.viz.figures import build_figure, save_figure
+from pivotd.viz.recording import read_recording
 
 log = logging.getLogger("pivotd.demo")
 
@@ -56,45 +59,6 @@ class DemoSummary:
     report: dict
 
 
-def plot(series: dict, path: Path) -> None:
-    """Route and viewing directions from above, visible counts and pan/tilt over time."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(14, 6))
-    ax = axes[0]
-    pts, cams = series["points"], series["cams"]
-    ax.scatter(pts[:, 0], pts[:, 1], s=1, c="0.6", label="landmarks")
-    ax.plot(cams[:, 0], cams[:, 1], "k-", lw=1, label="route")
-    step = max(1, cams.shape[0] // 60)
-    for key, color in (("forward", "tab:red"), ("pivot", "tab:blue")):
-        d = series[key][::step]
-        ax.quiver(cams[::step, 0], cams[::step, 1], d[:, 0], d[:, 1], color=color, scale=25, width=0.003,
-                  label=f"{key} view")
-    ax.set_aspect("equal")
-    ax.set_title("route and viewing directions (top view)")
-    ax.legend(loc="best", fontsize=8)
-    t = series["t"] - series["t"][0]
-    ax2 = axes[1]
-    ax2.plot(t, series["n_pivot"], color="tab:blue", label="visible, PIVOT")
-    ax2.plot(t, series["n_forward"], color="tab:red", label="visible, forward-facing")
-    ax2.set_xlabel("time [s]")
-    ax2.set_ylabel("landmarks in the FoV")
-    ax3 = ax2.twinx()
-    ax3.plot(t, np.degrees(series["pan"]), "g--", lw=1, label="pan [deg]")
-    ax3.plot(t, np.degrees(series["tilt"]), "m--", lw=1, label="tilt [deg]")
-    ax3.set_ylabel("measured joint angle [deg]")
-    lines = ax2.get_legend_handles_labels()
-    lines3 = ax3.get_legend_handles_labels()
-    ax2.legend(lines[0] + lines3[0], lines[1] + lines3[1], loc="upper left", fontsize=8)
-    ax2.set_title("visibility and gimbal motion over time")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
 def run_demo(config_path: Path, out_dir: Path, speed: float = 1.2, timeout: float = 90.0,
              live: bool = True, backend: str | None = None) -> DemoSummary:
     """Run the whole demo (with the config's gimbal backend, or ``backend`` against its simulator); returns the
@@ -107,8 +71,9 @@ def run_demo(config_path: Path, out_dir: Path, speed: float = 1.2, timeout: floa
     cfg = load_config(config_path)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     py = sys.executable
+    recording = out_dir / "run.mcap"
     daemon = spawn([py, "-m", "pivotd.cli", "--config", str(config_path), "--listen", endpoint,
-                     "--port", port], out_dir / "pivotd.log")
+                     "--port", port, "--record", str(recording)], out_dir / "pivotd.log")
     sim = None
     probe = None
     exit_code = None
@@ -154,11 +119,10 @@ def run_demo(config_path: Path, out_dir: Path, speed: float = 1.2, timeout: floa
         if probe is not None:
             probe.close()
     obs = probe.observations()
-    report, series = analyse_run(cfg, obs, device_log)
+    report, _ = analyse_run(cfg, obs, device_log)
     report["daemon_exit_code"] = exit_code
     report["final_status"] = obs.status
-    png = out_dir / "demo.png"
-    plot(series, png)
+    png = save_figure(build_figure(read_recording(recording, config_path), "all"), out_dir / "demo.png")
     (out_dir / "summary.json").write_text(json.dumps(report, indent=2, default=str))
     _print_summary(report, cfg, png)
     return DemoSummary(report["frames"], report["visible_mean_pivot"], report["visible_mean_forward"],

@@ -1,0 +1,201 @@
+"""Reading a daemon's MCAP recording (``pivotd --record``) into arrays for figures.
+
+Times are the recording's log times (the daemon's wall clock when it received or sent a message) in seconds
+since the first recorded message, so inputs from other machines and the daemon's own outputs share one clock.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pivotd.bus import messages as m
+from pivotd.config import Config, load_config
+from pivotd.daemon.recorder import JOINT_COMMAND_TOPIC, METADATA_NAME
+from pivotd.errors import InputError
+from pivotd.maps.formats import load_landmarks
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class JointSeries:
+    """Pan/tilt samples: times t (N,) [s], angles (N, 2) [rad], rates (N, 2) [rad/s] (NaN when not sent)."""
+
+    t: np.ndarray
+    angles: np.ndarray
+    rates: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+
+@dataclass(frozen=True)
+class Recording:
+    """What a recording holds for plotting: the run's config, body poses (times (P,) [s], positions (P, 3) [m],
+    quaternions (P, 4) x y z w), measured joints (``joint_states``), commanded joints (the setpoints sent; empty
+    in recordings made before they were recorded) and the landmarks (M, 3) [m] the run planned against."""
+
+    path: Path
+    cfg: Config
+    pose_t: np.ndarray
+    pose_pos: np.ndarray
+    pose_quat: np.ndarray
+    measured: JointSeries
+    commanded: JointSeries
+    landmarks: np.ndarray
+
+
+def _empty_joints() -> JointSeries:
+    return JointSeries(np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2)))
+
+
+def _joints(rows: list[tuple[float, object]]) -> JointSeries:
+    """JointState messages (log time, message) -> pan/tilt series (the joints named pan/tilt, else the first two)."""
+    t, angles, rates = [], [], []
+    for time_s, msg in sorted(rows, key=lambda r: r[0]):
+        names = list(msg.name)
+        idx = [names.index("pan"), names.index("tilt")] if {"pan", "tilt"} <= set(names) else [0, 1]
+        pos = np.asarray(msg.position, float)
+        vel = np.asarray(msg.velocity, float)
+        if pos.shape[0] <= max(idx):
+            continue
+        t.append(time_s)
+        angles.append(pos[idx])
+        rates.append(vel[idx] if vel.shape[0] > max(idx) else (np.nan, np.nan))
+    if not t:
+        return _empty_joints()
+    return JointSeries(np.asarray(t), np.asarray(angles), np.asarray(rates, float))
+
+
+#: message types a figure uses; other channels (view plans, paths, ...) are skipped while reading
+_PLOTTED_TYPES = (*m.POSE_TYPES, m.JOINT_STATE, m.POINT_CLOUD2)
+
+
+@dataclass
+class _Contents:
+    """One pass over a recording: metadata, (topic, ROS type, log time [ns], CDR) of the plotted types (the last
+    cloud per topic only), the first log time [ns], and whether the file ended early."""
+
+    metadata: dict[str, dict[str, str]]
+    messages: list[tuple[str, str, int, bytes]]
+    clouds: dict[str, bytes]
+    first_ns: int | None
+    truncated: bool
+
+
+def _read_mcap(path: Path) -> _Contents:
+    """Stream the MCAP file's records (chunks unpacked; no index needed). A file cut short (a daemon killed
+    while recording leaves no summary and maybe half a chunk) keeps what was complete."""
+    try:
+        from mcap.records import Channel, DataEnd, Footer, Message, Metadata, Schema
+        from mcap.stream_reader import StreamReader
+    except ImportError:
+        raise InputError("reading MCAP needs the 'mcap' package: pip install 'pivotd[record]'") from None
+    try:
+        fh = path.open("rb")
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    out = _Contents({}, [], {}, None, True)
+    schemas: dict[int, str] = {}
+    channels: dict[int, tuple[str, str]] = {}
+    seen = 0
+    with fh:
+        try:
+            for record in StreamReader(fh).records:
+                seen += 1
+                if isinstance(record, Message):
+                    out.first_ns = record.log_time if out.first_ns is None else min(out.first_ns, record.log_time)
+                    topic, msgtype = channels.get(record.channel_id, ("", ""))
+                    if msgtype == m.POINT_CLOUD2:
+                        out.clouds[topic] = record.data
+                    elif msgtype in _PLOTTED_TYPES:
+                        out.messages.append((topic, msgtype, record.log_time, record.data))
+                elif isinstance(record, Channel):
+                    channels[record.id] = (record.topic, schemas.get(record.schema_id, ""))
+                elif isinstance(record, Schema):
+                    schemas[record.id] = record.name
+                elif isinstance(record, Metadata):
+                    out.metadata[record.name] = dict(record.metadata)
+                elif isinstance(record, DataEnd | Footer):
+                    out.truncated = False
+                    break
+        except Exception as exc:  # the mcap reader raises many kinds on damaged or cut files
+            if not seen:
+                reason = " ".join(str(exc).split())[:200] or type(exc).__name__
+                raise InputError(f"{path}: not a readable MCAP recording ({reason})") from None
+    return out
+
+
+def read_recording(path: str | Path, config: str | Path | None = None) -> Recording:
+    """Read ``path`` (an MCAP file written by ``pivotd --record``) with the config it names in its metadata, or
+    ``config`` when given. A file cut short (the daemon was killed) is read up to its last complete chunk.
+    Raises :class:`InputError` naming the file on anything missing or unreadable."""
+    path = Path(path)
+    contents = _read_mcap(path)
+    cfg = _config(path, contents.metadata, config)
+    t = cfg.topics
+    poses: list[tuple[float, m.PoseSample]] = []
+    measured: list[tuple[float, object]] = []
+    commanded: list[tuple[float, object]] = []
+    for topic, msgtype, log_ns, data in contents.messages:
+        time_s = log_ns * 1e-9
+        try:
+            if topic == t.pose and msgtype in m.POSE_TYPES:
+                poses.append((time_s, m.decode_pose(data, msgtype, topic, None)))
+            elif topic in (t.joint_states, JOINT_COMMAND_TOPIC) and msgtype == m.JOINT_STATE:
+                msg = m.deserialize(data, m.JOINT_STATE, topic)
+                (measured if topic == t.joint_states else commanded).append((time_s, msg))
+        except m.MessageError:
+            continue  # the daemon dropped it too
+    truncated = contents.truncated
+    cloud = contents.clouds.get(t.landmarks)
+    t0 = (contents.first_ns or 0) * 1e-9
+    if truncated:
+        log.warning("%s: the recording ends early (no summary); using the %d complete messages", path,
+                    len(poses) + len(measured) + len(commanded))
+    if not poses:
+        raise InputError(f"{path}: no poses on {t.pose} (the run's pose topic) in the recording")
+    if not measured:
+        raise InputError(f"{path}: no joint states on {t.joint_states} in the recording")
+    poses.sort(key=lambda p: p[0])
+    return Recording(
+        path=path, cfg=cfg,
+        pose_t=np.array([p[0] for p in poses]) - t0,
+        pose_pos=np.array([p[1].position for p in poses], float),
+        pose_quat=np.array([p[1].quat for p in poses], float),
+        measured=_shift(_joints(measured), t0),
+        commanded=_shift(_joints(commanded), t0),
+        landmarks=_landmarks(path, cfg, cloud),
+    )
+
+
+def _shift(series: JointSeries, t0: float) -> JointSeries:
+    return JointSeries(series.t - t0, series.angles, series.rates)
+
+
+def _config(path: Path, meta: dict[str, dict[str, str]], override: str | Path | None) -> Config:
+    if override is not None:
+        return load_config(override)
+    recorded = (meta.get(METADATA_NAME) or {}).get("config")
+    if not recorded:
+        raise InputError(f"{path}: the recording names no config file; pass --config FILE (the run's config)")
+    if not Path(recorded).is_file():
+        raise InputError(f"{path}: the run's config {recorded} is not there any more; pass --config FILE")
+    return load_config(recorded)
+
+
+def _landmarks(path: Path, cfg: Config, cloud_payload: bytes | None) -> np.ndarray:
+    """The map file's landmarks plus the last landmark cloud received over the bus (a map-less run's map)."""
+    parts = []
+    if cfg.map.file is not None:
+        parts.append(load_landmarks(cfg.map.file, weight_property=cfg.map.weight_property).points)
+    if cloud_payload is not None:
+        parts.append(m.decode_cloud(cloud_payload, cfg.topics.landmarks, None, cfg.topics.max_cloud_points).points)
+    if not parts:
+        raise InputError(f"{path}: no landmarks: the config has no map file and none were received on "
+                         f"{cfg.topics.landmarks}")
+    return np.concatenate([np.asarray(p, float).reshape(-1, 3) for p in parts])
