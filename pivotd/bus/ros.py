@@ -17,7 +17,6 @@ Formats (rmw_zenoh ``docs/design.md``; docs/ROS2.md §7):
 from __future__ import annotations
 
 import functools
-import hashlib
 import itertools
 import logging
 import struct
@@ -30,13 +29,13 @@ import zenoh
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
+from pivotd.bus.ros_gid import GID_SIZE, rmw_zenoh_gid
 from pivotd.bus.topics import normalize_topic
 from pivotd.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
 ADMIN_SPACE = "@ros2_lv"
-GID_SIZE = 16
 ATTACHMENT_SIZE = 8 + 8 + 1 + GID_SIZE
 _ATTACHMENT = struct.Struct("<qqB")
 
@@ -151,8 +150,8 @@ def entity_token_key(kind: str, domain_id: int, zid: str, node_id: int, entity_i
 
 
 def gid_from_key(liveliness_key: str) -> bytes:
-    """Stable 16-byte GID of an entity derived from its liveliness key (an opaque id to ROS consumers)."""
-    return hashlib.blake2b(liveliness_key.encode(), digest_size=GID_SIZE).digest()
+    """16-byte GID of an entity from its liveliness key, as rmw_zenoh computes it (:mod:`pivotd.bus.ros_gid`)."""
+    return rmw_zenoh_gid(liveliness_key)
 
 
 @dataclass(frozen=True)
