@@ -29,6 +29,16 @@ import zenoh
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
+from pivotd.bus.durable import DataPublisher, declare_subscriber
+from pivotd.bus.qos import (  # noqa: F401  (re-exported: the rmw QoS names are part of this module's API)
+    DURABILITY_TRANSIENT_LOCAL,
+    DURABILITY_VOLATILE,
+    HISTORY_KEEP_ALL,
+    HISTORY_KEEP_LAST,
+    RELIABILITY_BEST_EFFORT,
+    RELIABILITY_RELIABLE,
+    QoS,
+)
 from pivotd.bus.ros_gid import GID_SIZE, rmw_zenoh_gid
 from pivotd.bus.topics import normalize_topic
 from pivotd.errors import ConfigError
@@ -43,10 +53,6 @@ NODE, PUBLISHER, SUBSCRIPTION = "NN", "MP", "MS"
 # What rmw_zenoh on ROS 2 Humble (no type hashes in that distribution) puts in the hash position.
 NO_TYPE_HASH = "TypeHashNotSupported"
 
-# rmw QoS enum values (rmw/types.h).
-RELIABILITY_RELIABLE, RELIABILITY_BEST_EFFORT = 1, 2
-DURABILITY_TRANSIENT_LOCAL, DURABILITY_VOLATILE = 1, 2
-HISTORY_KEEP_LAST, HISTORY_KEEP_ALL = 1, 2
 
 
 @functools.cache
@@ -99,16 +105,6 @@ def topic_key(domain_id: int, topic: str, msgtype: str | None, hash_part: str | 
 def mangle(name: str) -> str:
     """Replace every ``/`` by ``%`` (liveliness tokens cannot contain ROS names' slashes)."""
     return name.replace("/", "%")
-
-
-@dataclass(frozen=True)
-class QoS:
-    """ROS QoS as advertised in liveliness tokens (only what pivotd uses)."""
-
-    reliability: int = RELIABILITY_RELIABLE
-    durability: int = DURABILITY_VOLATILE
-    history: int = HISTORY_KEEP_LAST
-    depth: int = 10
 
 
 # rmw_zenoh omits every field equal to its own default (reliable, volatile, keep_last 42, infinite times).
@@ -234,10 +230,8 @@ class RosPublisher:
                                           node.name, self.topic, msgtype, qos, node.namespace,
                                           hash_part=node.hash_for(msgtype))
         self.gid = gid_from_key(self.token_key)
-        reliability = zenoh.Reliability.RELIABLE if qos.reliability == RELIABILITY_RELIABLE else (
-            zenoh.Reliability.BEST_EFFORT)
-        self._pub = node.session.declare_publisher(self.key, congestion_control=zenoh.CongestionControl.DROP,
-                                                   reliability=reliability)
+        self.qos = qos
+        self._pub = DataPublisher(node.session, self.key, qos)  # advanced (cache) when transient local
         self._token = node.session.liveliness().declare_token(self.token_key)
         self._seq = itertools.count(1)
         self._lock = threading.Lock()
@@ -252,7 +246,7 @@ class RosPublisher:
 
     def matched(self) -> bool:
         """True while at least one Zenoh subscriber matches this publisher's key."""
-        return bool(self._pub.matching_status.matching)
+        return self._pub.matched()
 
     def publish(self, message: object) -> int:
         """Serialize a rosbags message object of this publisher's type and publish it."""
@@ -279,7 +273,8 @@ class RosSubscriber:
         self.token_key = entity_token_key(SUBSCRIPTION, node.domain_id, node.zid, node.node_id, self.entity_id,
                                           node.name, self.topic, msgtype, qos, node.namespace,
                                           hash_part=node.hash_for(msgtype))
-        self._sub = node.session.declare_subscriber(self.key, callback)
+        self.qos = qos
+        self._sub = declare_subscriber(node.session, self.key, callback, qos)  # with history when transient local
         self._token = node.session.liveliness().declare_token(self.token_key)
 
     def close(self) -> None:
