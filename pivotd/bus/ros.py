@@ -9,7 +9,9 @@ Formats (rmw_zenoh ``docs/design.md``; docs/ROS2.md §7):
   subscribers put ``*`` in the hash position.
 * type hash: ``RIHS01_<sha256 hex>`` (REP-2011), computed by ``rosbags`` from its type definitions.
 * attachment (33 bytes): int64 LE sequence number, int64 LE source timestamp [ns since the UNIX
-  epoch], one length byte (16), then the 16-byte publisher GID.
+  epoch], one length byte (16), then the 16-byte publisher GID (rmw_zenoh's, :mod:`pivotd.bus.ros_gid`).
+* ``TRANSIENT_LOCAL`` publishers and subscriptions are zenoh-ext advanced entities
+  (:mod:`pivotd.bus.durable`).
 * liveliness token: ``@ros2_lv/<domain>/<zid>/<node_id>/<entity_id>/<kind>/<enclave>/<namespace>/
   <node>[/<topic>/<type>/<hash>/<qos>]`` with ``/`` in names replaced by ``%``.
 """
