@@ -222,3 +222,22 @@ def test_in_cone_selection_matches_brute_force():
         ref = np.argsort(-cos, kind="stable")[: min(limit, hard_count(c, b, alpha))]
         assert len(idx) == len(ref) == min(limit, hard_count(c, b, alpha))
         np.testing.assert_allclose(cos[idx], cos[ref], atol=0)
+
+
+def test_fast_marker_encoder_is_byte_identical_to_rosbags(scene_plan):
+    from pivotd.bus.marker_cdr import MarkerSpec, encode_marker_array, encode_marker_array_reference
+    from pivotd.bus.markers import plan_marker_specs
+
+    _, plan = scene_plan
+    specs = plan_marker_specs(MarkerStyle(fov=FOV, lifetime=0.75), plan.positions, plan.directions, plan.in_view,
+                              reach_directions(plan.body_quats[0], MOUNT, LIMITS))
+    assert encode_marker_array(12, 5, "map", specs) == encode_marker_array_reference(12, 5, "map", specs)
+    rng = np.random.default_rng(11)
+    for trial in range(30):  # odd string lengths and point counts exercise every alignment case
+        specs = [MarkerSpec("n" * int(rng.integers(0, 7)), int(rng.integers(-5, 5)), int(rng.integers(0, 12)),
+                            int(rng.integers(0, 4)), tuple(rng.normal(size=3)), tuple(rng.uniform(size=4)),
+                            rng.normal(size=(int(rng.integers(0, 5)), 3)), float(rng.uniform(0, 3)))
+                 for _ in range(int(rng.integers(0, 4)))]
+        frame = "f" * int(rng.integers(0, 6))
+        fast = encode_marker_array(trial, 7 * trial, frame, specs)
+        assert fast == encode_marker_array_reference(trial, 7 * trial, frame, specs), trial

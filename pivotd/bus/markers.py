@@ -23,7 +23,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pivotd.bus.messages import _header, _pose, _t, serialize, view_plan_quats
+from pivotd.bus.marker_cdr import MarkerSpec, encode_marker_array
+from pivotd.bus.messages import _header, _t, seconds_to_stamp, serialize, view_plan_quats
 from pivotd.geometry import optical_frame_from_direction, pan_tilt_to_direction
 from pivotd.gimbal.kinematics import JointLimits, Mount, base_from_world
 
@@ -33,7 +34,6 @@ if TYPE_CHECKING:
     from pivotd.daemon.planner import Plan
 
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
-MARKER = "visualization_msgs/msg/Marker"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 CONE_GENERATORS = 32
 REACH_SAMPLES = 48  # points per edge of the joint-limit boundary
@@ -90,56 +90,42 @@ def reach_directions(body_quat: np.ndarray, mount: Mount, limits: JointLimits,
     return np.concatenate(segs, axis=0)
 
 
-def _points(xyz: np.ndarray) -> list:
-    pt = _t("geometry_msgs/msg/Point")
-    return [pt(x=float(a), y=float(b), z=float(c)) for a, b, c in np.asarray(xyz, float).reshape(-1, 3)]
-
-
-def _marker(header: object, ns: str, mid: int, kind: int, scale: tuple[float, float, float],
-            rgba: tuple[float, float, float, float], points: np.ndarray, lifetime: float, action: int = ADD) -> object:
-    vec, color = _t("geometry_msgs/msg/Vector3"), _t("std_msgs/msg/ColorRGBA")
-    sec = int(lifetime)
-    return _t(MARKER)(
-        header=header, ns=ns, id=mid, type=kind, action=action,
-        pose=_pose(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])),
-        scale=vec(x=scale[0], y=scale[1], z=scale[2]), color=color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3]),
-        lifetime=_t("builtin_interfaces/msg/Duration")(sec=sec, nanosec=round((lifetime - sec) * 1e9)),
-        frame_locked=False, points=_points(points), colors=[], texture_resource="",
-        texture=_t("sensor_msgs/msg/CompressedImage")(header=header, format="", data=np.zeros(0, np.uint8)),
-        uv_coordinates=[], text="", mesh_resource="",
-        mesh_file=_t("visualization_msgs/msg/MeshFile")(filename="", data=np.zeros(0, np.uint8)),
-        mesh_use_embedded_materials=False)
+def plan_marker_specs(style: MarkerStyle, positions: np.ndarray, directions: np.ndarray,
+                      in_view: np.ndarray | None = None, reach: np.ndarray | None = None) -> list[MarkerSpec]:
+    """The markers of a view plan (see the module docstring): camera positions (N, 3) [m], unit directions
+    (N, 3), landmarks in the first cone (K, 3) [m] (the first ``style.max_landmarks`` are drawn), reach
+    segments (M, 2, 3) unit world directions (:func:`reach_directions`) or None."""
+    positions = np.asarray(positions, float).reshape(-1, 3)
+    directions = np.asarray(directions, float).reshape(-1, 3)
+    if positions.shape != directions.shape or positions.shape[0] == 0:
+        raise ValueError(f"markers need as many directions as positions (≥ 1): {positions.shape} vs {directions.shape}")
+    w, life = style.line_width, style.lifetime
+    cam, axis = positions[0], directions[0]
+    specs = [MarkerSpec("", 0, ARROW, DELETEALL, (1.0, 1.0, 1.0), (0.0, 0.0, 0.0, 0.0), np.zeros((0, 3))),
+             MarkerSpec("fov_cone", 0, LINE_LIST, ADD, (w, 0.0, 0.0), (0.1, 0.9, 0.2, 0.8),
+                        cone_lines(cam, axis, 0.5 * style.fov, style.range), life)]
+    shaft = 2.0 * w
+    last = max(1, positions.shape[0] - 1)
+    for i, (p, d) in enumerate(zip(positions, directions, strict=True)):
+        specs.append(MarkerSpec("plan", i, ARROW, ADD, (shaft, 2.0 * shaft, 3.0 * shaft),
+                                (0.2, 0.4 + 0.4 * i / last, 1.0, 0.9), np.stack([p, p + style.arrow_length * d]), life))
+    if in_view is not None:
+        pts = np.asarray(in_view, float).reshape(-1, 3)[: style.max_landmarks]
+        s = style.landmark_size
+        specs.append(MarkerSpec("in_view", 0, SPHERE_LIST, ADD, (s, s, s), (1.0, 0.85, 0.1, 1.0), pts, life))
+    if reach is not None:
+        seg = cam + style.range * np.asarray(reach, float).reshape(-1, 3)
+        specs.append(MarkerSpec("reach", 0, LINE_LIST, ADD, (w, 0.0, 0.0), (0.6, 0.6, 0.6, 0.6), seg, life))
+    return specs
 
 
 def encode_plan_markers(stamp: float, frame_id: str, style: MarkerStyle, positions: np.ndarray,
                         directions: np.ndarray, in_view: np.ndarray | None = None,
                         reach: np.ndarray | None = None) -> bytes:
-    """MarkerArray CDR of a view plan: camera positions (N, 3) [m], unit directions (N, 3), landmarks in the
-    first cone (K, 3) [m] (the first ``style.max_landmarks`` are drawn), reach segments (M, 2, 3) unit
-    world directions (:func:`reach_directions`) or None."""
-    positions = np.asarray(positions, float).reshape(-1, 3)
-    directions = np.asarray(directions, float).reshape(-1, 3)
-    if positions.shape != directions.shape or positions.shape[0] == 0:
-        raise ValueError(f"markers need as many directions as positions (≥ 1): {positions.shape} vs {directions.shape}")
-    header = _header(stamp, frame_id)
-    w, life = style.line_width, style.lifetime
-    cam, axis = positions[0], directions[0]
-    markers = [_marker(header, "", 0, ARROW, (1, 1, 1), (0, 0, 0, 0), np.zeros((0, 3)), 0.0, action=DELETEALL),
-               _marker(header, "fov_cone", 0, LINE_LIST, (w, 0, 0), (0.1, 0.9, 0.2, 0.8),
-                       cone_lines(cam, axis, 0.5 * style.fov, style.range), life)]
-    shaft = 2.0 * w
-    for i, (p, d) in enumerate(zip(positions, directions, strict=True)):
-        shade = i / max(1, positions.shape[0] - 1)
-        markers.append(_marker(header, "plan", i, ARROW, (shaft, 2.0 * shaft, 3.0 * shaft),
-                               (0.2, 0.4 + 0.4 * shade, 1.0, 0.9), np.stack([p, p + style.arrow_length * d]), life))
-    if in_view is not None:
-        pts = np.asarray(in_view, float).reshape(-1, 3)[: style.max_landmarks]
-        s = style.landmark_size
-        markers.append(_marker(header, "in_view", 0, SPHERE_LIST, (s, s, s), (1.0, 0.85, 0.1, 1.0), pts, life))
-    if reach is not None:
-        seg = cam + style.range * np.asarray(reach, float).reshape(-1, 3)
-        markers.append(_marker(header, "reach", 0, LINE_LIST, (w, 0, 0), (0.6, 0.6, 0.6, 0.6), seg, life))
-    return serialize(_t(MARKER_ARRAY)(markers=markers), MARKER_ARRAY)
+    """MarkerArray CDR of a view plan (:func:`plan_marker_specs`), stamped ``stamp`` [s] in ``frame_id``."""
+    t = seconds_to_stamp(stamp)
+    return encode_marker_array(t.sec, t.nanosec, frame_id, plan_marker_specs(style, positions, directions, in_view,
+                                                                             reach))
 
 
 def encode_camera_tf(stamp: float, parent_frame: str, child_frame: str, position: np.ndarray,
