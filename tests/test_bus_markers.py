@@ -18,7 +18,6 @@ from pivotd.bus.markers import (
     MARKER_ARRAY,
     TF_MESSAGE,
     MarkerStyle,
-    PlanVisuals,
     cone_lines,
     encode_plan_markers,
     reach_directions,
@@ -27,6 +26,7 @@ from pivotd.bus.pivot_bus import PivotBus
 from pivotd.bus.topics import BusTopics
 from pivotd.config import Config
 from pivotd.daemon.planner import PlannerSettings, RecedingHorizonPlanner
+from pivotd.daemon.visuals import build_plan_visuals
 from pivotd.geometry import angle_between, normalize, quat_to_matrix
 from pivotd.gimbal.kinematics import JointLimits, Mount, base_from_world, rpy_to_matrix
 from pivotd.maps.filters import RetainedFilter
@@ -81,8 +81,8 @@ def _visuals(scene_plan, tf: bool = False, max_landmarks: int = 200, camera_dire
         cfg = replace(Config(), ros=replace(Config().ros, tf=tf, marker_landmarks=max_landmarks, marker_range=2.5),
                       pivot=replace(Config().pivot, fov=FOV),
                       gimbal=replace(Config().gimbal, mount=MOUNT, limits=LIMITS))
-        v = PlanVisuals.from_config(bus, cfg)
-        v.args = (12.5, plan, camera_direction)
+        v = build_plan_visuals(bus, cfg)
+        v.args = (12.5, plan.positions, plan.directions, plan.body_quats[0], plan.in_view, camera_direction)
         return v
 
     return make
@@ -192,8 +192,8 @@ def test_markers_can_be_turned_off():
         bus = PivotBus(a, BusTopics())
         try:
             cfg = replace(Config(), ros=replace(Config().ros, markers=False))
-            assert PlanVisuals.from_config(bus, cfg) is None
-            v = PlanVisuals.from_config(bus, replace(cfg, ros=replace(cfg.ros, tf=True)))
+            assert build_plan_visuals(bus, cfg) is None
+            v = build_plan_visuals(bus, replace(cfg, ros=replace(cfg.ros, tf=True)))
             assert v.marker_publisher is None and v.tf_publisher is not None
         finally:
             bus.close()

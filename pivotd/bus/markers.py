@@ -30,8 +30,6 @@ from pivotd.gimbal.kinematics import JointLimits, Mount, base_from_world
 
 if TYPE_CHECKING:
     from pivotd.bus.pivot_bus import PivotBus
-    from pivotd.config import Config
-    from pivotd.daemon.planner import Plan
 
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
@@ -153,25 +151,19 @@ class PlanVisuals:
         self.marker_publisher = bus.add_publisher(markers_topic, MARKER_ARRAY, qos.markers) if markers_topic else None
         self.tf_publisher = bus.add_publisher(tf_topic, TF_MESSAGE, qos.tf) if tf_topic else None
 
-    @classmethod
-    def from_config(cls, bus: PivotBus, cfg: Config) -> PlanVisuals | None:
-        """The visuals ``cfg.ros`` asks for (None when markers and TF are both off)."""
-        r = cfg.ros
-        if not r.markers and not r.tf:
-            return None
-        style = MarkerStyle(fov=cfg.pivot.fov, range=r.marker_range, arrow_length=r.marker_arrow_length,
-                            max_landmarks=r.marker_landmarks, lifetime=0.0)
-        return cls(bus, style, cfg.gimbal.mount, cfg.gimbal.limits, cfg.topics.frame_id or "map",
-                   r.markers_topic if r.markers else None, r.tf_topic if r.tf else None, r.camera_frame)
-
-    def publish(self, stamp: float, plan: Plan, camera_direction: np.ndarray | None = None) -> None:
-        """Markers of ``plan``; the TF of the camera at the plan's first position looking along
-        ``camera_direction`` (world unit (3,), e.g. the measured one) or the first planned direction."""
+    def publish(self, stamp: float, positions: np.ndarray, directions: np.ndarray, body_quat: np.ndarray,
+                in_view: np.ndarray | None = None, camera_direction: np.ndarray | None = None) -> None:
+        """Markers of a plan (camera positions (N, 3) [m], unit directions (N, 3), body attitude (4,) (x, y, z, w)
+        at the first waypoint, landmarks in the first cone (K, 3) [m]); the TF of the camera at the first
+        position looking along ``camera_direction`` (world unit (3,), e.g. the measured one) or the first
+        planned direction."""
         if self.marker_publisher is not None:
-            reach = reach_directions(plan.body_quats[0], self.mount, self.limits)
+            reach = reach_directions(body_quat, self.mount, self.limits)
             self.bus.put(self.marker_publisher, encode_plan_markers(
-                stamp, self.frame_id, self.style, plan.positions, plan.directions, plan.in_view, reach))
+                stamp, self.frame_id, self.style, positions, directions, in_view, reach))
         if self.tf_publisher is not None:
-            direction = plan.directions[0] if camera_direction is None else camera_direction
+            direction = np.asarray(directions, float).reshape(-1, 3)[0] if camera_direction is None else (
+                camera_direction)
             self.bus.put(self.tf_publisher, encode_camera_tf(stamp, self.frame_id, self.camera_frame,
-                                                             plan.positions[0], direction))
+                                                             np.asarray(positions, float).reshape(-1, 3)[0],
+                                                             direction))

@@ -35,6 +35,7 @@ from pivotd.daemon.planner import Plan
 from pivotd.daemon.reload import apply_reload, plan_reload
 from pivotd.daemon.states import DaemonState
 from pivotd.daemon.systemd import Notifier, watchdog_interval
+from pivotd.daemon.visuals import build_plan_visuals
 from pivotd.daemon.wiring import build_control_loop, build_control_settings, build_gimbal, park_joints
 from pivotd.daemon.worker import PlannerWorker, WorkerError
 from pivotd.errors import PivotdError
@@ -97,7 +98,7 @@ class Daemon:
         self._worker_errors = 0
         self.link: GimbalInterface | None = None
         self.bus: PivotBus | None = None
-        self.visuals: PlanVisuals | None = None  # live markers / camera TF (cfg.ros)
+        self.visuals: PlanVisuals | None = None  # live markers and camera TF (cfg.ros)
         self.session = None
         self.control: ControlLoop | None = None
         self._jitter: deque = deque(maxlen=5000)
@@ -196,7 +197,8 @@ class Daemon:
         if self.bus is not None:
             self.bus.publish_view_plan(pose.stamp, plan.positions, plan.directions)
             if self.visuals is not None:
-                self.visuals.publish(pose.stamp, plan, self._measured_direction(pose))
+                self.visuals.publish(pose.stamp, plan.positions, plan.directions, plan.body_quats[0], plan.in_view,
+                                     self._measured_direction(pose))
 
     def _measured_direction(self, pose: PoseSample) -> np.ndarray | None:
         """World viewing direction (3,) from the measured joints and ``pose`` (None while the link is down)."""
@@ -441,7 +443,7 @@ class Daemon:
         self.bus = PivotBus(self.session, cfg.topics, node_name=cfg.name, on_pose=self._on_pose,
                             on_path=self._on_path, on_cloud=self._on_cloud,
                             on_raw=self._recorder.write if self._recorder is not None else None, qos=cfg.ros.qos)
-        self.visuals = PlanVisuals.from_config(self.bus, cfg)
+        self.visuals = build_plan_visuals(self.bus, cfg)
         self.link = build_gimbal(cfg)
         self.link.start()
         self.control = build_control_loop(cfg, self.link)
