@@ -56,7 +56,6 @@ NODE, PUBLISHER, SUBSCRIPTION = "NN", "MP", "MS"
 NO_TYPE_HASH = "TypeHashNotSupported"
 
 
-
 @functools.cache
 def typestore() -> Typestore:
     """The shared rosbags type store (ROS 2 Jazzy definitions, the first distribution with type hashes)."""
