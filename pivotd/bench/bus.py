@@ -3,7 +3,8 @@
 Reports medians (and p99 for latencies) measured in one run, single process, two Zenoh peer
 sessions connected over TCP on 127.0.0.1 (scouting off):
 
-* codec: encode JointState, decode Odometry, encode view plan (N poses), decode PointCloud2 (N points)
+* codec: encode JointState, decode Odometry, encode view plan (N poses), decode PointCloud2 (N points),
+  encode the live markers of a plan (pivotd's CDR writer vs rosbags objects, side by side)
 * latency: remote Odometry put -> PivotBus ``on_pose`` callback (CDR decode + validation included),
   and PivotBus.publish_joint_state -> a raw subscriber in the other session.
 """
@@ -58,11 +59,28 @@ def codec_results(quick: bool) -> dict[str, float]:
     pos, dirs = rng.normal(size=(n_plan, 3)), rng.normal(size=(n_plan, 3))
     out[f"encode_view_plan_{n_plan}_us"] = _median_us(lambda: m.encode_view_plan(1.0, "map", pos, dirs),
                                                        max(20, reps // 20))
+    out.update(_marker_results(rng, max(20, reps // 20)))
     for n in ((10_000, 100_000) if quick else (10_000, 100_000, 1_000_000)):
         cloud = m.encode_cloud(1.0, "map", rng.normal(size=(n, 3)), rng.uniform(0, 1, n))
         out[f"decode_cloud_{n}_us"] = _median_us(lambda c=cloud, k=n: m.decode_cloud(c, "/c", max_points=k),
                                                  5 if quick else 15)
     return out
+
+
+def _marker_results(rng: np.random.Generator, reps: int) -> dict[str, float]:
+    """The live markers of a 20-waypoint plan with 200 landmarks in view: the fast CDR writer and rosbags."""
+    from pivotd.bus.marker_cdr import encode_marker_array, encode_marker_array_reference
+    from pivotd.bus.markers import MarkerStyle, plan_marker_specs, reach_directions
+    from pivotd.gimbal.kinematics import JointLimits, Mount
+
+    pos, dirs = rng.normal(size=(20, 3)), rng.normal(size=(20, 3))
+    dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+    reach = reach_directions(np.array([0.0, 0.0, 0.0, 1.0]), Mount(), JointLimits())
+    specs = plan_marker_specs(MarkerStyle(fov=1.0), pos, dirs, rng.normal(size=(200, 3)), reach)
+    fast = _median_us(lambda: encode_marker_array(1, 0, "map", specs), reps)
+    slow = _median_us(lambda: encode_marker_array_reference(1, 0, "map", specs), max(5, reps // 4))
+    return {"encode_plan_markers_20_us": fast, "encode_plan_markers_20_rosbags_us": slow,
+            "encode_plan_markers_speedup": slow / fast}
 
 
 def latency_results(quick: bool) -> dict[str, float]:
@@ -87,7 +105,7 @@ def latency_results(quick: bool) -> dict[str, float]:
         out.update(_latencies("pose_to_callback", count, lambda: odom.put(payload), arrivals))
         joint_rx: queue.Queue = queue.Queue()
         sub = b.declare_subscriber("0/pivot/joint_states/*/*", lambda s: joint_rx.put(time.perf_counter()))
-        _wait(bus._joint_pub.matched)
+        _wait(bus.joint_state_publisher.matched)
         out.update(_latencies("joint_state_to_subscriber", count,
                               lambda: bus.publish_joint_state(1.0, 0.1, 0.2, 0.0, 0.0), joint_rx))
         sub.undeclare()

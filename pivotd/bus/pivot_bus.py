@@ -21,8 +21,9 @@ import numpy as np
 import zenoh
 
 from pivotd.bus import messages as m
+from pivotd.bus.qos import QoS, TopicQoS
 from pivotd.bus.ratelimit import RateLimitedLog
-from pivotd.bus.ros import QoS, RosNode, msgtype_of_key
+from pivotd.bus.ros import RosNode, RosPublisher, msgtype_of_key
 from pivotd.bus.stored import fetch_stored
 from pivotd.bus.topics import BusTopics, normalize_topic
 
@@ -44,8 +45,9 @@ class PivotBus:
                  on_pose: Callable[[m.PoseSample], None] | None = None,
                  on_path: Callable[[m.PathMsg], None] | None = None,
                  on_cloud: Callable[[str, m.CloudMsg], None] | None = None,
-                 on_raw: Callable[[str, str, bytes], None] | None = None) -> None:
+                 on_raw: Callable[[str, str, bytes], None] | None = None, qos: TopicQoS | None = None) -> None:
         self.topics = topics
+        self.qos = qos = qos or TopicQoS()
         self.session = session
         self._on_pose, self._on_path, self._on_cloud, self._on_raw = on_pose, on_path, on_cloud, on_raw
         self._lock = threading.Lock()
@@ -56,20 +58,19 @@ class PivotBus:
         self.node = RosNode(session, node_name, topics.domain_id, topics.namespace, humble=topics.humble)
         self._entities: list[Any] = []
         try:
-            sub_qos = QoS(depth=10)
             self._entities.append(self.node.subscriber(topics.pose, topics.pose_type, self._handler(
-                topics.pose, topics.pose_type, self._take_pose), sub_qos, any_type=True))
+                topics.pose, topics.pose_type, self._take_pose), qos.pose, any_type=True))
             self._entities.append(self.node.subscriber(topics.path, m.PATH, self._handler(
-                topics.path, m.PATH, self._take_path), sub_qos, any_type=True))
+                topics.path, m.PATH, self._take_path), qos.path, any_type=True))
             for layer in CLOUD_LAYERS:
                 topic = getattr(topics, layer)
                 handler = self._handler(topic, m.POINT_CLOUD2, self._cloud_taker(layer))
-                sub = self.node.subscriber(topic, m.POINT_CLOUD2, handler, QoS(depth=2), any_type=True)
+                sub = self.node.subscriber(topic, m.POINT_CLOUD2, handler, getattr(qos, layer), any_type=True)
                 self._entities.append(sub)
                 fetch_stored(session, sub.key, handler, lambda t=sub.topic: self._received(t))
             # Public for observers (liveliness, matching); publish through the methods below.
-            self.joint_state_publisher = self.node.publisher(topics.joint_states, m.JOINT_STATE, QoS(depth=10))
-            self.view_plan_publisher = self.node.publisher(topics.view_plan, m.PATH, QoS(depth=1))
+            self.joint_state_publisher = self.node.publisher(topics.joint_states, m.JOINT_STATE, qos.joint_states)
+            self.view_plan_publisher = self.node.publisher(topics.view_plan, m.PATH, qos.view_plan)
             self._entities += [self.joint_state_publisher, self.view_plan_publisher]
             self.status_publisher = session.declare_publisher(topics.status_key)
             self._status_queryable = session.declare_queryable(topics.status_key, self._answer_status, complete=True)
@@ -156,6 +157,16 @@ class PivotBus:
         """Publish the view plan: camera positions (N, 3) [m] and unit view directions (N, 3) in the map frame."""
         frame = self.topics.frame_id or "map"
         self._put(self.view_plan_publisher, m.encode_view_plan(stamp, frame, positions, directions))
+
+    def add_publisher(self, topic: str, msgtype: str, qos: QoS) -> RosPublisher:
+        """Declare another ROS publisher of pivotd's node (closed with the bus); publish with :meth:`put`."""
+        pub = self.node.publisher(topic, msgtype, qos)
+        self._entities.append(pub)
+        return pub
+
+    def put(self, pub: RosPublisher, payload: bytes) -> None:
+        """Publish a CDR payload on a publisher of this bus (recorded like the bus's own outputs)."""
+        self._put(pub, payload)
 
     def _put(self, pub: Any, payload: bytes) -> None:
         # Publishing races with close() at shutdown; a closed bus or session drops the message quietly.

@@ -9,7 +9,9 @@ Formats (rmw_zenoh ``docs/design.md``; docs/ROS2.md §7):
   subscribers put ``*`` in the hash position.
 * type hash: ``RIHS01_<sha256 hex>`` (REP-2011), computed by ``rosbags`` from its type definitions.
 * attachment (33 bytes): int64 LE sequence number, int64 LE source timestamp [ns since the UNIX
-  epoch], one length byte (16), then the 16-byte publisher GID.
+  epoch], one length byte (16), then the 16-byte publisher GID (rmw_zenoh's, :mod:`pivotd.bus.ros_gid`).
+* ``TRANSIENT_LOCAL`` publishers and subscriptions are zenoh-ext advanced entities
+  (:mod:`pivotd.bus.durable`).
 * liveliness token: ``@ros2_lv/<domain>/<zid>/<node_id>/<entity_id>/<kind>/<enclave>/<namespace>/
   <node>[/<topic>/<type>/<hash>/<qos>]`` with ``/`` in names replaced by ``%``.
 """
@@ -17,7 +19,6 @@ Formats (rmw_zenoh ``docs/design.md``; docs/ROS2.md §7):
 from __future__ import annotations
 
 import functools
-import hashlib
 import itertools
 import logging
 import struct
@@ -30,24 +31,29 @@ import zenoh
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
+from pivotd.bus.durable import DataPublisher, declare_subscriber
+from pivotd.bus.qos import (  # noqa: F401  (re-exported: the rmw QoS names are part of this module's API)
+    DURABILITY_TRANSIENT_LOCAL,
+    DURABILITY_VOLATILE,
+    HISTORY_KEEP_ALL,
+    HISTORY_KEEP_LAST,
+    RELIABILITY_BEST_EFFORT,
+    RELIABILITY_RELIABLE,
+    QoS,
+)
+from pivotd.bus.ros_gid import GID_SIZE, rmw_zenoh_gid
 from pivotd.bus.topics import normalize_topic
 from pivotd.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
 ADMIN_SPACE = "@ros2_lv"
-GID_SIZE = 16
 ATTACHMENT_SIZE = 8 + 8 + 1 + GID_SIZE
 _ATTACHMENT = struct.Struct("<qqB")
 
 NODE, PUBLISHER, SUBSCRIPTION = "NN", "MP", "MS"
 # What rmw_zenoh on ROS 2 Humble (no type hashes in that distribution) puts in the hash position.
 NO_TYPE_HASH = "TypeHashNotSupported"
-
-# rmw QoS enum values (rmw/types.h).
-RELIABILITY_RELIABLE, RELIABILITY_BEST_EFFORT = 1, 2
-DURABILITY_TRANSIENT_LOCAL, DURABILITY_VOLATILE = 1, 2
-HISTORY_KEEP_LAST, HISTORY_KEEP_ALL = 1, 2
 
 
 @functools.cache
@@ -102,16 +108,6 @@ def mangle(name: str) -> str:
     return name.replace("/", "%")
 
 
-@dataclass(frozen=True)
-class QoS:
-    """ROS QoS as advertised in liveliness tokens (only what pivotd uses)."""
-
-    reliability: int = RELIABILITY_RELIABLE
-    durability: int = DURABILITY_VOLATILE
-    history: int = HISTORY_KEEP_LAST
-    depth: int = 10
-
-
 # rmw_zenoh omits every field equal to its own default (reliable, volatile, keep_last 42, infinite times).
 _DEFAULT_QOS = QoS(depth=42)
 
@@ -151,8 +147,8 @@ def entity_token_key(kind: str, domain_id: int, zid: str, node_id: int, entity_i
 
 
 def gid_from_key(liveliness_key: str) -> bytes:
-    """Stable 16-byte GID of an entity derived from its liveliness key (an opaque id to ROS consumers)."""
-    return hashlib.blake2b(liveliness_key.encode(), digest_size=GID_SIZE).digest()
+    """16-byte GID of an entity from its liveliness key, as rmw_zenoh computes it (:mod:`pivotd.bus.ros_gid`)."""
+    return rmw_zenoh_gid(liveliness_key)
 
 
 @dataclass(frozen=True)
@@ -235,10 +231,8 @@ class RosPublisher:
                                           node.name, self.topic, msgtype, qos, node.namespace,
                                           hash_part=node.hash_for(msgtype))
         self.gid = gid_from_key(self.token_key)
-        reliability = zenoh.Reliability.RELIABLE if qos.reliability == RELIABILITY_RELIABLE else (
-            zenoh.Reliability.BEST_EFFORT)
-        self._pub = node.session.declare_publisher(self.key, congestion_control=zenoh.CongestionControl.DROP,
-                                                   reliability=reliability)
+        self.qos = qos
+        self._pub = DataPublisher(node.session, self.key, qos)  # advanced (cache) when transient local
         self._token = node.session.liveliness().declare_token(self.token_key)
         self._seq = itertools.count(1)
         self._lock = threading.Lock()
@@ -253,7 +247,7 @@ class RosPublisher:
 
     def matched(self) -> bool:
         """True while at least one Zenoh subscriber matches this publisher's key."""
-        return bool(self._pub.matching_status.matching)
+        return self._pub.matched()
 
     def publish(self, message: object) -> int:
         """Serialize a rosbags message object of this publisher's type and publish it."""
@@ -280,7 +274,8 @@ class RosSubscriber:
         self.token_key = entity_token_key(SUBSCRIPTION, node.domain_id, node.zid, node.node_id, self.entity_id,
                                           node.name, self.topic, msgtype, qos, node.namespace,
                                           hash_part=node.hash_for(msgtype))
-        self._sub = node.session.declare_subscriber(self.key, callback)
+        self.qos = qos
+        self._sub = declare_subscriber(node.session, self.key, callback, qos)  # with history when transient local
         self._token = node.session.liveliness().declare_token(self.token_key)
 
     def close(self) -> None:

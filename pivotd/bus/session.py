@@ -64,6 +64,8 @@ def build_config(mode: str = "peer", connect: Iterable[str] = (), listen: Iterab
         elif config_file is None and mode == "peer":
             config.insert_json5("listen/endpoints", json.dumps([DEFAULT_PEER_LISTEN]))
         config.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast_scouting)))
+        if config_file is None:  # as rmw_zenoh's default config: transient-local publishers timestamp samples
+            config.insert_json5("timestamping/enabled", "true")
     except zenoh.ZError as exc:
         raise ConfigError(f"invalid Zenoh setting: {_one_line(exc)}") from exc
     return config

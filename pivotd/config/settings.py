@@ -16,6 +16,7 @@ from pathlib import Path
 
 from firmware_proto.messages import Config as ConfigMessage
 from firmware_proto.messages import config_problems
+from pivotd.bus.qos import DURABILITY_NAMES, MAX_DEPTH, RELIABILITY_NAMES, QoS, TopicQoS
 from pivotd.bus.topics import POSE_TYPES, BusTopics, status_key_for
 from pivotd.config.yaml_reader import Section, read_yaml
 from pivotd.errors import ConfigError, InputError
@@ -24,6 +25,8 @@ from pivotd.gimbal.motion import AxisLimits
 from pivotd.maps.occlusion import voxel_problem
 from pivotd.pivot.steps import MAX_STEP_RANGE_DEG
 
+#: Most landmarks the live markers highlight (the planner reports at most this many in view).
+MAX_MARKER_LANDMARKS = 500
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
 ZENOH_MODES = ("peer", "client")
 CONTROL_RATE_RANGE_HZ = (100.0, 200.0)
@@ -206,6 +209,22 @@ class SimConfig:
 
 
 @dataclass(frozen=True)
+class RosConfig:
+    """ROS 2 extras: live markers (sizes in m, at most ``marker_landmarks`` highlighted), the camera TF
+    (off by default: for robots without another source of it) and the QoS of every topic."""
+
+    markers: bool = True
+    markers_topic: str = "/pivot/markers"
+    marker_range: float = 3.0
+    marker_arrow_length: float = 1.0
+    marker_landmarks: int = 200
+    tf: bool = False
+    tf_topic: str = "/tf"
+    camera_frame: str = "pivot_camera"
+    qos: TopicQoS = field(default_factory=TopicQoS)
+
+
+@dataclass(frozen=True)
 class Config:
     """A complete, validated pivotd configuration."""
 
@@ -220,6 +239,7 @@ class Config:
     control: ControlConfig = field(default_factory=ControlConfig)
     logging: LoggingConfig = field(default_factory=LoggingConfig)
     sim: SimConfig | None = None
+    ros: RosConfig = field(default_factory=RosConfig)
     source: Path | None = None  # the file this was loaded from
 
     def __post_init__(self) -> None:
@@ -315,6 +335,7 @@ def load_config(path: str | Path) -> Config:
         control=control,
         logging=_logging(root.section("logging")),
         sim=_sim(root.section("sim")) if root.has("sim") else None,
+        ros=_ros(root.section("ros")),
         source=path.resolve(),
     )
     _check_wire(root, cfg.gimbal, cfg.motion)
@@ -647,6 +668,37 @@ def _sim(s: Section) -> SimConfig:
         speed=s.number("speed", d.speed, min=0.0, max=10.0, min_open=True),
         pose_hz=s.number("pose_hz", d.pose_hz, min=1.0, max=1000.0),
         loop=s.boolean("loop", d.loop),
+    )
+    s.finish()
+    return out
+
+
+def _ros(s: Section) -> RosConfig:
+    d = RosConfig()
+    help_topic = "a ROS 2 topic name such as /pivot/markers"
+    q = s.section("qos")
+    per_topic = {}
+    for name in TopicQoS.__dataclass_fields__:
+        t = q.section(name)
+        reliability, durability, depth = getattr(d.qos, name).names()
+        per_topic[name] = QoS.named(
+            t.string("reliability", reliability, choices=tuple(RELIABILITY_NAMES)),
+            t.string("durability", durability, choices=tuple(DURABILITY_NAMES)),
+            t.number("depth", depth, min=1, max=MAX_DEPTH, integer=True))
+        t.finish()
+    q.finish()
+    out = RosConfig(
+        markers=s.boolean("markers", d.markers),
+        markers_topic=s.string("markers_topic", d.markers_topic, pattern=_TOPIC_RE, pattern_help=help_topic),
+        marker_range=s.number("marker_range", d.marker_range, min=0.0, max=1000.0, min_open=True),
+        marker_arrow_length=s.number("marker_arrow_length", d.marker_arrow_length, min=0.0, max=1000.0,
+                                     min_open=True),
+        marker_landmarks=s.number("marker_landmarks", d.marker_landmarks, min=0, max=MAX_MARKER_LANDMARKS,
+                                  integer=True),
+        tf=s.boolean("tf", d.tf),
+        tf_topic=s.string("tf_topic", d.tf_topic, pattern=_TOPIC_RE, pattern_help=help_topic),
+        camera_frame=s.string("camera_frame", d.camera_frame, pattern=_FRAME_RE, pattern_help="a TF frame name"),
+        qos=TopicQoS(**per_topic),
     )
     s.finish()
     return out

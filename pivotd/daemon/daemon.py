@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_proto.messages import MODE_NAMES, fault_names
+from pivotd.bus.markers import PlanVisuals
 from pivotd.bus.messages import CloudMsg, PathMsg, PoseSample
 from pivotd.bus.pivot_bus import PivotBus
 from pivotd.bus.ratelimit import RateLimitedLog
@@ -34,10 +35,12 @@ from pivotd.daemon.planner import Plan
 from pivotd.daemon.reload import apply_reload, plan_reload
 from pivotd.daemon.states import DaemonState
 from pivotd.daemon.systemd import Notifier, watchdog_interval
+from pivotd.daemon.visuals import build_plan_visuals
 from pivotd.daemon.wiring import build_control_loop, build_control_settings, build_gimbal, park_joints
 from pivotd.daemon.worker import PlannerWorker, WorkerError
 from pivotd.errors import PivotdError
 from pivotd.gimbal.interface import GimbalInterface, GimbalMode, LinkState
+from pivotd.gimbal.kinematics import joints_to_world_direction
 from pivotd.maps.formats import LandmarkCloud, make_cloud
 
 log = logging.getLogger("pivotd.daemon")
@@ -95,6 +98,7 @@ class Daemon:
         self._worker_errors = 0
         self.link: GimbalInterface | None = None
         self.bus: PivotBus | None = None
+        self.visuals: PlanVisuals | None = None  # live markers and camera TF (cfg.ros)
         self.session = None
         self.control: ControlLoop | None = None
         self._jitter: deque = deque(maxlen=5000)
@@ -192,6 +196,17 @@ class Daemon:
         self._solve.append(plan.solve_s)
         if self.bus is not None:
             self.bus.publish_view_plan(pose.stamp, plan.positions, plan.directions)
+            if self.visuals is not None:
+                self.visuals.publish(pose.stamp, plan.positions, plan.directions, plan.body_quats[0], plan.in_view,
+                                     self._measured_direction(pose))
+
+    def _measured_direction(self, pose: PoseSample) -> np.ndarray | None:
+        """World viewing direction (3,) from the measured joints and ``pose`` (None while the link is down)."""
+        link = self.link
+        st = link.state if link is not None and link.link_state == LinkState.UP else None
+        if st is None:
+            return None
+        return joints_to_world_direction(st.pan, st.tilt, pose.quat, self.cfg.gimbal.mount)
 
     def _restart_worker(self) -> None:
         """Start a fresh planner process and give it back the bus layers and the path."""
@@ -441,7 +456,8 @@ class Daemon:
             self._recorder.add_metadata(METADATA_NAME, {"name": cfg.name, "config": str(cfg.source or "")})
         self.bus = PivotBus(self.session, cfg.topics, node_name=cfg.name, on_pose=self._on_pose,
                             on_path=self._on_path, on_cloud=self._on_cloud,
-                            on_raw=self._recorder.write if self._recorder is not None else None)
+                            on_raw=self._recorder.write if self._recorder is not None else None, qos=cfg.ros.qos)
+        self.visuals = build_plan_visuals(self.bus, cfg)
         self.link = build_gimbal(cfg)
         self.link.start()
         self.control = build_control_loop(cfg, self.link)

@@ -20,13 +20,18 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from pivotd.config.settings import MAX_MARKER_LANDMARKS
 from pivotd.geometry import normalize, quat_to_matrix
 from pivotd.gimbal.kinematics import JointLimits, Mount, base_from_world
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapSnapshot
 from pivotd.pivot.constraints import PanTiltConstraint
 from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory, spatial_order
+from pivotd.pivot.visibility import in_cone
 from pivotd.robot_path import Polyline, project_onto_polyline
+
+#: Most landmarks a plan reports as inside its first cone (:attr:`Plan.in_view`, shown as live markers).
+MAX_IN_VIEW = MAX_MARKER_LANDMARKS
 
 
 def slerp_directions(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -63,6 +68,8 @@ class Plan:
     path_version: int
     solve_s: float
     landmarks: int = 0
+    in_view: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (K, 3) landmarks in the first cone
+
 
     def direction_at_s(self, s: np.ndarray | float) -> np.ndarray:
         """Viewing directions (K, 3) (or (3,)) interpolated (slerp) at arc lengths ``s``."""
@@ -195,6 +202,16 @@ class RecedingHorizonPlanner:
         self._cache = {round(float(s[i]) * 1e6): out[i] for i in range(1, s.shape[0])}
         return out
 
+    def _in_view(self, snapshot: MapSnapshot, cam: np.ndarray, direction: np.ndarray,
+                 retained: np.ndarray) -> np.ndarray:
+        """Landmarks (K, 3) [m] of the first waypoint's retained set inside its planned cone, at most
+        :data:`MAX_IN_VIEW`, nearest the axis first (for live markers)."""
+        if retained.size == 0:
+            return np.zeros((0, 3))
+        pts = snapshot.points[retained]
+        idx = in_cone(direction, normalize(pts - cam), self.settings.alpha, MAX_IN_VIEW)
+        return pts[idx]
+
     def _constraint(self, body_quats: np.ndarray) -> PanTiltConstraint:
         lim = self.limits
         pan_min, pan_max = (-np.inf, np.inf) if lim.continuous_pan else (lim.pan_min, lim.pan_max)
@@ -257,6 +274,7 @@ class RecedingHorizonPlanner:
             path_version=self._path_version,
             solve_s=time.perf_counter() - t0,
             landmarks=int(sum(r.shape[0] for r in retained)),
+            in_view=self._in_view(snapshot, cams[0], result.directions[0], retained[0]),
         )
         self.last_plan = plan
         return plan

@@ -6,7 +6,7 @@ timeout, ``sim``. Restart-only (kept at their running values, logged as "needs r
 ``name``, ``zenoh``, ``topics`` (sessions and subscriptions), ``gimbal.backend``, ``port``, ``baud``,
 ``mavlink`` / ``dynamixel`` (the connection), ``limits`` and ``watchdog_ms`` (sent to the device at the
 handshake), ``motion`` (the device's rate limits), ``control`` (the control thread's rate and clock) and
-``logging`` (the command line may override it).
+``logging`` (the command line may override it) and ``ros`` (publishers and QoS).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from pivotd.daemon.worker import MapInfo, PlannerWorker
 log = logging.getLogger(__name__)
 
 #: Config sections whose changes only take effect at the next start.
-RESTART_SECTIONS = ("name", "zenoh", "topics", "motion", "control", "logging")
+RESTART_SECTIONS = ("name", "zenoh", "topics", "motion", "control", "logging", "ros")
 #: ``gimbal`` fields whose changes only take effect at the next start (the rest of ``gimbal`` is live).
 RESTART_GIMBAL_FIELDS = ("backend", "port", "baud", "limits", "watchdog_ms", "mavlink", "dynamixel")
 _NOT_SETTINGS = ("source",)
@@ -73,6 +73,7 @@ def plan_reload(running: Config, loaded: Config) -> ReloadPlan:
         "motion": running.motion,
         "control": running.control,
         "logging": running.logging,
+        "ros": running.ros,
         "gimbal": replace(loaded.gimbal, **{k: getattr(running.gimbal, k) for k in RESTART_GIMBAL_FIELDS}),
     }
     return ReloadPlan(

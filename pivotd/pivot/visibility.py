@@ -70,3 +70,14 @@ def hard_count(c: np.ndarray, bearings: np.ndarray, alpha: float) -> int:
     """Number of bearings whose angle to the axis c is ≤ α (the paper's hard visible count)."""
     bearings = np.asarray(bearings, dtype=float).reshape(-1, 3)
     return int(np.count_nonzero(bearings @ np.asarray(c, dtype=float) >= np.cos(alpha) - 1e-12))
+
+
+def in_cone(c: np.ndarray, bearings: np.ndarray, alpha: float, limit: int) -> np.ndarray:
+    """Indices of at most ``limit`` bearings (K, 3) inside the cone of axis c and half-angle α (the
+    :func:`hard_count` test), those nearest the axis first. Cost O(K) plus O(limit log limit)."""
+    bearings = np.asarray(bearings, dtype=float).reshape(-1, 3)
+    cos = bearings @ np.asarray(c, dtype=float)
+    inside = np.flatnonzero(cos >= np.cos(alpha) - 1e-12)
+    if inside.size > limit:
+        inside = inside[np.argpartition(-cos[inside], limit - 1)[:limit]] if limit > 0 else inside[:0]
+    return inside[np.argsort(-cos[inside], kind="stable")]

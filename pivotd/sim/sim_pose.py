@@ -19,7 +19,7 @@ import numpy as np
 import zenoh
 
 from pivotd.bus import messages as m
-from pivotd.bus.ros import QoS, RosNode
+from pivotd.bus.ros import DURABILITY_TRANSIENT_LOCAL, QoS, RosNode
 from pivotd.bus.session import open_session
 from pivotd.errors import InputError, PivotdError
 from pivotd.geometry import quat_to_matrix
@@ -62,7 +62,9 @@ class PosePublisher:
         self.child_frame_id = child_frame_id
         self.odom = self.node.publisher(odom_topic, m.ODOMETRY, QoS(depth=10)) if odom_topic else None
         self.pose = self.node.publisher(pose_topic, m.POSE_STAMPED, QoS(depth=10)) if pose_topic else None
-        self.path = self.node.publisher(path_topic, m.PATH, QoS(depth=1)) if path_topic else None
+        # latched like a planner's path: a pivotd that starts later gets it at once
+        self.path = self.node.publisher(path_topic, m.PATH, QoS(durability=DURABILITY_TRANSIENT_LOCAL, depth=1)) if (
+            path_topic) else None
 
     def publish_pose(self, stamp: float, position: np.ndarray, quat: np.ndarray, velocity_world: np.ndarray) -> None:
         """Publish the body pose (map frame) and, for Odometry, its velocity in the body frame."""
