@@ -7,12 +7,14 @@ import yaml
 from support import REPO
 
 from pivotd.bus.markers import NAMESPACES
+from pivotd.bus.topics import resolve_topic
 from pivotd.config import Config
 
 CFG = Config()
+MARKERS = resolve_topic(CFG.ros.markers_topic, CFG.topics.namespace)
 TOPICS = {CFG.topics.pose, CFG.topics.path, CFG.topics.landmarks, CFG.topics.targets, CFG.topics.joint_states,
-          CFG.topics.view_plan, CFG.ros.markers_topic, CFG.ros.tf_topic}
-PUBLISHED_QOS = {CFG.topics.view_plan: CFG.ros.qos.view_plan, CFG.ros.markers_topic: CFG.ros.qos.markers,
+          CFG.topics.view_plan, MARKERS, resolve_topic(CFG.ros.tf_topic, CFG.topics.namespace)}
+PUBLISHED_QOS = {CFG.topics.view_plan: CFG.ros.qos.view_plan, MARKERS: CFG.ros.qos.markers,
                  CFG.topics.joint_states: CFG.ros.qos.joint_states}
 
 
@@ -22,7 +24,7 @@ def test_rviz_config_matches_the_defaults():
     assert vm["Global Options"]["Fixed Frame"] == CFG.topics.frame_id
     displays = {d["Class"].split("/")[-1]: d for d in vm["Displays"] if "Topic" in d}
     shown = {d["Topic"]["Value"] for d in vm["Displays"] if "Topic" in d}
-    assert shown <= TOPICS and {CFG.ros.markers_topic, CFG.topics.view_plan} <= shown
+    assert shown <= TOPICS and {MARKERS, CFG.topics.view_plan} <= shown
     assert set(displays["MarkerArray"]["Namespaces"]) == set(NAMESPACES)
     for d in vm["Displays"]:
         topic = d.get("Topic")
@@ -41,7 +43,7 @@ def test_foxglove_layout_matches_the_defaults():
     panels = doc["configById"]
     three_d = next(v for k, v in panels.items() if k.startswith("3D!"))
     assert three_d["followTf"] == CFG.topics.frame_id
-    assert set(three_d["topics"]) <= TOPICS and CFG.ros.markers_topic in three_d["topics"]
+    assert set(three_d["topics"]) <= TOPICS and MARKERS in three_d["topics"]
     paths = [p["value"] for k, v in panels.items() if k.startswith("Plot!") for p in v["paths"]]
     paths += [v["topicPath"] for k, v in panels.items() if k.startswith("RawMessages!")]
     for path in paths:

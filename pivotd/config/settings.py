@@ -214,12 +214,12 @@ class RosConfig:
     (off by default: for robots without another source of it) and the QoS of every topic."""
 
     markers: bool = True
-    markers_topic: str = "/pivot/markers"
+    markers_topic: str = "pivot/markers"
     marker_range: float = 3.0
     marker_arrow_length: float = 1.0
     marker_landmarks: int = 200
     tf: bool = False
-    tf_topic: str = "/tf"
+    tf_topic: str = "tf"
     camera_frame: str = "pivot_camera"
     qos: TopicQoS = field(default_factory=TopicQoS)
 
