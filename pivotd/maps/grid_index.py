@@ -67,7 +67,8 @@ class GridIndex:
             return index, np.zeros(0, np.int64)
         lo, hi = column_bounds(points)
         cell = cell_for_extent(lo, hi, float(cell))
-        origin = lo - 0.5 * cell
+        # cells on a fixed lattice (multiples of the cell edge): the same landmarks share the same cells in any map
+        origin = np.floor(lo / cell) * cell
         dims = grid_dims(origin, hi, cell)
         keys = cell_keys(points, origin, cell, dims)
         order = np.argsort(keys)

@@ -18,6 +18,7 @@ from pivotd.geometry import optical_frame_from_direction
 from pivotd.pivot import _ascent, chain, polish
 from pivotd.pivot._checks import feature_weights, finite_array, half_angle, unit_vector
 from pivotd.pivot.constraints import PanTiltConstraint
+from pivotd.pivot.morton import morton_keys
 from pivotd.pivot.steps import limit_steps, step_angles
 from pivotd.pivot.view import optimize_view, schedule
 
@@ -188,36 +189,6 @@ def _weights(d: np.ndarray, valid: np.ndarray | None, fw: np.ndarray, dist_w: bo
     s *= fw
     s *= valid  # 0 where invalid
     return s.astype(np.float32, copy=False)
-
-
-def _spread_table() -> np.ndarray:
-    """(256,) uint64: the bits of each byte moved to every third bit (bit b to bit 3b)."""
-    v = np.arange(256, dtype=np.uint64)
-    out = np.zeros(256, np.uint64)
-    for b in range(8):
-        out |= ((v >> np.uint64(b)) & np.uint64(1)) << np.uint64(3 * b)
-    out.flags.writeable = False
-    return out
-
-
-_SPREAD = _spread_table()
-
-
-def morton_keys(P: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Z-order (Morton) keys (M,) uint64 of points P (M, 3) [m] in the box [lo, hi] (16 bits per axis).
-
-    Sorting landmarks by them lays them out along a space-filling curve: every strided subsample
-    (active-set thinning, the chain's scoring sample, the planner's cap) is then spread over space
-    evenly and depends on the landmarks only, not on their order in the map. Two table look-ups per
-    axis (bytes spread to every third bit).
-    """
-    lo = np.asarray(lo, float)
-    span = np.maximum(np.asarray(hi, float) - lo, 1e-12)
-    key = np.zeros(P.shape[0], np.uint64)
-    for k in range(3):
-        q = ((P[:, k] - lo[k]) * ((2**16 - 1) / span[k])).clip(0, 2**16 - 1).astype(np.uint32)
-        key |= (_SPREAD.take(q & 255) | (_SPREAD.take(q >> 8) << np.uint64(24))) << np.uint64(k)
-    return key
 
 
 def spatial_order(points: np.ndarray, retained: Sequence[np.ndarray]) -> list[np.ndarray]:
