@@ -26,7 +26,7 @@ from pivotd.maps.filters import RetainedFilter, view_direction_mask
 from pivotd.maps.formats import POINT_DTYPE, LandmarkCloud, load_landmarks
 from pivotd.maps.grid_index import GridIndex, column_bounds
 from pivotd.maps.occlusion import OccupancyGrid
-from pivotd.pivot.morton import interleave
+from pivotd.pivot.morton import interleave_bytes
 
 log = logging.getLogger(__name__)
 
@@ -298,13 +298,14 @@ class MapStore:
 
 def spatial_cell_order(points: np.ndarray, weights: np.ndarray, index: GridIndex, order: np.ndarray) -> np.ndarray:
     """The grid's cell order ``order`` (M,) of ``points`` (M, 3) [m] (from :meth:`GridIndex.build`) refined
-    within each cell by the Z-order (pivotd.pivot.morton) of each landmark's position inside its cell (10 bits
-    per axis); ties by coordinates, then weight (``weights`` (M,)).
+    within each cell by the Z-order (pivotd.pivot.morton) of each landmark's position inside its cell, 8 bits
+    per axis (cell / 256); ties by coordinates, then weight (``weights`` (M,)).
 
     The result depends on the landmarks only, not on their order in the file: every retained set read off
     the index (ascending rows) is then in an order fixed by the landmarks and spread over space, so the
-    strided subsamples of the planner and the optimizer need no per-call sort. Cost O(M log M), at load;
-    one gather of an (M,) key in cell order, the sort itself runs on nearly sorted keys.
+    strided subsamples of the planner and the optimizer need no per-call sort. Cost O(M log M), at load:
+    sequential passes over the points, one gather of an (M,) uint32 key in cell order, and a stable sort
+    of keys that are already sorted by cell.
     """
     m = order.shape[0]
     if m < 2:
@@ -313,28 +314,27 @@ def spatial_cell_order(points: np.ndarray, weights: np.ndarray, index: GridIndex
     key = np.zeros(m, np.uint64)
     key[starts[(starts > 0) & (starts < m)]] = 1
     np.cumsum(key, out=key)  # the cell's rank among the occupied cells, per sorted row
-    bits = min(10, (64 - int(key[-1]).bit_length()) // 3)  # in-cell resolution: cell / 2**bits per axis
-    scale = float(2**bits)
+    key <<= np.uint64(24)
+    inv = np.float32(1.0 / index.cell)
     q = []
     for k in range(3):  # position inside the cell (cells lie on a fixed lattice), quantised, in file order
-        u = points[:, k].astype(np.float64) * (1.0 / index.cell)
+        u = points[:, k] * inv
         u -= np.floor(u)
-        u *= scale
-        q.append(np.minimum(u, scale - 1).astype(np.uint32))
+        u *= np.float32(256.0)
+        q.append(np.minimum(u, np.float32(255.0)).astype(np.uint8))
     del u
-    fine = interleave(tuple(q))
+    fine = interleave_bytes(tuple(q))
     del q
-    key <<= np.uint64(3 * bits)
     key |= fine.take(order)
     del fine
     sub = np.argsort(key, kind="stable")  # already sorted by cell: a nearly sorted pass
-    ks = key.take(sub)
-    dup = np.flatnonzero(ks[1:] == ks[:-1])
+    key = key.take(sub)
+    dup = np.flatnonzero(key[1:] == key[:-1])
     if dup.size:  # (nearly) coincident landmarks: by coordinates, then weight, within their groups
         sel = np.union1d(dup, dup + 1)
         rows = order.take(sub[sel])
         p = points.take(rows, axis=0)
-        sub[sel] = sub[sel][np.lexsort((weights.take(rows), p[:, 2], p[:, 1], p[:, 0], ks[sel]))]
+        sub[sel] = sub[sel][np.lexsort((weights.take(rows), p[:, 2], p[:, 1], p[:, 0], key[sel]))]
     return order.take(sub)
 
 

@@ -32,6 +32,17 @@ def interleave(q: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
     return key
 
 
+def interleave_bytes(q: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    """Morton keys (M,) uint32 (24 bits) of three uint8 arrays (M,): bit b of q[k] goes to bit 3b + k."""
+    spread = _SPREAD.astype(np.uint32)
+    key = spread.take(q[0])
+    for k in (1, 2):
+        part = spread.take(q[k])
+        part <<= np.uint32(k)
+        key |= part
+    return key
+
+
 def morton_keys(P: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Morton keys (M,) uint64 of points P (M, 3) [m] in the box [lo, hi] (16 bits per axis)."""
     lo = np.asarray(lo, float)
