@@ -432,8 +432,8 @@ def optimize_trajectory(
     chain initialisation; ``anchor`` (3,): a fixed direction just before waypoint 0 (adds λ anchor·c_0);
     ``constraint``: pan/tilt limits enforced at every step; ``max_step`` [rad]: a hard limit on the
     angle between consecutive directions (and from the anchor), guaranteed (pivotd.pivot.steps).
-    λ = 0 without ``constraint`` and ``max_step`` solves each waypoint with
-    :func:`pivotd.pivot.view.optimize_view`. Landmarks coinciding with a waypoint are ignored there.
+    λ = 0 (or a single waypoint without ``anchor``) without ``constraint`` and ``max_step`` solves each
+    waypoint with :func:`pivotd.pivot.view.optimize_view`. Landmarks coinciding with a waypoint are ignored there.
     Raises ValueError on NaN/inf or bad shapes.
     """
     opts = options or TrajectoryOptions()
@@ -472,7 +472,8 @@ def optimize_trajectory(
         C0 = C0 / n0[:, None]
     else:
         C0 = path_directions(T)
-    if lam == 0.0 and constraint is None and max_step is None:
+    # λ = 0, or a single waypoint without an anchor (no pair for the smoothness term): independent poses
+    if (lam == 0.0 or (N == 1 and a_vec is None)) and constraint is None and max_step is None:
         views = (lambda i: (P, fw)) if pairs is None else pairs.waypoint
         return _independent_views(views, T, alpha, C0 if warm else None, opts.distance_weights)
     R0 = optical_frame_from_direction(C0)
