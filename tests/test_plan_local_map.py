@@ -190,3 +190,23 @@ def test_plan_max_step_is_validated_and_respected(tmp_path):
     assert code == 0, stderr
     summary = json.loads(stdout)
     assert summary["max_step_deg"] <= 3.5 and summary["max_step_limit_deg"] == 3.5
+
+
+def test_float32_map_far_from_the_origin_counts_exactly():
+    # float32 offsets against the float32-rounded waypoint, corrected by its residual: no cancellation
+    # 50 km from the origin, and the reported counts are exact float64 counts of the returned directions
+    near, way = _near_scene(2)
+    shift = np.array([50_000.0, -30_000.0, 120.0])
+    pts = (near + shift).astype(np.float32)
+    way = way + shift + 0.123456789  # not representable in float32
+    alpha = math.radians(20)
+    ret = _retained(pts.astype(float), way, 12.0)
+    plan = optimize_trajectory(pts, way, alpha, 0.6, retained=ret, options=PLAN)
+    exact = pts.astype(float)
+    for i, r in enumerate(ret):
+        b = normalize(exact[r] - way[i])
+        assert plan.visible[i] == int(np.count_nonzero(b @ plan.directions[i] >= math.cos(alpha)))
+    near32 = near.astype(np.float32)
+    here = optimize_trajectory(near32, way - shift, alpha, 0.6, retained=_retained(near32.astype(float), way - shift, 12.0),
+                               options=PLAN)
+    assert abs(int(plan.visible.sum()) - int(here.visible.sum())) <= 0.01 * here.visible.sum()

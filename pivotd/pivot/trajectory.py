@@ -135,8 +135,9 @@ def _dense_geometry(points: np.ndarray, waypoints: np.ndarray, fw: np.ndarray, d
 def _ragged_geometry(pairs: _Pairs, waypoints: np.ndarray, dist_w: bool):
     """Geometry of the retained pairs (padded per waypoint); returns (geometry, W_i totals).
 
-    Each pair's offset is computed in float64 (exact, no cancellation however far the scene is from the
-    origin) and stored as a float32 unit bearing: later passes are plain dot products.
+    Each pair's offset is formed without cancellation however far the scene is from the origin (in float64
+    for a float64 map; for a float32 map in float32 against the float32-rounded waypoint, then corrected by
+    the rounding residual) and stored as a float32 unit bearing: later passes are plain dot products.
     """
     P, lens = pairs.points, pairs.lengths
     N, L = P.shape[0], P.shape[1]
@@ -144,8 +145,15 @@ def _ragged_geometry(pairs: _Pairs, waypoints: np.ndarray, dist_w: bool):
     # one float32 plane per coordinate (3, N, L): element-wise work then runs along L instead of over a
     # trailing axis of length 3 (several times faster)
     D = np.empty((3, N, L), np.float32)
-    for k in range(3):
-        np.subtract(P[:, :, k], waypoints[:, k, None], out=D[k], casting="same_kind")
+    if P.dtype == np.float32:  # landmark − float32(waypoint) − the waypoint's rounding residual: two correctly
+        T32 = waypoints.astype(np.float32)  # rounded float32 operations on exact inputs, no float64 pass
+        rest = (waypoints - T32).astype(np.float32)
+        for k in range(3):
+            np.subtract(P[:, :, k], T32[:, k, None], out=D[k])
+            D[k] -= rest[:, k, None]
+    else:
+        for k in range(3):
+            np.subtract(P[:, :, k], waypoints[:, k, None], out=D[k], casting="same_kind")
     d = np.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
     scale = float(max(d.max(initial=0.0), np.abs(waypoints).max(), 1.0))
     valid = pad & (d > np.float32(1e-9 * scale))  # a landmark at the sensor has no bearing: weight 0, never counts
