@@ -207,6 +207,6 @@ def test_float32_map_far_from_the_origin_counts_exactly():
         b = normalize(exact[r] - way[i])
         assert plan.visible[i] == int(np.count_nonzero(b @ plan.directions[i] >= math.cos(alpha)))
     near32 = near.astype(np.float32)
-    here = optimize_trajectory(near32, way - shift, alpha, 0.6, retained=_retained(near32.astype(float), way - shift, 12.0),
-                               options=PLAN)
+    ret_here = _retained(near32.astype(float), way - shift, 12.0)
+    here = optimize_trajectory(near32, way - shift, alpha, 0.6, retained=ret_here, options=PLAN)
     assert abs(int(plan.visible.sum()) - int(here.visible.sum())) <= 0.01 * here.visible.sum()
