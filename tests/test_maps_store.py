@@ -172,3 +172,38 @@ def test_non_finite_waypoints_are_rejected():
     store.set_layer("base", _cloud([[1, 0, 0]]))
     with pytest.raises(InputError, match="waypoint 1 is not finite"):
         store.snapshot().retained(np.array([[0, 0, 0], [np.nan, 0, 0]]), RetainedFilter(max_range=2))
+
+
+def test_snapshot_order_is_fixed_by_the_landmarks_not_the_file():
+    rng = np.random.default_rng(4)
+    pts = rng.normal(0, 1.5, (5000, 3)).astype(np.float32)
+    pts[:40] = pts[40:80]  # coincident landmarks, told apart by weight
+    w = rng.uniform(0.5, 2, 5000).astype(np.float32)
+    snaps = []
+    for perm in (np.arange(5000), rng.permutation(5000), rng.permutation(5000)):
+        store = MapStore()
+        store.set_layer("base", LandmarkCloud(pts[perm], w[perm]))
+        snaps.append(store.snapshot())
+    for s in snaps[1:]:
+        np.testing.assert_array_equal(s.points, snaps[0].points)
+        np.testing.assert_array_equal(s.weights, snaps[0].weights)
+    # far landmarks elsewhere in the map leave the near ones' order (hence every retained set) unchanged
+    far = rng.uniform(300, 900, (20000, 3)).astype(np.float32)
+    store = MapStore()
+    store.set_layer("base", LandmarkCloud(np.concatenate([far, pts]), np.concatenate([np.ones(20000, np.float32), w])))
+    big = store.snapshot()
+    flt = RetainedFilter(max_range=6.0)
+    way = np.array([[0.0, 0, 0], [2.0, 1, 0]])
+    for a, b in zip(snaps[0].retained(way, flt), big.retained(way, flt), strict=True):
+        np.testing.assert_array_equal(big.points[b], snaps[0].points[a])
+    # rows run cell by cell (the index's layout, cells on the fixed 1 m lattice) and, inside a cell, along the
+    # Z-order curve of the position in the cell: the first quarter of a crowded cell's rows lies in one half
+    # of the cell along z, the axis of the curve's top bit
+    cells = np.floor(snaps[0].points.astype(float)).astype(np.int64)
+    change = np.flatnonzero(np.any(cells[1:] != cells[:-1], axis=1)) + 1
+    assert np.unique(cells, axis=0).shape[0] == change.size + 1  # every cell is one contiguous run
+    crowded = [r for r in np.split(np.arange(5000), change) if len(r) >= 40]
+    assert crowded
+    for run in crowded:
+        z = snaps[0].points[run, 2].astype(float) - cells[run, 2]
+        assert np.all(np.diff((z >= 0.5).astype(int)) >= 0)  # lower half first, then upper half

@@ -125,6 +125,18 @@ def test_smooth_plan_is_pareto_efficient_on_competing_clusters():
     assert ratio >= 0.995
 
 
+def test_competing_clusters_step_bound_is_what_the_exact_optimum_needs():
+    # the smooth plan's largest step (≈ 10°, bounded by 11° in test_pivot_trajectory) is not slack: every grid
+    # plan whose steps stay 20 % below it sees fewer landmarks than the plan (exact step-limited grid optimum)
+    sc = competing_clusters_path()
+    alpha = math.radians(30)
+    plan = optimize_trajectory(sc.points, sc.path, alpha, 0.6, options=PLAN)
+    S = float(np.degrees(step_angles(plan.directions)).max())
+    assert S < 11.0
+    _, tighter = brute_force_trajectory(sc.points, sc.path, alpha, 0.8 * S)
+    assert plan.visible.sum() > tighter.sum()
+
+
 def test_polish_keeps_the_largest_step():
     sc = competing_clusters_path()
     alpha = math.radians(30)

@@ -198,3 +198,21 @@ def test_ragged_bearings_match_float64_including_close_pairs():
         assert np.abs(geom.points[i, : r.size] - ref).max() < 2e-6
         assert not geom.valid[i, r.size :].any()
         assert norm[i] == r.size
+
+
+def test_single_waypoint_without_anchor_has_single_pose_quality():
+    # one waypoint, no anchor: the smoothness term has no pair, so λ changes nothing and the answer is the
+    # single-pose optimum (optimize_view), not a trajectory ascent on a subsample
+    from pivotd.pivot.scenes import hard_scene
+    from pivotd.pivot.view import optimize_view
+
+    sc = hard_scene("clusters", 1, poses=6, scale=0.3)
+    alpha = np.radians(15)
+    for t in sc.path:
+        ref = optimize_view(normalize(sc.points - t), None, alpha)
+        plan = optimize_trajectory(sc.points, t[None], alpha, 0.6, options=TrajectoryOptions(distance_weights=False))
+        # the same solver; only its strided candidate sample sees the landmarks in spatial order
+        assert abs(int(plan.visible[0]) - ref.visible) <= 0.005 * ref.visible + 1
+        anchored = optimize_trajectory(sc.points, t[None], alpha, 0.6, anchor=ref.direction,
+                                       options=TrajectoryOptions(distance_weights=False))
+        assert anchored.visible[0] >= 0.9 * ref.visible  # with an anchor the smoothness term applies

@@ -7,7 +7,10 @@ replan is warm-started from the previous plan and anchored to its first directio
 the daemon. Reported: per-replan medians and p99 of the whole replan (map query + optimisation;
 wall-clock, and CPU time of this process) and of its parts, and the cold start. ``--far N`` adds N
 landmarks out of range (a building-scale map around the hallway) to a second map and replans on both,
-interleaved, so the ratio of the two is measured side by side.
+interleaved, so the ratio of the two is measured side by side. ``--compare-with PKG`` replans the same
+hallway, interleaved in this process, with the planner and map store of PKG: an importable copy of
+another pivotd version (its package renamed, e.g. ``pivotd_base``; docs/PERFORMANCE.md shows how), so
+an older commit's replan is timed side by side with this one.
 """
 
 from __future__ import annotations
@@ -43,6 +46,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--far", type=int, default=0, metavar="N",
                         help="also replan on a map with N more landmarks out of range, interleaved, and report "
                              "the ratio")
+    parser.add_argument("--compare-with", metavar="PKG",
+                        help="also replan, interleaved, with the planner of PKG (a renamed copy of another pivotd "
+                             "version on PYTHONPATH) and report CPU-time ratios")
     parser.add_argument("--json", type=Path)
 
 
@@ -57,6 +63,43 @@ def far_landmarks(n: int, path: np.ndarray, clearance: float, seed: int = 0) -> 
         inside = np.all((p[:, :2] >= lo[:2]) & (p[:, :2] <= hi[:2]), axis=1)
         out = np.concatenate([out, p[~inside]])
     return out[:n]
+
+
+def _module(pkg: str, *names: str):
+    """The first of ``pkg.name`` for ``names`` that imports (module layouts differ between versions)."""
+    import importlib
+
+    for name in names:
+        try:
+            return importlib.import_module(f"{pkg}.{name}")
+        except ModuleNotFoundError:
+            continue
+    from pivotd.errors import InputError
+
+    raise InputError(f"--compare-with {pkg}: none of {', '.join(names)} found in {pkg}")
+
+
+def _other_planner(pkg: str, points: np.ndarray, path: np.ndarray, settings, limits):
+    """(planner, snapshot) of another pivotd version ``pkg`` for the same map, path and settings."""
+    from dataclasses import asdict
+
+    planner_m = _module(pkg, "daemon.planner", "planner")
+    kin = _module(pkg, "gimbal.kinematics")
+    filters = _module(pkg, "maps.filters")
+    formats = _module(pkg, "maps.formats")
+    store_m = _module(pkg, "maps.store")
+    store = store_m.MapStore()
+    store.set_layer("base", formats.LandmarkCloud(points=points, weights=np.ones(points.shape[0], np.float32)))
+    flt = settings.retained_filter
+    other = planner_m.PlannerSettings(
+        fov=settings.fov, lam=settings.lam, spacing=settings.spacing, horizon=settings.horizon,
+        max_landmarks_per_waypoint=settings.max_landmarks_per_waypoint,
+        retained_filter=filters.RetainedFilter(min_range=flt.min_range, max_range=flt.max_range),
+    )
+    lim = kin.JointLimits(**asdict(limits))
+    planner = planner_m.RecedingHorizonPlanner(other, kin.Mount(), lim)
+    planner.set_path(path, None, 1)
+    return planner, store.snapshot()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -91,6 +134,11 @@ def run(args: argparse.Namespace) -> int:
         big.set_layer("base", LandmarkCloud(points=pts, weights=np.ones(pts.shape[0], np.float32)))
         far = (RecedingHorizonPlanner(settings, Mount(), limits), big.snapshot(), [])
         far[0].set_path(sc.path, None, 1)
+    other = None
+    if args.compare_with:
+        other_planner, other_snap = _other_planner(args.compare_with, sc.points.astype(np.float32), sc.path,
+                                                   settings, limits)
+        other = {"planner": other_planner, "snap": other_snap, "cpu": [], "wall": [], "visible": []}
     replans = 100 if args.quick else args.replans
     horizon_len = 0.5 * (args.horizon - 1)
     s_max = max(track.length - horizon_len, 0.0)
@@ -103,8 +151,11 @@ def run(args: argparse.Namespace) -> int:
     anchor = plan.directions[0]
     if far:
         far_anchor = far[0].replan(far[1], pos[0], quat[0], None).directions[0]
+    if other:
+        other["anchor"] = other["planner"].replan(other["snap"], pos[0], quat[0], None).directions[0]
     prev, prev_anchor = plan, anchor
     total, cpu, query, retained_counts, union_counts, quality = [], [], [], [], [], []
+    visible_sums = []
     full = RecedingHorizonPlanner(replace(settings, max_landmarks_per_waypoint=None), Mount(), limits)
     for k in with_progress(range(1, replans + 1), "replans"):
         s = (k * args.step) % max(s_max, 1e-9)
@@ -112,7 +163,12 @@ def run(args: argparse.Namespace) -> int:
             planner.set_path(sc.path, None, k + 1)
             if far:
                 far[0].set_path(sc.path, None, k + 1)
+            if other:
+                other["planner"].set_path(sc.path, None, k + 1)
         pos, quat = track.sample(np.array([s]))
+        qk = quat[0] if quat is not None else q
+        if other and k % 2:  # the other version first on odd replans, after this one on even ones
+            _replan_other(other, pos[0], qk)
         if far:  # the same replan on the map with the far landmarks, interleaved
             t1 = time.perf_counter()
             far_plan = far[0].replan(far[1], pos[0], quat[0] if quat is not None else q, far_anchor)
@@ -123,6 +179,9 @@ def run(args: argparse.Namespace) -> int:
         total.append(time.perf_counter() - t1)
         cpu.append(time.process_time() - c1)
         anchor = plan.directions[0]
+        visible_sums.append(int(np.sum(plan.visible)))
+        if other and not k % 2:
+            _replan_other(other, pos[0], qk)
         tq = time.perf_counter()
         ret = snap.retained(plan.positions, flt)
         query.append(time.perf_counter() - tq)
@@ -162,6 +221,16 @@ def run(args: argparse.Namespace) -> int:
         result["far_replan_ms_p99"] = ms(far[2], 99)
         result["far_p50_ratio"] = round(result["far_replan_ms_p50"] / result["replan_ms_p50"], 3)
         result["far_p99_ratio"] = round(result["far_replan_ms_p99"] / result["replan_ms_p99"], 3)
+    if other:
+        ours_vis = float(np.mean(visible_sums))
+        result["compare_with"] = args.compare_with
+        result["other_replan_cpu_ms_p50"] = ms(other["cpu"], 50)
+        result["other_replan_cpu_ms_p99"] = ms(other["cpu"], 99)
+        result["other_replan_ms_p50"] = ms(other["wall"], 50)
+        result["other_replan_ms_p99"] = ms(other["wall"], 99)
+        result["cpu_p50_ratio_vs_other"] = round(result["replan_cpu_ms_p50"] / result["other_replan_cpu_ms_p50"], 3)
+        result["cpu_p99_ratio_vs_other"] = round(result["replan_cpu_ms_p99"] / result["other_replan_cpu_ms_p99"], 3)
+        result["visible_vs_other"] = round(ours_vis / max(float(np.mean(other["visible"])), 1e-9), 4)
     print(f"receding horizon: {args.landmarks} landmarks, {args.horizon} waypoints, {replans} warm-started replans")
     print(f"  retained per waypoint (mean)     {result['retained_per_waypoint_mean']:.0f}  "
           f"(distinct over the horizon {result['retained_union_mean']:.0f})")
@@ -179,6 +248,21 @@ def run(args: argparse.Namespace) -> int:
         print(f"  with {args.far} landmarks out of range  {result['far_replan_ms_p50']} / "
               f"{result['far_replan_ms_p99']} ms (p50 / p99; ratio {result['far_p50_ratio']:.2f} / "
               f"{result['far_p99_ratio']:.2f}, goal p99 ratio <= 1.2)")
+    if other:
+        print(f"  {args.compare_with}, interleaved        CPU {result['other_replan_cpu_ms_p50']} / "
+              f"{result['other_replan_cpu_ms_p99']} ms (p50 / p99); this version / it: "
+              f"{result['cpu_p50_ratio_vs_other']:.2f} / {result['cpu_p99_ratio_vs_other']:.2f}; "
+              f"planned visible {result['visible_vs_other']:.2%} of its")
     if args.json:
         args.json.write_text(json.dumps(result, indent=2))
     return 0
+
+
+def _replan_other(other: dict, position: np.ndarray, quat: np.ndarray) -> None:
+    """One timed replan of the other version (--compare-with), warm-started from its previous plan."""
+    c, t = time.process_time(), time.perf_counter()
+    plan = other["planner"].replan(other["snap"], position, quat, other["anchor"])
+    other["wall"].append(time.perf_counter() - t)
+    other["cpu"].append(time.process_time() - c)
+    other["anchor"] = plan.directions[0]
+    other["visible"].append(int(np.sum(plan.visible)))

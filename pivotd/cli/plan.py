@@ -122,13 +122,12 @@ def _uses_map_filters(args: argparse.Namespace) -> bool:
 def load_filtered(args: argparse.Namespace, waypoints: np.ndarray):
     """Landmarks and per-waypoint retained index arrays from the map store (range, view, occlusion filters).
 
-    Returns (points (M, 3), weights (M,), retained list of N index arrays in a spatial order
-    (pivotd.pivot.trajectory.spatial_order), seconds spent in the retained-set query); points are in the
+    Returns (points (M, 3), weights (M,), retained list of N index arrays in the store's spatial order
+    (pivotd.maps.store.spatial_cell_order), seconds spent in the retained-set query); points are in the
     store's order.
     """
     from pivotd.maps.filters import RetainedFilter
     from pivotd.maps.store import load_map_store
-    from pivotd.pivot.trajectory import spatial_order
 
     store = load_map_store(args.map, weight_property=args.weight_property, occlusion_voxel=args.occlusion_voxel,
                            occupancy_file=args.occupancy)
@@ -140,8 +139,8 @@ def load_filtered(args: argparse.Namespace, waypoints: np.ndarray):
                          max_range=math.inf if args.max_range is None else args.max_range,
                          max_view_angle_deg=args.max_view_angle_deg, occlusion=args.occlusion_voxel is not None)
     t0 = time.perf_counter()
-    # in a spatial order: the plan then does not depend on the order of the landmarks in the map
-    retained = spatial_order(snap.points, snap.retained(waypoints, flt))
+    # the store's rows are in a spatial order fixed by the landmarks: the plan does not depend on their file order
+    retained = snap.retained(waypoints, flt)
     return snap.points, snap.weights, retained, time.perf_counter() - t0
 
 

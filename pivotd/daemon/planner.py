@@ -26,7 +26,7 @@ from pivotd.gimbal.kinematics import JointLimits, Mount, base_from_world
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapSnapshot
 from pivotd.pivot.constraints import PanTiltConstraint
-from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory, spatial_order
+from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
 from pivotd.pivot.visibility import in_cone
 from pivotd.robot_path import Polyline, project_onto_polyline
 
@@ -189,10 +189,9 @@ class RecedingHorizonPlanner:
             self._cache_key, self._cache = key, {}
         cached = {i: self._cache.get(round(float(s[i]) * 1e6)) for i in range(1, s.shape[0])}
         todo = [0] + [i for i, r in cached.items() if r is None]
-        # spatially ordered before the cap's strided subsample (and the optimizer's): the plan does not depend
-        # on the order of the landmarks in the map; only the waypoints new to the window pay for it
-        fresh = _cap_retained(spatial_order(snapshot.points, snapshot.retained(cams[todo], st.retained_filter)),
-                              st.max_landmarks_per_waypoint)
+        # the snapshot's rows are in a spatial order fixed by the landmarks (pivotd.maps.store.spatial_cell_order),
+        # so the cap's strided subsample (and the optimizer's) do not depend on the map's landmark order
+        fresh = _cap_retained(snapshot.retained(cams[todo], st.retained_filter), st.max_landmarks_per_waypoint)
         out: list[np.ndarray] = [np.zeros(0, np.int64)] * s.shape[0]
         for i, r in zip(todo, fresh, strict=True):
             out[i] = r

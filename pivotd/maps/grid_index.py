@@ -67,7 +67,7 @@ class GridIndex:
             return index, np.zeros(0, np.int64)
         lo, hi = column_bounds(points)
         cell = cell_for_extent(lo, hi, float(cell))
-        origin = lo - 0.5 * cell
+        origin = lattice_origin(lo, cell)
         dims = grid_dims(origin, hi, cell)
         keys = cell_keys(points, origin, cell, dims)
         order = np.argsort(keys)
@@ -238,10 +238,16 @@ def _dims(origin: np.ndarray, hi: np.ndarray, cell: float) -> list[int]:
     return [math.floor((float(h) - float(o)) / cell) + 2 for o, h in zip(origin, hi, strict=True)]
 
 
+def lattice_origin(lo: np.ndarray, cell: float) -> np.ndarray:
+    """Grid corner (3,) [m] at or below ``lo`` (3,) on the fixed lattice of multiples of ``cell``: the same
+    landmarks fall into the same cells in any map that contains them."""
+    return np.floor(np.asarray(lo, float) / cell) * cell
+
+
 def cell_for_extent(lo: np.ndarray, hi: np.ndarray, cell: float, max_cells: int = MAX_CELLS) -> float:
     """``cell`` [m], doubled until a grid over [lo, hi] (3,) has at most ``max_cells`` cells (Python ints:
     no overflow however far apart the points are)."""
-    while math.prod(_dims(lo - 0.5 * cell, hi, cell)) > max_cells:
+    while math.prod(_dims(lattice_origin(lo, cell), hi, cell)) > max_cells:
         cell *= 2.0
     return cell
 

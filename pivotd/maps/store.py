@@ -26,6 +26,7 @@ from pivotd.maps.filters import RetainedFilter, view_direction_mask
 from pivotd.maps.formats import POINT_DTYPE, LandmarkCloud, load_landmarks
 from pivotd.maps.grid_index import GridIndex, column_bounds
 from pivotd.maps.occlusion import OccupancyGrid
+from pivotd.pivot.morton import interleave_bytes
 
 log = logging.getLogger(__name__)
 
@@ -241,6 +242,7 @@ class MapStore:
             raise InputError(f"map layer: inconsistent cloud shapes {points.shape}, {weights.shape}, "
                              f"{None if directions is None else directions.shape}")
         index, order = GridIndex.build(points, self._index_cell)
+        order = spatial_cell_order(points, weights, index, order)
         sorted_cloud = LandmarkCloud(
             points=np.take(points, order, axis=0),
             weights=np.take(weights, order),
@@ -292,6 +294,48 @@ class MapStore:
         self._snapshot = snap  # the single reference swap readers observe
         log.debug("map version %d: %d landmarks in %d layers", version, len(snap), len(infos))
         return version
+
+
+def spatial_cell_order(points: np.ndarray, weights: np.ndarray, index: GridIndex, order: np.ndarray) -> np.ndarray:
+    """The grid's cell order ``order`` (M,) of ``points`` (M, 3) [m] (from :meth:`GridIndex.build`) refined
+    within each cell by the Z-order (pivotd.pivot.morton) of each landmark's position inside its cell, 8 bits
+    per axis (cell / 256); ties by coordinates, then weight (``weights`` (M,)).
+
+    The result depends on the landmarks only, not on their order in the file: every retained set read off
+    the index (ascending rows) is then in an order fixed by the landmarks and spread over space, so the
+    strided subsamples of the planner and the optimizer need no per-call sort. Cost O(M log M), at load:
+    sequential passes over the points, one gather of an (M,) uint32 key in cell order, and a stable sort
+    of keys that are already sorted by cell.
+    """
+    m = order.shape[0]
+    if m < 2:
+        return order
+    starts = index.starts  # first row of every cell in cell order (repeated for empty cells), then m
+    key = np.zeros(m, np.uint64)
+    key[starts[(starts > 0) & (starts < m)]] = 1
+    np.cumsum(key, out=key)  # the cell's rank among the occupied cells, per sorted row
+    key <<= np.uint64(24)
+    inv = np.float32(1.0 / index.cell)
+    q = []
+    for k in range(3):  # position inside the cell (cells lie on a fixed lattice), quantised, in file order
+        u = points[:, k] * inv
+        u -= np.floor(u)
+        u *= np.float32(256.0)
+        q.append(np.minimum(u, np.float32(255.0)).astype(np.uint8))
+    del u
+    fine = interleave_bytes(tuple(q))
+    del q
+    key |= fine.take(order)
+    del fine
+    sub = np.argsort(key, kind="stable")  # already sorted by cell: a nearly sorted pass
+    key = key.take(sub)
+    dup = np.flatnonzero(key[1:] == key[:-1])
+    if dup.size:  # (nearly) coincident landmarks: by coordinates, then weight, within their groups
+        sel = np.union1d(dup, dup + 1)
+        rows = order.take(sub[sel])
+        p = points.take(rows, axis=0)
+        sub[sel] = sub[sel][np.lexsort((weights.take(rows), p[:, 2], p[:, 1], p[:, 0], key[sel]))]
+    return order.take(sub)
 
 
 def _concat_clouds(clouds: list[LandmarkCloud]) -> LandmarkCloud:

@@ -18,6 +18,7 @@ from pivotd.geometry import optical_frame_from_direction
 from pivotd.pivot import _ascent, chain, polish
 from pivotd.pivot._checks import feature_weights, finite_array, half_angle, unit_vector
 from pivotd.pivot.constraints import PanTiltConstraint
+from pivotd.pivot.morton import morton_keys
 from pivotd.pivot.steps import limit_steps, step_angles
 from pivotd.pivot.view import optimize_view, schedule
 
@@ -134,8 +135,9 @@ def _dense_geometry(points: np.ndarray, waypoints: np.ndarray, fw: np.ndarray, d
 def _ragged_geometry(pairs: _Pairs, waypoints: np.ndarray, dist_w: bool):
     """Geometry of the retained pairs (padded per waypoint); returns (geometry, W_i totals).
 
-    Each pair's offset is computed in float64 (exact, no cancellation however far the scene is from the
-    origin) and stored as a float32 unit bearing: later passes are plain dot products.
+    Each pair's offset is formed without cancellation however far the scene is from the origin (in float64
+    for a float64 map; for a float32 map in float32 against the float32-rounded waypoint, then corrected by
+    the rounding residual) and stored as a float32 unit bearing: later passes are plain dot products.
     """
     P, lens = pairs.points, pairs.lengths
     N, L = P.shape[0], P.shape[1]
@@ -143,8 +145,15 @@ def _ragged_geometry(pairs: _Pairs, waypoints: np.ndarray, dist_w: bool):
     # one float32 plane per coordinate (3, N, L): element-wise work then runs along L instead of over a
     # trailing axis of length 3 (several times faster)
     D = np.empty((3, N, L), np.float32)
-    for k in range(3):
-        np.subtract(P[:, :, k], waypoints[:, k, None], out=D[k], casting="same_kind")
+    if P.dtype == np.float32:  # landmark − float32(waypoint) − the waypoint's rounding residual: two correctly
+        T32 = waypoints.astype(np.float32)  # rounded float32 operations on exact inputs, no float64 pass
+        rest = (waypoints - T32).astype(np.float32)
+        for k in range(3):
+            np.subtract(P[:, :, k], T32[:, k, None], out=D[k])
+            D[k] -= rest[:, k, None]
+    else:
+        for k in range(3):
+            np.subtract(P[:, :, k], waypoints[:, k, None], out=D[k], casting="same_kind")
     d = np.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
     scale = float(max(d.max(initial=0.0), np.abs(waypoints).max(), 1.0))
     valid = pad & (d > np.float32(1e-9 * scale))  # a landmark at the sensor has no bearing: weight 0, never counts
@@ -188,36 +197,6 @@ def _weights(d: np.ndarray, valid: np.ndarray | None, fw: np.ndarray, dist_w: bo
     s *= fw
     s *= valid  # 0 where invalid
     return s.astype(np.float32, copy=False)
-
-
-def _spread_table() -> np.ndarray:
-    """(256,) uint64: the bits of each byte moved to every third bit (bit b to bit 3b)."""
-    v = np.arange(256, dtype=np.uint64)
-    out = np.zeros(256, np.uint64)
-    for b in range(8):
-        out |= ((v >> np.uint64(b)) & np.uint64(1)) << np.uint64(3 * b)
-    out.flags.writeable = False
-    return out
-
-
-_SPREAD = _spread_table()
-
-
-def morton_keys(P: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Z-order (Morton) keys (M,) uint64 of points P (M, 3) [m] in the box [lo, hi] (16 bits per axis).
-
-    Sorting landmarks by them lays them out along a space-filling curve: every strided subsample
-    (active-set thinning, the chain's scoring sample, the planner's cap) is then spread over space
-    evenly and depends on the landmarks only, not on their order in the map. Two table look-ups per
-    axis (bytes spread to every third bit).
-    """
-    lo = np.asarray(lo, float)
-    span = np.maximum(np.asarray(hi, float) - lo, 1e-12)
-    key = np.zeros(P.shape[0], np.uint64)
-    for k in range(3):
-        q = ((P[:, k] - lo[k]) * ((2**16 - 1) / span[k])).clip(0, 2**16 - 1).astype(np.uint32)
-        key |= (_SPREAD.take(q & 255) | (_SPREAD.take(q >> 8) << np.uint64(24))) << np.uint64(k)
-    return key
 
 
 def spatial_order(points: np.ndarray, retained: Sequence[np.ndarray]) -> list[np.ndarray]:
@@ -461,8 +440,8 @@ def optimize_trajectory(
     chain initialisation; ``anchor`` (3,): a fixed direction just before waypoint 0 (adds λ anchor·c_0);
     ``constraint``: pan/tilt limits enforced at every step; ``max_step`` [rad]: a hard limit on the
     angle between consecutive directions (and from the anchor), guaranteed (pivotd.pivot.steps).
-    λ = 0 without ``constraint`` and ``max_step`` solves each waypoint with
-    :func:`pivotd.pivot.view.optimize_view`. Landmarks coinciding with a waypoint are ignored there.
+    λ = 0 (or a single waypoint without ``anchor``) without ``constraint`` and ``max_step`` solves each
+    waypoint with :func:`pivotd.pivot.view.optimize_view`. Landmarks coinciding with a waypoint are ignored there.
     Raises ValueError on NaN/inf or bad shapes.
     """
     opts = options or TrajectoryOptions()
@@ -501,7 +480,8 @@ def optimize_trajectory(
         C0 = C0 / n0[:, None]
     else:
         C0 = path_directions(T)
-    if lam == 0.0 and constraint is None and max_step is None:
+    # λ = 0, or a single waypoint without an anchor (no pair for the smoothness term): independent poses
+    if (lam == 0.0 or (N == 1 and a_vec is None)) and constraint is None and max_step is None:
         views = (lambda i: (P, fw)) if pairs is None else pairs.waypoint
         return _independent_views(views, T, alpha, C0 if warm else None, opts.distance_weights)
     R0 = optical_frame_from_direction(C0)
