@@ -40,7 +40,8 @@ class BenchSettings:
 
 @dataclass
 class SceneResult:
-    """Per policy: RunMetrics per seed; frames of the first seed for plotting (route, centres, success)."""
+    """Per policy: RunMetrics per seed; frames of the first seed for plotting (route, centres, success,
+    errors, landmarks in view)."""
 
     scene: str
     runs: dict[str, list[RunMetrics]] = field(default_factory=dict)
@@ -49,6 +50,8 @@ class SceneResult:
     centres: np.ndarray | None = None
     frame_ok: dict[str, np.ndarray] = field(default_factory=dict)
     errors: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    in_view: dict[str, np.ndarray] = field(default_factory=dict)
+    times: np.ndarray | None = None
 
 
 def truncate_scene(scene: LocScene, max_duration: float | None) -> LocScene:
@@ -86,6 +89,8 @@ def run_scene(st: BenchSettings, scene_name: str) -> SceneResult:
                 m, d = THRESHOLDS[PRIMARY]
                 out.frame_ok[p.value] = (err.translation <= m) & (err.rotation <= d)
                 out.errors[p.value] = (err.translation, err.rotation)
+                out.in_view[p.value] = err.in_view
+                out.times = traj.times
                 out.centres = traj.centres
         if n == 0:
             out.route = world.scene.route
