@@ -132,3 +132,20 @@ def test_pose_latency_is_measured_on_the_injected_clock(rig):
     clock.t += 0.004  # the pose arrived 4 ms before this tick
     loop.tick(clock.t, pose_at(rx), plan_towards([1.0, 0.0, 0.0], clock.t))
     assert list(loop.stats.pose_latency) == [pytest.approx(0.004)]
+
+
+def test_takes_the_pan_branch_the_plan_chose_over_its_horizon(rig):
+    """On a ±270° gimbal a direction at pan 200° (≡ −160°) has two reachable joint values. The per-tick
+    nearest-branch rule from the start (pan 11°) would take −160°; the plan's joint pans (chosen for the whole horizon,
+    pivotd.gimbal.pan_unwrap) say +200°, and the loop goes there."""
+    cfg, clock, _, _ = rig
+    wide = replace(cfg.gimbal.limits, pan_min=math.radians(-270), pan_max=math.radians(270))
+    cfg = replace(cfg, gimbal=replace(cfg.gimbal, limits=wide))
+    d = np.array([math.cos(math.radians(200)), math.sin(math.radians(200)), 0.0])
+    ends = []
+    for pans in (np.full(5, math.radians(200)), None):
+        gimbal = FakeGimbal(clock)
+        loop = build_control_loop(cfg, gimbal, clock=clock)
+        _run(loop, clock, 600, pose_at, lambda t, pans=pans: replace(plan_towards(d, t), pans=pans))
+        ends.append(math.degrees(gimbal.setpoints[-1][0]))
+    assert ends == [pytest.approx(200.0, abs=0.1), pytest.approx(-160.0, abs=0.1)]

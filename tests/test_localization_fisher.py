@@ -68,3 +68,20 @@ def test_fisher_policy_turns_to_the_spread_out_side():
     centre = world.camera_centres(*world.body_poses(np.array([0.5])))[0]
     d = policy.direction_at(centre, world.body_poses(np.array([0.5]))[1][0], "test")
     assert d[1] > 0.7  # towards +y (the spread-out landmarks), not −y (the clump)
+
+
+def test_information_of_many_views_sums_only_the_landmarks_in_each_image():
+    """Views that see different subsets (and one that sees nothing): each view's information equals the
+    one computed from exactly its in-image landmarks."""
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(-6, 6, (300, 3))
+    d = rng.normal(size=(12, 3))
+    R = camera_rotation(np.vstack([d / np.linalg.norm(d, axis=1, keepdims=True), [[0.0, 0.0, 1.0]]]))
+    far = pts * 100.0  # beyond the depth range: no view sees them
+    info = pose_information(CAM, R, np.zeros(3), np.vstack([pts, far]))
+    for o in range(R.shape[0]):
+        seen = pts[project(CAM, R[o], np.zeros(3), pts)[2]]
+        ref = pose_information(CAM, R[o][None], np.zeros(3), seen)[0] if len(seen) else np.zeros((6, 6))
+        np.testing.assert_allclose(info[o], ref, rtol=1e-10, atol=1e-9)
+        np.testing.assert_allclose(info[o], info[o].T)
+    assert np.count_nonzero([np.any(i) for i in info]) >= 6

@@ -109,6 +109,8 @@ class ControlLoop:
         cam = camera_positions(pose.position[None, :], pose.quat[None, :], mount)[0]
         s = plan.locate(cam)
         prev_pan = float(self.motion.state.position[0])
+        if plan.pans is not None and plan.s.shape[0] > 1:  # the branch the planner chose over its horizon
+            prev_pan = float(np.interp(s, plan.s, plan.pans))
         pan, tilt, clamped = world_direction_to_joints(plan.direction_at_s(s), pose.quat, mount, self.limits,
                                                        prev_pan)
         target = np.array([pan, tilt])

@@ -21,13 +21,27 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from pivotd.config.settings import MAX_MARKER_LANDMARKS
-from pivotd.geometry import normalize, quat_to_matrix
-from pivotd.gimbal.kinematics import JointLimits, Mount, base_from_world
+from pivotd.geometry import angle_between, normalize, quat_to_matrix
+from pivotd.gimbal.kinematics import (
+    JointLimits,
+    Mount,
+    base_from_world,
+    joints_to_world_direction,
+    world_direction_to_joints,
+)
+from pivotd.gimbal.pan_unwrap import (
+    PROFILE_STEP,
+    joint_pans,
+    long_slews,
+    pan_profile,
+    sweep,
+    unwind_targets,
+)
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapSnapshot
 from pivotd.pivot.constraints import PanTiltConstraint
 from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
-from pivotd.pivot.visibility import in_cone
+from pivotd.pivot.visibility import hard_count, in_cone
 from pivotd.robot_path import Polyline, project_onto_polyline
 
 #: Most landmarks a plan reports as inside its first cone (:attr:`Plan.in_view`, shown as live markers).
@@ -55,7 +69,9 @@ class Plan:
 
     s: (N,) arc length of each waypoint along the path [m] (zeros for a single-pose plan);
     positions: (N, 3) camera centres [m]; directions: (N, 3) world unit viewing directions;
-    body_quats: (N, 4) predicted body attitude (x, y, z, w); visible: (N,) hard counts.
+    body_quats: (N, 4) predicted body attitude (x, y, z, w); visible: (N,) hard counts;
+    pans: (N,) joint pan [rad] chosen for each waypoint over the whole horizon (None: the control loop
+    picks the branch nearest its previous pan).
     """
 
     created: float
@@ -69,6 +85,7 @@ class Plan:
     solve_s: float
     landmarks: int = 0
     in_view: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (K, 3) landmarks in the first cone
+    pans: np.ndarray | None = None
 
 
     def direction_at_s(self, s: np.ndarray | float) -> np.ndarray:
@@ -151,6 +168,7 @@ class RecedingHorizonPlanner:
         self.last_plan: Plan | None = None
         self._cache_key: tuple[int, int] | None = None
         self._cache: dict[int, np.ndarray] = {}
+        self.unwind_target: np.ndarray | None = None  # world direction of an unwind slew under way
 
     def set_path(self, positions: np.ndarray | None, quats: np.ndarray | None, version: int) -> None:
         """Install a new translation path (None clears it); progress restarts from the nearest point."""
@@ -160,6 +178,7 @@ class RecedingHorizonPlanner:
         self._tracker = (None if positions is None or len(positions) == 0
                          else Polyline(positions, quats, ignore_constant_quats=True))
         self.progress = None
+        self.unwind_target = None
 
     def _horizon_arc(self, progress: float) -> np.ndarray:
         """Arc lengths of the horizon: the robot's progress, then the path's fixed grid k · spacing ahead.
@@ -249,6 +268,9 @@ class RecedingHorizonPlanner:
         init = self._warm_start(s, cams.shape[0])
         if init is None and anchor is not None:
             init = np.repeat(np.asarray(anchor, float)[None, :], cams.shape[0], axis=0)
+        if self.unwind_target is not None and (
+                anchor is None or init is None or angle_between(anchor, self.unwind_target) <= 0.5 * st.alpha):
+            self.unwind_target = None  # the camera got there (or the plan restarts)
         result = optimize_trajectory(
             snapshot.points,
             cams,
@@ -257,24 +279,100 @@ class RecedingHorizonPlanner:
             weights=snapshot.weights,
             retained=retained,
             init_directions=init,
-            anchor=anchor,
+            anchor=anchor if self.unwind_target is None else None,  # an unwind slew is not pulled back
             constraint=self._constraint(quats),
             max_step=st.max_step,
             options=st.options if st.cold_polish else replace(st.options or TrajectoryOptions(), step_polish_deg=0.0),
         )
+        directions, visible, pans = self._joint_plan(snapshot, cams, retained, quats, result.directions,
+                                                     np.asarray(result.visible), anchor)
         plan = Plan(
             created=time.monotonic(),
             positions=cams,
-            directions=result.directions,
+            directions=directions,
             body_quats=quats,
-            visible=np.asarray(result.visible),
+            visible=visible,
             s=s,
             map_version=snapshot.version,
             path_version=self._path_version,
             solve_s=time.perf_counter() - t0,
             landmarks=int(sum(r.shape[0] for r in retained)),
             in_view=self._in_view(snapshot, cams[0], result.directions[0], retained[0]),
+            pans=pans,
         )
         self.last_plan = plan
         return plan
 
+    def _joint_plan(self, snapshot: MapSnapshot, cams: np.ndarray, retained: list[np.ndarray], quats: np.ndarray,
+                    directions: np.ndarray, visible: np.ndarray,
+                    anchor: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Joint pans for the optimised ``directions`` (N, 3) over the whole horizon (pivotd.gimbal.pan_unwrap),
+        starting from the commanded pan, and the unwinds a bounded pan range forces on turning routes.
+
+        Where the joint sequence must take the long way round the pan axis, the plan unwinds now if this
+        waypoint's sweep across the landmark-free sector is the shortest before the limit (to the far-side
+        view with the most room), or at the limit by slewing straight to the first rich view beyond it.
+        An unwind, once started, is committed (:attr:`unwind_target`) until the camera gets there. Not with
+        ``max_step`` (the plan keeps its step guarantee). Returns directions (N, 3), hard counts (N,) and
+        joint pans (N,).
+        """
+        prev = self.last_plan
+        reference = None if prev is None or prev.pans is None else float(prev.pans[0])
+        if anchor is not None:
+            start = world_direction_to_joints(np.asarray(anchor, float), quats[0], self.mount, self.limits,
+                                              reference)[0]
+        else:
+            start = reference if reference is not None else self.limits.clamp(0.0, 0.0)[0]
+        pans, _ = joint_pans(directions, quats, self.mount, self.limits, start)
+        if self.settings.max_step is not None:
+            return directions, visible, pans
+        slews = long_slews(start, pans)
+        if anchor is None:
+            slews = slews[slews > 0]
+        take = np.arange(directions.shape[0])
+        if slews.size:
+            k = int(slews[0])
+            early = self._early_unwind(snapshot, cams, retained, quats, pans, k,
+                                       pans[k] > (pans[k - 1] if k else start))
+            if early is not None:
+                directions = np.repeat(early[None, :], directions.shape[0], axis=0)
+                take[:] = -1
+            else:
+                take = unwind_targets(visible, k)
+        moved = np.flatnonzero(take != np.arange(take.shape[0]))
+        if moved.size:
+            keep = take >= 0
+            directions = np.where(keep[:, None], directions[np.where(keep, take, 0)], directions)
+            visible = visible.copy()
+            for i in moved:
+                visible[i] = self._count(snapshot, cams[i], retained[i], directions[i])
+            pans, _ = joint_pans(directions, quats, self.mount, self.limits, start)
+        if self.unwind_target is not None or (moved.size and moved[0] == 0):
+            self.unwind_target = directions[0].copy()
+        return directions, visible, pans
+
+    def _count(self, snapshot: MapSnapshot, cam: np.ndarray, idx: np.ndarray, direction: np.ndarray) -> int:
+        """Hard count of the retained landmarks ``idx`` within α of ``direction`` seen from ``cam``."""
+        rel = snapshot.points[idx] - cam
+        rel = rel / np.maximum(np.linalg.norm(rel, axis=1, keepdims=True), 1e-12)
+        return hard_count(direction, rel, self.settings.alpha)
+
+    def _early_unwind(self, snapshot: MapSnapshot, cams: np.ndarray, retained: list[np.ndarray], quats: np.ndarray,
+                      pans: np.ndarray, k: int, up: bool) -> np.ndarray | None:
+        """World direction (3,) of an unwind to start now, when the sweep from here across the landmark-free
+        sector is shorter than from any later waypoint before the limit at waypoint ``k`` (the unwind moves
+        pan ``up`` or down); None otherwise."""
+        if k < 2 or len(snapshot) == 0:
+            return None
+        R = base_from_world(quats[:k], self.mount)
+        blind = np.full(k, np.inf)
+        target: tuple[float, float] | None = None
+        for j in range(k):
+            rel = (snapshot.points[retained[j]] - cams[j]) @ R[j].T
+            grid, counts, tilts = pan_profile(rel, self.settings.alpha, self.limits)
+            blind[j], pan = sweep(grid, counts, float(pans[j]), up)
+            if j == 0 and pan is not None:
+                target = pan, float(tilts[int(np.argmin(np.abs(grid - pan)))])
+        if target is None or not blind[0] < np.min(blind[1:]) - PROFILE_STEP:
+            return None
+        return joints_to_world_direction(target[0], target[1], quats[0], self.mount)

@@ -23,20 +23,34 @@ def pose_information(model: CameraModel, R_wc: np.ndarray, centre: np.ndarray, p
 
     ``points`` (N, 3): landmarks already known to be in line of sight of ``centre`` (3,); only those
     inside each view's image and depth range contribute. Units: rotation in rad, translation in m.
+    The Jacobians are formed only for the (view, landmark) pairs in the image, and the 21 distinct
+    entries of each JᵀJ summed per view.
     """
-    pc = to_camera(np.asarray(R_wc, float).reshape(-1, 3, 3), centre, points)  # (O, N, 3)
-    x, y, z = pc[..., 0], pc[..., 1], pc[..., 2]
+    R = np.asarray(R_wc, float).reshape(-1, 3, 3)
+    views = R.shape[0]
+    pc = to_camera(R, centre, points)  # (O, N, 3)
     _, _, inside = image_coordinates(model, pc)
-    safe = np.where(np.abs(z) < 1e-12, 1e-12, z)
-    w = inside / safe  # zero outside
+    view, lm = np.nonzero(inside)  # sorted by view
+    info = np.zeros((views, 6, 6))
+    if view.size == 0:
+        return info
+    p = pc[view, lm]  # (K, 3)
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    iz = 1.0 / z
+    zeros = np.zeros_like(iz)
     # Rows of ∂(u,v)/∂p: a = fx·(1/z, 0, −x/z²), b = fy·(0, 1/z, −y/z²); J = [a·(−[p]ₓ), a] etc.
-    zeros = np.zeros_like(w)
-    a = model.fx * np.stack([w, zeros, -x * w / safe], axis=-1)
-    b = model.fy * np.stack([zeros, w, -y * w / safe], axis=-1)
+    a = model.fx * np.column_stack([iz, zeros, -x * iz * iz])
+    b = model.fy * np.column_stack([zeros, iz, -y * iz * iz])
     # r·(−[p]ₓ) = (p × r)ᵀ for a row r of ∂(u,v)/∂p
-    ja = np.concatenate([np.cross(pc, a), a], axis=-1)  # (O, N, 6)
-    jb = np.concatenate([np.cross(pc, b), b], axis=-1)
-    info = np.einsum("oni,onj->oij", ja, ja) + np.einsum("oni,onj->oij", jb, jb)
+    ja = np.concatenate([np.cross(p, a), a], axis=1)  # (K, 6)
+    jb = np.concatenate([np.cross(p, b), b], axis=1)
+    iu, ju = np.triu_indices(6)
+    terms = ja[:, iu] * ja[:, ju] + jb[:, iu] * jb[:, ju]  # (K, 21)
+    starts = np.flatnonzero(np.r_[True, view[1:] != view[:-1]])
+    sums = np.add.reduceat(terms, starts, axis=0)  # (views with landmarks, 21)
+    rows = view[starts]
+    info[rows[:, None], iu[None, :], ju[None, :]] = sums
+    info[rows[:, None], ju[None, :], iu[None, :]] = sums
     return info / (sigma * sigma)
 
 

@@ -29,7 +29,7 @@ def threshold_label(i: int) -> str:
 @dataclass(frozen=True)
 class RunMetrics:
     """success (len(THRESHOLDS),) shares; median_t [m]; median_r [deg]; no_pose share; longest_failure [s];
-    compute_ms per frame; frames."""
+    compute_ms per frame; compute_ms_decision per decision (a replan, one orientation search); frames."""
 
     success: tuple[float, ...]
     median_t: float
@@ -38,6 +38,7 @@ class RunMetrics:
     longest_failure: float
     compute_ms: float
     frames: int
+    compute_ms_decision: float = float("nan")
 
     @property
     def failure(self) -> float:
@@ -54,8 +55,10 @@ def longest_streak(mask: np.ndarray) -> int:
     return best
 
 
-def run_metrics(translation: np.ndarray, rotation: np.ndarray, frame_dt: float, compute_s: float) -> RunMetrics:
-    """Metrics of one run from per-frame errors (F,) [m], (F,) [deg], frame period [s], policy compute [s]."""
+def run_metrics(translation: np.ndarray, rotation: np.ndarray, frame_dt: float, compute_s: float,
+                decisions: int = 0) -> RunMetrics:
+    """Metrics of one run from per-frame errors (F,) [m], (F,) [deg], frame period [s], policy compute [s]
+    and the number of decisions it took."""
     t = np.asarray(translation, float)
     r = np.asarray(rotation, float)
     n = t.shape[0]
@@ -70,6 +73,7 @@ def run_metrics(translation: np.ndarray, rotation: np.ndarray, frame_dt: float, 
         longest_failure=longest_streak(fail) * frame_dt,
         compute_ms=1e3 * compute_s / max(n, 1),
         frames=n,
+        compute_ms_decision=1e3 * compute_s / decisions if decisions else float("nan"),
     )
 
 
@@ -113,4 +117,5 @@ def aggregate(runs: Sequence[RunMetrics], seed: int = 0) -> dict[str, Interval]:
     out["no_pose"] = bootstrap([r.no_pose for r in runs], rng)
     out["longest_failure_s"] = bootstrap([r.longest_failure for r in runs], rng)
     out["compute_ms_per_frame"] = bootstrap([r.compute_ms for r in runs], rng)
+    out["compute_ms_per_decision"] = bootstrap([r.compute_ms_decision for r in runs], rng)
     return out

@@ -1,6 +1,7 @@
 """Figure of the localization benchmark: each scene's route from above with the frames coloured by
-success per policy (first seed), and the success curves (share of frames vs translation threshold at the
-matching rotation threshold, first seed). Needs matplotlib (the ``plot`` extra)."""
+success per policy (first seed), the success curves (share of frames vs translation threshold at the
+matching rotation threshold, first seed), and why frames fail: the landmarks in the image over time per
+policy with its failing frames marked (first seed). Needs matplotlib (the ``plot`` extra)."""
 
 from __future__ import annotations
 
@@ -29,7 +30,7 @@ def plot_results(results: Sequence, summaries: dict, out: Path) -> None:
     """Write the figure for ``results`` (SceneResult per scene) to ``out`` (PNG)."""
     plt = require_matplotlib()
     policies = list(results[0].frame_ok) if results else []
-    cols = len(policies) + 1
+    cols = len(policies) + 2
     fig, axes = plt.subplots(len(results), cols, figsize=(3.2 * cols, 3.0 * len(results)), squeeze=False)
     key = f"success_{threshold_label(PRIMARY)}"
     for row, res in enumerate(results):
@@ -46,7 +47,7 @@ def plot_results(results: Sequence, summaries: dict, out: Path) -> None:
             ax.set_title(f"{res.scene}: {pol} {share:.0f} %", fontsize=8)
             ax.set_aspect("equal")
             ax.tick_params(labelsize=6)
-        ax = axes[row, cols - 1]
+        ax = axes[row, cols - 2]
         grid = np.logspace(-3, 0, 60)
         ratio = THRESHOLDS[PRIMARY][1] / THRESHOLDS[PRIMARY][0]  # degrees per metre along the curve
         for pol in policies:
@@ -56,6 +57,17 @@ def plot_results(results: Sequence, summaries: dict, out: Path) -> None:
         ax.set_xlabel(f"translation threshold [m] (rotation {ratio:g}°/m)", fontsize=7)
         ax.set_ylabel("frames localized", fontsize=7)
         ax.set_ylim(0, 1.02)
+        ax.tick_params(labelsize=6)
+        ax.legend(fontsize=6)
+        ax = axes[row, cols - 1]
+        for pol in policies:
+            seen = np.maximum(res.in_view[pol], 0.8)  # 0 drawn at the bottom of the log axis
+            line = ax.plot(res.times, seen, lw=0.7, label=pol)[0]
+            bad = ~res.frame_ok[pol]
+            ax.scatter(res.times[bad], seen[bad], s=6, color=line.get_color(), marker="x", linewidths=0.6)
+        ax.set_yscale("log")
+        ax.set_xlabel("time [s] (×: frame outside 0.25 m / 2°)", fontsize=7)
+        ax.set_ylabel("landmarks in the image", fontsize=7)
         ax.tick_params(labelsize=6)
         ax.legend(fontsize=6)
     fig.suptitle("frames within 0.25 m / 2° (green) and outside (red), first seed", fontsize=9)

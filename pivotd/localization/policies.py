@@ -59,6 +59,10 @@ class Policy:
         """Command at time ``t`` [s] for body ``pose``; ``commanded``: world direction now being commanded."""
         return (0.0, 0.0)
 
+    def decisions(self, calls: int) -> int:
+        """Decisions taken in a run with ``calls`` calls (of :meth:`update`, or per-frame looks): one each."""
+        return calls
+
 
 @dataclass
 class ForwardPolicy(Policy):
@@ -104,6 +108,10 @@ class FisherPolicy(Policy):
         sight = self.world.sight(key, centre)
         best, _ = best_view(self.world.camera, R, centre, self.world.scene.landmarks[sight])
         return d_world[best]
+
+    def decisions(self, calls: int) -> int:
+        """One grid search per route position (each computed once)."""
+        return len(self._cache)
 
     def update(self, t: float, pose: PoseSample, commanded: np.ndarray | None) -> Command:
         w = self.world

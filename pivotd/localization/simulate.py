@@ -50,7 +50,8 @@ class SimulatedGimbal:
 class Trajectory:
     """A policy's camera over a run: frame times (F,) [s], centres (F, 3) [m], optical axes (F, 3);
     the commanded stream (T, 4) (pan, tilt, pan rate, tilt rate) at the control period ``dt`` (empty for
-    the oracle); compute_s: the policy's total decision time [s]."""
+    the oracle); compute_s: the policy's total decision time [s]; decisions: how many decisions it took
+    (replans, orientation searches, per-frame looks: :meth:`Policy.decisions`)."""
 
     times: np.ndarray
     centres: np.ndarray
@@ -58,6 +59,7 @@ class Trajectory:
     setpoints: np.ndarray
     dt: float
     compute_s: float
+    decisions: int = 0
 
 
 def frame_times(world: World, frame_hz: float = FRAME_HZ) -> np.ndarray:
@@ -74,7 +76,8 @@ def run_policy(world: World, policy: Policy, frame_hz: float = FRAME_HZ) -> Traj
         assert isinstance(policy, OraclePolicy)
         t0 = time.process_time()
         dirs = np.array([policy.look(c, world.sight(i, c)) for i, c in enumerate(centres)])
-        return Trajectory(frames, centres, dirs, np.zeros((0, 4)), 0.0, time.process_time() - t0)
+        return Trajectory(frames, centres, dirs, np.zeros((0, 4)), 0.0, time.process_time() - t0,
+                          policy.decisions(len(frames)))
     cfg = world.cfg
     dt = cfg.control.dt
     ticks_per_replan = max(1, round(cfg.control.rate_hz / cfg.planner.replan_hz))
@@ -87,6 +90,7 @@ def run_policy(world: World, policy: Policy, frame_hz: float = FRAME_HZ) -> Traj
     dirs = []
     plan: Plan | None = None
     compute = 0.0
+    updates = 0
     for k in range(n):
         t = float(times[k])
         pose = PoseSample(t, "map", body[k], quats[k], t)
@@ -94,6 +98,7 @@ def run_policy(world: World, policy: Policy, frame_hz: float = FRAME_HZ) -> Traj
             t0 = time.process_time()
             command = policy.update(t, pose, loop.commanded_direction)
             compute += time.process_time() - t0
+            updates += 1
             if isinstance(command, Plan):
                 plan = replace(command, created=t)
                 loop.override_target = None
@@ -104,7 +109,7 @@ def run_policy(world: World, policy: Policy, frame_hz: float = FRAME_HZ) -> Traj
             pan, tilt = gimbal.setpoints[-1][:2]
             dirs.append(joints_to_world_direction(pan, tilt, quats[k], world.mount))
     setpoints = np.asarray(gimbal.setpoints, float)
-    return Trajectory(frames, centres, np.asarray(dirs), setpoints, dt, compute)
+    return Trajectory(frames, centres, np.asarray(dirs), setpoints, dt, compute, policy.decisions(updates))
 
 
 @dataclass(frozen=True)

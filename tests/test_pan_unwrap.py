@@ -1,0 +1,149 @@
+"""Pan branch selection over a horizon and the unwind of a bounded pan range (pivotd.gimbal.pan_unwrap)."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from pivotd.geometry import pan_tilt_to_direction
+from pivotd.gimbal.kinematics import JointLimits, world_directions_to_joints
+from pivotd.gimbal.pan_unwrap import (
+    PROFILE_STEP,
+    long_slews,
+    pan_branches,
+    pan_profile,
+    sweep,
+    unwind_targets,
+    unwrap_pans,
+)
+
+D = math.radians
+WIDE = JointLimits(pan_min=D(-270), pan_max=D(270), tilt_min=D(-45), tilt_max=D(60))
+DEMO = JointLimits(pan_min=D(-170), pan_max=D(170), tilt_min=D(-45), tilt_max=D(60))
+SLIP = JointLimits(tilt_min=D(-45), tilt_max=D(60), continuous_pan=True)
+
+
+def _total_slew(start: float, pans: np.ndarray) -> float:
+    return float(np.abs(np.diff(np.concatenate([[start], pans]))).sum())
+
+
+def _brute(pans: np.ndarray, start: float, limits: JointLimits) -> float:
+    """Least total slew over every in-range branch combination (exhaustive reference)."""
+    layers = [pan_branches(float(p), limits) for p in pans]
+    return min(_total_slew(start, np.array(c)) for c in itertools.product(*layers))
+
+
+def test_branches_lie_inside_the_limits_and_are_equivalent():
+    rng = np.random.default_rng(3)
+    for p in rng.uniform(-3 * np.pi, 3 * np.pi, 200):
+        for lim in (WIDE, DEMO):
+            b = pan_branches(float(p), lim)
+            assert np.all((b >= lim.pan_min - 1e-9) & (b <= lim.pan_max + 1e-9))
+            assert np.allclose(np.remainder(b - p + np.pi, 2 * np.pi) - np.pi, 0.0, atol=1e-9)
+        assert len(pan_branches(float(p), WIDE)) in (1, 2)
+    assert pan_branches(D(180), DEMO).size == 0  # the sector behind a ±170° gimbal
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_unwrap_is_the_exact_least_slew_in_range(seed):
+    rng = np.random.default_rng(seed)
+    pans = np.cumsum(rng.normal(0.0, 0.8, 7))
+    start = float(rng.uniform(WIDE.pan_min, WIDE.pan_max))
+    out, clamped = unwrap_pans(pans, start, WIDE)
+    assert not clamped.any()
+    assert np.all((out >= WIDE.pan_min - 1e-9) & (out <= WIDE.pan_max + 1e-9))
+    assert np.allclose(np.remainder(out - pans + np.pi, 2 * np.pi) - np.pi, 0.0, atol=1e-9)
+    assert _total_slew(start, out) == pytest.approx(_brute(pans, start, WIDE), abs=1e-9)
+
+
+def test_wide_range_picks_the_branch_with_room_for_the_turn_ahead():
+    """A ±270° gimbal at pan 0 looking at a target at pan 190° (≡ −170°) whose pan will wind down by 400°:
+    the greedy nearest branch (−170°) runs into −270° and must slew a full turn; the horizon-wide choice
+    takes +190° and tracks the whole turn down to −210° without a long slew."""
+    start = 0.0
+    target = D(190) - np.linspace(0.0, D(400), 41)  # the world-fixed target's pan while the body turns
+    out, _ = unwrap_pans(target, start, WIDE)
+    assert out[0] == pytest.approx(D(190))  # 20° more than the nearest branch, once, at the start
+    assert np.all(np.abs(np.diff(out)) <= D(10) + 1e-9)
+    greedy, _, _ = world_directions_to_joints(
+        pan_tilt_to_direction(target, np.zeros_like(target)), np.array([0.0, 0.0, 0.0, 1.0]),
+        _identity_mount(), WIDE, start)
+    assert long_slews(start, greedy).size == 1 and long_slews(start, greedy)[0] > 0  # a full circle mid-turn
+    assert _total_slew(start, out) < _total_slew(start, greedy) - D(300)
+
+
+def test_720_degree_turn_is_tracked_without_a_full_circle_slew_when_the_view_allows():
+    """Two full body turns while the camera's world direction turns along (a view of the route ahead
+    that sweeps 700° of world heading): the pan stays within ±270° without any long slew."""
+    yaw = np.linspace(0.0, D(720), 145)
+    view = yaw + D(40) * np.sin(np.linspace(0.0, 6 * np.pi, 145))  # world heading of the chosen view
+    out, clamped = unwrap_pans(view - yaw, 0.0, WIDE)
+    assert not clamped.any() and long_slews(0.0, out).size == 0
+    assert np.abs(out).max() <= D(41)
+    cont, _ = unwrap_pans(view - yaw, 0.0, SLIP)
+    assert np.allclose(cont, out)
+
+
+def test_bounded_range_never_exceeded_and_the_forced_unwind_is_found():
+    """A world-fixed view while the body turns 360°: pan must wind 360° on a ±170° gimbal. Every joint
+    value stays in range, and exactly one long slew is reported, where the view crosses the back sector."""
+    yaw = np.linspace(0.0, D(360), 73)
+    pans = np.remainder(-yaw + np.pi, 2 * np.pi) - np.pi
+    out, clamped = unwrap_pans(pans, 0.0, DEMO)
+    assert np.all((out >= DEMO.pan_min - 1e-12) & (out <= DEMO.pan_max + 1e-12))
+    slews = long_slews(0.0, out)
+    assert slews.size == 1
+    i = int(slews[0])
+    assert out[i - 1] <= D(-165) and out[i] >= D(165)
+    assert np.all(np.abs(out[clamped]) == pytest.approx(D(170)))
+
+
+def test_continuous_pan_is_the_nearest_unwrap():
+    pans = np.remainder(np.linspace(0.0, D(900), 50) + np.pi, 2 * np.pi) - np.pi
+    out, _ = unwrap_pans(pans, 0.0, SLIP)
+    assert np.allclose(out, np.linspace(0.0, D(900), 50))
+    assert long_slews(0.0, out).size == 0
+
+
+def test_unwind_targets_slew_straight_to_the_first_rich_view():
+    counts = np.array([40, 0, 0, 3, 50, 200, 210, 30])
+    take = unwind_targets(counts, 3)
+    assert take.tolist() == [0, 5, 5, 5, 5, 5, 6, 7]  # blind lead-in and the slew region go to waypoint 5
+    assert unwind_targets(np.zeros(4), 1).tolist() == [0, 1, 2, 3]
+
+
+def _identity_mount():
+    from pivotd.gimbal.kinematics import Mount
+
+    return Mount()
+
+
+def _ring(centre_az: float, width: float, n: int = 400) -> np.ndarray:
+    """Level bearings (n, 3) spread uniformly over ``width`` [rad] of azimuth around ``centre_az``."""
+    az = centre_az + np.linspace(-0.5 * width, 0.5 * width, n)
+    return pan_tilt_to_direction(az, np.zeros(n))
+
+
+def test_profile_counts_the_landmarks_of_a_view():
+    b = _ring(D(40), D(60))
+    grid, counts, tilts = pan_profile(b, D(30), DEMO)
+    assert counts[np.argmin(np.abs(grid - D(40)))] >= 395
+    assert counts[np.argmin(np.abs(grid - D(-60)))] == 0
+    assert abs(tilts[np.argmin(np.abs(grid - D(40)))]) <= D(30)
+
+
+def test_sweep_measures_the_blind_arc_to_the_far_side():
+    """Landmarks around pan −150…−60° and 60…150°: a sweep up from −100° leaves the first set at about
+    −30° (its edge plus the half FoV), crosses nothing until about 30°, and ends at the far side's
+    farthest rich pan; from 100° upward there is no far side inside ±170°."""
+    b = np.concatenate([_ring(D(-105), D(90)), _ring(D(105), D(90))])
+    grid, counts, _ = pan_profile(b, D(30), DEMO)
+    blind, target = sweep(grid, counts, D(-100), up=True)
+    assert blind == pytest.approx(D(60), abs=2 * PROFILE_STEP)
+    assert target is not None and D(100) <= target <= D(170)
+    assert sweep(grid, counts, D(100), up=True) == (np.inf, None)
+    blind_down, target_down = sweep(grid, counts, D(100), up=False)
+    assert blind_down == pytest.approx(blind, abs=2 * PROFILE_STEP) and target_down <= D(-100)
