@@ -174,6 +174,7 @@ def run(args: argparse.Namespace) -> int:
             far_plan = far[0].replan(far[1], pos[0], quat[0] if quat is not None else q, far_anchor)
             far[2].append(time.perf_counter() - t1)
             far_anchor = far_plan.directions[0]
+        unwind_before = planner.unwind_target  # the reference replan below starts from the same state
         t1, c1 = time.perf_counter(), time.process_time()
         plan = planner.replan(snap, pos[0], quat[0] if quat is not None else q, anchor)
         total.append(time.perf_counter() - t1)
@@ -191,7 +192,7 @@ def run(args: argparse.Namespace) -> int:
             # Quality of the capped plan: hard visible count over the full retained sets, against a plan
             # optimised on the full sets from the same warm start.
             full.set_path(sc.path, None, planner._path_version)
-            full.progress, full.last_plan = planner.progress, prev
+            full.progress, full.last_plan, full.unwind_target = planner.progress, prev, unwind_before
             ref = full.replan(snap, pos[0], quat[0], prev_anchor)
             ours = _visible_full(snap, plan, ret, settings.alpha)
             quality.append(ours / max(_visible_full(snap, ref, ret, settings.alpha), 1))
