@@ -137,14 +137,14 @@ def test_sim_pose_publishes_odometry_and_path_and_honours_gap(listener):
     # The path is the hallway route, published at t = 0 (same stamp as the first pose).
     np.testing.assert_allclose(paths[0].positions, hallway().path, atol=1e-12)
     t0 = paths[0].stamp
-    assert poses[0].stamp == pytest.approx(t0, abs=1e-6)
+    # Poses are latest-wins on the bus: one may be replaced by the next before it is decoded (counted as
+    # dropped_queue_full), so stamps sit on the 1/rate grid with the gap (1.0, 2.0) s empty.
     stamps = np.array([p.stamp for p in poses]) - t0
-    steps = np.diff(stamps)
-    big = np.flatnonzero(steps > 1.5 / rate)
-    assert len(big) == 1, f"expected exactly one gap, steps {steps}"
-    assert stamps[big[0]] == pytest.approx(1.0 - 1 / rate, abs=1e-3)
-    assert steps[big[0]] == pytest.approx(1.0 + 1 / rate, abs=1e-3)
-    np.testing.assert_allclose(np.delete(steps, big), 1 / rate, atol=1e-6)
+    ticks = stamps * rate
+    np.testing.assert_allclose(ticks, np.round(ticks), atol=1e-4)
+    assert len(poses) >= 50
+    assert not np.any((stamps > 1.0 - 1 / rate + 1e-3) & (stamps < 2.0 - 1e-3)), "a pose inside the gap"
+    assert np.any(stamps <= 1.0 - 1 / rate + 1e-3) and np.any(stamps >= 2.0 - 1e-3)
     # Positions follow the route at the requested speed; yaw is along the path.
     route = Route(hallway().path)
     for p, t in zip(poses, stamps, strict=True):

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from firmware_proto.messages import Config as ConfigMessage
 from firmware_proto.messages import config_problems
-from pivotd.bus.topics import POSE_TYPES, BusTopics, status_key_for
+from pivotd.bus.topics import MIN_PAYLOAD_LIMIT, PAYLOAD_LIMITS, POSE_TYPES, BusTopics, status_key_for
 from pivotd.config.yaml_reader import Section, read_yaml
 from pivotd.errors import ConfigError, InputError
 from pivotd.gimbal.kinematics import JointLimits, Mount
@@ -406,6 +406,7 @@ def _topics(s: Section) -> BusTopics:
         view_plan=topic("view_plan"),
         frame_id=s.string("frame_id", d.frame_id, pattern=_FRAME_RE, pattern_help="a TF frame name"),
         max_cloud_points=s.number("max_cloud_points", d.max_cloud_points, min=1, integer=True),
+        **{k: s.number(k, getattr(d, k), min=MIN_PAYLOAD_LIMIT, integer=True) for k in PAYLOAD_LIMITS},
     )
     s.finish()
     return out
