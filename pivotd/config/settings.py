@@ -16,6 +16,7 @@ from pathlib import Path
 
 from firmware_proto.messages import Config as ConfigMessage
 from firmware_proto.messages import config_problems
+from pivotd.bus.security_settings import ZenohSecurity
 from pivotd.bus.topics import MIN_PAYLOAD_LIMIT, PAYLOAD_LIMITS, POSE_TYPES, BusTopics, status_key_for
 from pivotd.config.yaml_reader import Section, read_yaml
 from pivotd.errors import ConfigError, InputError
@@ -50,6 +51,7 @@ class ZenohConfig:
     listen: tuple[str, ...] = ()
     config_file: Path | None = None  # a Zenoh JSON5 config (TLS, auth) applied before the keys above
     multicast_scouting: bool = False
+    security: ZenohSecurity = field(default_factory=ZenohSecurity)
 
 
 @dataclass(frozen=True)
@@ -373,8 +375,51 @@ def _zenoh(s: Section) -> ZenohConfig:
         raise s.error("connect", "client mode needs a router endpoint (or multicast_scouting: true)")
     if config_file is not None:
         _check_zenoh_file(s, mode, connect, listen, config_file, scouting)
+    security = _zenoh_security(s.section("security"))
     s.finish()
-    return ZenohConfig(mode, connect, listen, config_file, scouting)
+    return ZenohConfig(mode, connect, listen, config_file, scouting, security)
+
+
+_ZID_RE = r"[0-9a-f]{1,32}"
+_PEM_FILES = ("ca", "cert", "key")
+
+
+def _zenoh_security(s: Section) -> ZenohSecurity:
+    d = ZenohSecurity()
+    files = {k: s.path_value(k, None) for k in _PEM_FILES}
+    given = [k for k, v in files.items() if v is not None]
+    if given and len(given) < len(_PEM_FILES):
+        missing = next(k for k in _PEM_FILES if files[k] is None)
+        raise s.error(missing, f"required with {', '.join(given)} (mutual TLS needs ca, cert and key)")
+    for k, path in files.items():
+        if path is not None and (problem := _pem_problem(path)):
+            raise s.error(k, f"{path}: {problem}")
+    out = ZenohSecurity(
+        **files,
+        verify_name_on_connect=s.boolean("verify_name_on_connect", d.verify_name_on_connect),
+        allow_cert_common_names=s.string_list("allow_cert_common_names", d.allow_cert_common_names,
+                                              check=lambda v: None if v.strip() else "must not be empty"),
+        allow_interfaces=s.string_list("allow_interfaces", d.allow_interfaces,
+                                       check=lambda v: None if v.strip() else "must not be empty"),
+        allow_zids=s.string_list("allow_zids", d.allow_zids, check=lambda v: None if re.fullmatch(_ZID_RE, v) else
+                                 "a Zenoh id: 1 to 32 lowercase hex digits"),
+    )
+    if out.allow_cert_common_names and not out.tls:
+        raise s.error("allow_cert_common_names", "needs mutual TLS (set ca, cert and key)")
+    s.finish()
+    return out
+
+
+def _pem_problem(path: Path) -> str | None:
+    """Why ``path`` is not a readable PEM file (None when it is)."""
+    if not path.is_file():
+        return "not a file"
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(64 * 1024)
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror or exc})"
+    return None if b"-----BEGIN " in head else "not a PEM file (no -----BEGIN line)"
 
 
 def _check_zenoh_file(s: Section, mode: str, connect: tuple[str, ...], listen: tuple[str, ...], config_file: Path,

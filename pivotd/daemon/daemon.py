@@ -27,6 +27,7 @@ from firmware_proto.messages import MODE_NAMES, fault_names
 from pivotd.bus.messages import CloudMsg, PathMsg, PoseSample
 from pivotd.bus.pivot_bus import PivotBus
 from pivotd.bus.ratelimit import RateLimitedLog
+from pivotd.bus.security import input_key_exprs
 from pivotd.bus.session import open_session
 from pivotd.config import Config, load_config
 from pivotd.daemon.control import ControlLoop
@@ -420,7 +421,8 @@ class Daemon:
         cfg = self.cfg
         z = cfg.zenoh
         self.session = open_session(mode=z.mode, connect=z.connect, listen=z.listen, config_file=z.config_file,
-                                    multicast_scouting=z.multicast_scouting)
+                                    multicast_scouting=z.multicast_scouting, security=z.security,
+                                    input_keys=input_key_exprs(cfg.topics))
         if self.overrides.record is not None:
             from pivotd.daemon.recorder import Recorder
 
