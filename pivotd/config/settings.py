@@ -118,6 +118,7 @@ class PlannerConfig:
     replan_hz: float = 5.0
     max_landmarks_per_waypoint: int = 2000
     max_step: float | None = None
+    max_path_offset: float = 3.0  # [m]: progress along the path advances only with the pose this close to it
 
 
 def _default_limits() -> JointLimits:
@@ -191,6 +192,16 @@ class ControlConfig:
 
 
 @dataclass(frozen=True)
+class PoseGateConfig:
+    """Plausibility of a pose against the last accepted one: largest speed [m/s], largest single jump [m] and
+    largest turn rate [rad/s] (docs/SECURITY.md)."""
+
+    max_speed: float = 5.0
+    max_jump: float = 2.0
+    max_turn_rate: float = math.radians(360.0)
+
+
+@dataclass(frozen=True)
 class LoggingConfig:
     level: str = "INFO"
 
@@ -219,6 +230,7 @@ class Config:
     motion: MotionConfig = field(default_factory=MotionConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
     logging: LoggingConfig = field(default_factory=LoggingConfig)
+    pose_gate: PoseGateConfig = field(default_factory=PoseGateConfig)
     sim: SimConfig | None = None
     source: Path | None = None  # the file this was loaded from
 
@@ -314,6 +326,7 @@ def load_config(path: str | Path) -> Config:
         motion=_motion(root.section("motion")),
         control=control,
         logging=_logging(root.section("logging")),
+        pose_gate=_pose_gate(root.section("pose_gate")),
         sim=_sim(root.section("sim")) if root.has("sim") else None,
         source=path.resolve(),
     )
@@ -525,6 +538,7 @@ def _planner(s: Section, control: ControlConfig) -> PlannerConfig:
             "max_landmarks_per_waypoint", d.max_landmarks_per_waypoint, min=1, integer=True
         ),
         max_step=_radians_or_none(s.number("max_step_deg", None, min=MAX_STEP_RANGE_DEG[0], max=MAX_STEP_RANGE_DEG[1])),
+        max_path_offset=s.number("max_path_offset", d.max_path_offset, min=0.0, min_open=True),
     )
     s.finish()
     return out
@@ -668,6 +682,18 @@ def _control(s: Section) -> ControlConfig:
         status_hz=s.number("status_hz", d.status_hz, min=1.0, max=5.0),
         joint_state_hz=s.number("joint_state_hz", d.joint_state_hz, min=0.0, max=rate, min_open=True),
         realtime_priority=s.number("realtime_priority", d.realtime_priority, min=0, max=99, integer=True),
+    )
+    s.finish()
+    return out
+
+
+def _pose_gate(s: Section) -> PoseGateConfig:
+    d = PoseGateConfig()
+    out = PoseGateConfig(
+        max_speed=s.number("max_speed", d.max_speed, min=0.0, min_open=True),
+        max_jump=s.number("max_jump", d.max_jump, min=0.0, min_open=True),
+        max_turn_rate=math.radians(s.number("max_turn_rate_deg_s", math.degrees(d.max_turn_rate), min=0.0,
+                                            min_open=True)),
     )
     s.finish()
     return out

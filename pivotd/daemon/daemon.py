@@ -32,6 +32,7 @@ from pivotd.bus.session import open_session
 from pivotd.config import Config, load_config
 from pivotd.daemon.control import ControlLoop
 from pivotd.daemon.planner import Plan
+from pivotd.daemon.pose_gate import PoseGate, PoseVerdict
 from pivotd.daemon.reload import apply_reload, plan_reload
 from pivotd.daemon.states import DaemonState
 from pivotd.daemon.systemd import Notifier, watchdog_interval
@@ -84,7 +85,8 @@ class Daemon:
         self._planner_wake = threading.Event()  # cuts the planner thread's wait short (reload, stop)
         self._lock = threading.Lock()
         # Latest inputs: immutable objects swapped by reference.
-        self.pose: PoseSample | None = None
+        self.pose: PoseSample | None = None  # the last pose the pose gate accepted
+        self._pose_gate = PoseGate()
         self._path: tuple[np.ndarray, np.ndarray | None, int] | None = None
         self._path_version = 0
         self._pending_clouds: dict[str, CloudMsg] = {}
@@ -119,9 +121,17 @@ class Daemon:
         return load_config(self.config_path).with_overrides(
             port=ov.port, connect=list(ov.connect) or None, listen=list(ov.listen) or None)
 
-    # ------------------------------------------------------------------ bus callbacks (Zenoh threads)
+    # ------------------------------------------------------------------ bus callbacks (bus decoding threads)
     def _on_pose(self, pose: PoseSample) -> None:
-        self.pose = pose
+        verdict = self._pose_gate.check(pose, self.cfg.pose_gate, self.cfg.control.pose_timeout_s)
+        if verdict is PoseVerdict.ACCEPTED:
+            self.pose = pose
+            return
+        last = self.pose
+        where = "" if last is None else f" (last accepted at {np.round(last.position, 2).tolist()})"
+        self._rl.warning(f"pose:{verdict.value}", f"{self.cfg.topics.pose}: pose at "
+                         f"{np.round(pose.position, 2).tolist()} refused: exceeds the pose_gate {verdict.value} "
+                         f"limit{where}")
 
     def _on_path(self, path: PathMsg) -> None:
         with self._lock:
@@ -311,6 +321,7 @@ class Daemon:
                 "tilt_deg": round(float(np.degrees(st.tilt)), 3),
                 "age_s": round(time.monotonic() - st.rx_time, 3),
             },
+            "pose_gate": self._pose_gate.counters(),
             "clear_fault_attempts": self._clear_attempts,
             "fault_episodes": self._fault_episodes,
             "planner": {

@@ -76,6 +76,7 @@ def build_planner(cfg: Config) -> RecedingHorizonPlanner:
         horizon=pl.horizon,
         max_landmarks_per_waypoint=pl.max_landmarks_per_waypoint,
         max_step=pl.max_step,
+        max_path_offset=pl.max_path_offset,
         retained_filter=build_retained_filter(cfg),
         options=TrajectoryOptions(width_deg=math.degrees(p.transition_width), max_iterations=p.iterations,
                                   warm_iterations=min(p.iterations, TrajectoryOptions.warm_iterations),
