@@ -25,6 +25,10 @@ import numpy as np
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="fewer repeats and smaller clouds")
     parser.add_argument("--json", default=None, metavar="FILE", help="also write the results as JSON")
+    parser.add_argument("--flood", type=float, default=None, metavar="SECONDS",
+                        help="instead: the daemon tracking while flooded with large messages, SECONDS per phase "
+                             "(pivotd.bench.flood)")
+    parser.add_argument("--flood-mb", type=float, default=20.0, help="size of each flood message [MB]")
 
 
 def _median_us(fn: Callable[[], object], repeats: int) -> float:
@@ -119,6 +123,10 @@ def _latencies(name: str, count: int, send: Callable[[], None], arrivals: queue.
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.flood is not None:
+        from pivotd.bench.flood import run_flood
+
+        return run_flood(args.flood, args.flood_mb, args.json)
     results = {"quick": bool(args.quick), **codec_results(args.quick), **latency_results(args.quick)}
     for key, value in results.items():
         if key != "quick":

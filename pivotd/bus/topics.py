@@ -33,6 +33,11 @@ def normalize_topic(topic: str) -> str:
     return "/" + stripped
 
 
+#: Zenoh's reassembly limit is this many times the largest payload limit: messages up to it arrive and are
+#: counted as too large; beyond it Zenoh drops them before allocating them.
+ZENOH_MESSAGE_LIMIT_FACTOR = 2
+
+
 @dataclass(frozen=True)
 class BusTopics:
     """Topic names, types and validation settings of the bus.
@@ -79,3 +84,8 @@ class BusTopics:
         key = self.status_key
         if not key or key.startswith("/") or key.endswith("/") or any(c in key for c in "*$?# "):
             raise ConfigError(f"status_key {key!r} is not a plain Zenoh key such as pivot/pivotd/status")
+
+    @property
+    def max_message_bytes(self) -> int:
+        """Largest message [bytes] the session needs to reassemble (Zenoh drops larger ones unseen)."""
+        return ZENOH_MESSAGE_LIMIT_FACTOR * max(getattr(self, name) for name in PAYLOAD_LIMITS)

@@ -36,7 +36,13 @@ from pivotd.daemon.pose_gate import PoseGate, PoseVerdict
 from pivotd.daemon.reload import apply_reload, plan_reload
 from pivotd.daemon.states import DaemonState
 from pivotd.daemon.systemd import Notifier, watchdog_interval
-from pivotd.daemon.wiring import build_control_loop, build_control_settings, build_gimbal, park_joints
+from pivotd.daemon.wiring import (
+    build_control_loop,
+    build_control_settings,
+    build_gimbal,
+    park_joints,
+    return_large_frees_to_the_os,
+)
 from pivotd.daemon.worker import PlannerWorker, WorkerError
 from pivotd.errors import PivotdError
 from pivotd.gimbal.interface import GimbalInterface, GimbalMode, LinkState
@@ -430,10 +436,12 @@ class Daemon:
 
     def _start(self) -> None:
         cfg = self.cfg
+        return_large_frees_to_the_os()
         z = cfg.zenoh
         self.session = open_session(mode=z.mode, connect=z.connect, listen=z.listen, config_file=z.config_file,
                                     multicast_scouting=z.multicast_scouting, security=z.security,
-                                    input_keys=input_key_exprs(cfg.topics))
+                                    input_keys=input_key_exprs(cfg.topics),
+                                    max_message_bytes=cfg.topics.max_message_bytes)
         if self.overrides.record is not None:
             from pivotd.daemon.recorder import Recorder
 
