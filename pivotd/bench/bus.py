@@ -3,7 +3,8 @@
 Reports medians (and p99 for latencies) measured in one run, single process, two Zenoh peer
 sessions connected over TCP on 127.0.0.1 (scouting off):
 
-* codec: encode JointState, decode Odometry, encode view plan (N poses), decode PointCloud2 (N points)
+* codec: encode JointState, decode Odometry, encode view plan (N poses), decode PointCloud2 (N points),
+  decode a 4 MiB Path with pivotd's reader and with rosbags' generic decoder (side by side)
 * latency: remote Odometry put -> PivotBus ``on_pose`` callback (CDR decode + validation included),
   and PivotBus.publish_joint_state -> a raw subscriber in the other session.
 """
@@ -66,6 +67,12 @@ def codec_results(quick: bool) -> dict[str, float]:
         cloud = m.encode_cloud(1.0, "map", rng.normal(size=(n, 3)), rng.uniform(0, 1, n))
         out[f"decode_cloud_{n}_us"] = _median_us(lambda c=cloud, k=n: m.decode_cloud(c, "/c", max_points=k),
                                                  5 if quick else 15)
+    # A path at the default size limit (4 MiB, ~58k poses): pivotd's CDR reader vs rosbags' generic decoder.
+    from pivotd.bus.flood import large_path
+
+    path = large_path(4 * 1024 * 1024)
+    out["decode_path_4MiB_us"] = _median_us(lambda: m.decode_path(path, "/p"), 3 if quick else 7)
+    out["decode_path_4MiB_rosbags_us"] = _median_us(lambda: m.deserialize(path, m.PATH, "/p"), 1 if quick else 3)
     return out
 
 
@@ -91,7 +98,7 @@ def latency_results(quick: bool) -> dict[str, float]:
         out.update(_latencies("pose_to_callback", count, lambda: odom.put(payload), arrivals))
         joint_rx: queue.Queue = queue.Queue()
         sub = b.declare_subscriber("0/pivot/joint_states/*/*", lambda s: joint_rx.put(time.perf_counter()))
-        _wait(bus._joint_pub.matched)
+        _wait(bus.joint_state_publisher.matched)
         out.update(_latencies("joint_state_to_subscriber", count,
                               lambda: bus.publish_joint_state(1.0, 0.1, 0.2, 0.0, 0.0), joint_rx))
         sub.undeclare()

@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import signal
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -30,6 +31,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[2]
 DEMO = REPO / "config" / "demo.yaml"
 HOST_CLOCK_WRAP_S = 2**32 * 1e-6  # SETPOINT host time is monotonic µs modulo 2³²
+EXIT_WAIT_S = 90.0  # SIGTERM -> exit longer than this is reported as such (and the daemon killed)
 
 
 def _host_times(sp_t: np.ndarray, reference: float) -> np.ndarray:
@@ -132,9 +134,13 @@ def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, chan
             floods[k % len(floods)][0].put(floods[k % len(floods)][1])
         t_term = time.monotonic()
         daemon.send_signal(signal.SIGTERM)
-        code = daemon.wait(timeout=60)
-        out["exit_s"] = round(time.monotonic() - t_term, 2)
-        out["exit_code"] = code
+        try:
+            out["exit_code"] = daemon.wait(timeout=EXIT_WAIT_S)
+            out["exit_s"] = round(time.monotonic() - t_term, 2)
+        except subprocess.TimeoutExpired:
+            daemon.kill()
+            daemon.wait()
+            out["exit_code"], out["exit_s"] = None, f">{EXIT_WAIT_S:g}"
         dev = read_device_log(device_log)
         host = _host_times(dev.sp_time, t_end)
         window = np.sort(host[(host >= t_start) & (host <= t_end)])
