@@ -63,8 +63,12 @@ def spacing_stats(times: np.ndarray, period: float) -> dict[str, float]:
             "max_gap_s": round(float(gaps.max()), 4)}
 
 
-def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, changes: dict | None = None) -> dict:
-    """One daemon run: ``seconds`` of tracking (with a flood when ``flood_mb``), then SIGTERM mid-flood."""
+def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, changes: dict | None = None,
+              forged_poses: int = 0) -> dict:
+    """One daemon run: ``seconds`` of tracking (with a flood when ``flood_mb``), then SIGTERM mid-flood.
+
+    ``forged_poses``: that many poses 700 m away from the robot are also published (one every 0.5 s), which the
+    daemon's pose gate must refuse."""
     from pivotd.bench.control import _tree_rss_mb
     from pivotd.bus import flood as payloads
     from pivotd.bus import messages as m
@@ -115,11 +119,19 @@ def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, chan
             floods = [(node.publisher(cfg.topics.path, m.PATH), payloads.large_path(size)),
                       (node.publisher(cfg.topics.targets, m.POINT_CLOUD2), payloads.cloud_with_fields(size))]
             time.sleep(0.5)  # let the publishers match
+        forger = node.publisher(cfg.topics.pose, cfg.topics.pose_type) if forged_poses else None
+        forged = m.encode_odometry(0.0, "map", "base_link", np.array([500.0, 500.0, 0.0]),
+                                   np.array([0.0, 0.0, 0.0, 1.0]))
+        if forger is not None and cfg.topics.pose_type == m.POSE_STAMPED:
+            forged = m.encode_pose_stamped(0.0, "map", np.array([500.0, 500.0, 0.0]), np.array([0.0, 0.0, 0.0, 1.0]))
         t_start = time.monotonic()
         peak, k, next_put = 0.0, 0, t_start
-        sent = 0
+        sent = forged_sent = 0
         while time.monotonic() - t_start < seconds:
             now = time.monotonic()
+            if forger is not None and forged_sent < forged_poses and now - t_start >= 0.5 * (forged_sent + 1):
+                forger.put(forged)
+                forged_sent += 1
             if floods and now >= next_put:
                 pub, payload = floods[k % len(floods)]
                 pub.put(payload)
@@ -150,12 +162,15 @@ def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, chan
         st_host = dev.st_time + offset
         out["watchdog_trips"] = watchdog_trips(dev.st_faults, (st_host >= t_start) & (st_host <= t_end + 0.3))
         out["messages_sent"] = sent
+        out["forged_sent"] = forged_sent
+        out["pose_gate"] = st.get("pose_gate")
         out["rss_before_mb"] = round(statistics.median(before), 1)
         out["rss_growth_mb"] = round(peak - statistics.median(before), 1)
         bus = st.get("bus", {})
         out["bus"] = {t: dict(c) for t, c in bus.items() if t in (cfg.topics.path, cfg.topics.targets)}
         disabled = [row for row in dev.other if row[0] == "rx:ENABLE" and "on=0" in row[2]]
         park = np.array([cfg.gimbal.park_pan, cfg.gimbal.park_tilt])
+        out["final_pan_tilt_deg"] = np.round(np.degrees(dev.st_pos[-1]), 2).tolist()
         out["parked"] = bool(disabled) and bool(np.all(np.abs(dev.st_pos[-1] - park) < np.radians(1.0)))
         return out
     finally:
