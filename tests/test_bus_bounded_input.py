@@ -12,8 +12,8 @@ from bus_support import drain, session_pair, wait_for
 
 from pivotd.bus import messages as m
 from pivotd.bus import ros
-from pivotd.bus.flood import cloud_with_fields, large_path
 from pivotd.bus.inbox import Decoder, Inbox
+from pivotd.bus.large_messages import cloud_with_fields, large_path
 from pivotd.bus.pivot_bus import PivotBus
 from pivotd.bus.topics import BusTopics
 from pivotd.errors import ConfigError

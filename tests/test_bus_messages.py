@@ -276,7 +276,7 @@ def test_path_decoder_reads_exactly_what_rosbags_reads():
 
 
 def test_large_path_decodes_to_its_poses_and_truncations_are_malformed():
-    from pivotd.bus.flood import large_path
+    from pivotd.bus.large_messages import large_path
 
     payload = large_path(200_000, step=0.5)
     path = m.decode_path(payload, "/plan")

@@ -68,7 +68,7 @@ def codec_results(quick: bool) -> dict[str, float]:
         out[f"decode_cloud_{n}_us"] = _median_us(lambda c=cloud, k=n: m.decode_cloud(c, "/c", max_points=k),
                                                  5 if quick else 15)
     # A path at the default size limit (4 MiB, ~58k poses): pivotd's CDR reader vs rosbags' generic decoder.
-    from pivotd.bus.flood import large_path
+    from pivotd.bus.large_messages import large_path
 
     path = large_path(4 * 1024 * 1024)
     out["decode_path_4MiB_us"] = _median_us(lambda: m.decode_path(path, "/p"), 3 if quick else 7)

@@ -70,7 +70,7 @@ def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, chan
     ``forged_poses``: that many poses 700 m away from the robot are also published (one every 0.5 s), which the
     daemon's pose gate must refuse."""
     from pivotd.bench.control import _tree_rss_mb
-    from pivotd.bus import flood as payloads
+    from pivotd.bus import large_messages as payloads
     from pivotd.bus import messages as m
     from pivotd.bus.ros import RosNode
     from pivotd.bus.session import open_session
