@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 import pytest
+import zenoh
 from bus_support import drain, session_pair, wait_for
 
 from pivotd.bus import messages as m
@@ -81,18 +82,21 @@ def test_oversize_and_field_heavy_messages_are_dropped_before_decoding(sessions)
         targets = remote.publisher("/pivot/targets", m.POINT_CLOUD2)
         landmarks = remote.publisher("/pivot/landmarks", m.POINT_CLOUD2)
         assert all(wait_for(p.matched) for p in (plan, odom, targets, landmarks))
-        plan.put(large_path(200_000))  # a valid path, 3x the limit
-        odom.put(m.encode_odometry(0.0, "map" + "x" * 2000, "b", [0, 0, 0], [0, 0, 0, 1]))  # 2 KB pose
-        targets.put(cloud_with_fields(100_000))  # ~5000 PointFields, within the byte limit
-        landmarks.put(m.encode_cloud(0.0, "map", np.array([[0.0, 0, 0], [2e7, 0, 0]])))  # one point 20 000 km away
-        plan.put(m.encode_path(0.0, "map", [[0, 0, 0], [1, 0, 0]]))
+        def put(pub, payload):  # blocking congestion control: on a busy machine the sender must not drop it
+            sessions[1].put(pub.key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+
+        put(plan, large_path(200_000))  # a valid path, 3x the limit
+        put(odom, m.encode_odometry(0.0, "map" + "x" * 2000, "b", [0, 0, 0], [0, 0, 0, 1]))  # 2 KB pose
+        put(targets, cloud_with_fields(100_000))  # ~5000 PointFields, within the byte limit
+        put(landmarks, m.encode_cloud(0.0, "map", np.array([[0.0, 0, 0], [2e7, 0, 0]])))  # a point 20 000 km away
+        put(plan, m.encode_path(0.0, "map", [[0, 0, 0], [1, 0, 0]]))
 
         def through(topic):
             c = bus.counters()[topic]
             return c["accepted"] + sum(v for k, v in c.items() if k.startswith("dropped_"))
 
         assert wait_for(lambda: through("/plan") == 2 and through("/odom") == 1 and through("/pivot/targets") == 1
-                        and through("/pivot/landmarks") == 1)
+                        and through("/pivot/landmarks") == 1, timeout=30), bus.counters()
         c = bus.counters()
         assert c["/plan"] == {"received": 2, "accepted": 1, "dropped_too_large": 1}
         assert c["/odom"] == {"received": 1, "accepted": 0, "dropped_too_large": 1}
@@ -126,7 +130,8 @@ def test_a_slow_path_consumer_never_delays_poses(sessions):
         plan.put(m.encode_path(0.0, "map", [[0, 0, 0], [1, 0, 0]]))
         assert wait_for(lambda: len(paths) == 1)  # the path thread is now blocked in the callback
         for k in range(3):
-            plan.put(m.encode_path(0.0, "map", [[0, 0, 0], [2.0 + k, 0, 0]]))
+            sessions[1].put(plan.key, m.encode_path(0.0, "map", [[0, 0, 0], [2.0 + k, 0, 0]]),
+                            congestion_control=zenoh.CongestionControl.BLOCK)
         for k in range(5):
             odom.put(m.encode_odometry(0.0, "map", "b", [float(k), 0, 0], [0, 0, 0, 1]))
             assert drain(poses, 1), "a pose was held up behind the path"
