@@ -5,13 +5,16 @@ from __future__ import annotations
 import queue
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 
 import zenoh
 from support import free_tcp_port as free_port
 from support import wait_until
 
+from pivotd.bus import messages as m
+from pivotd.bus import ros
 from pivotd.bus.session import open_session
+from pivotd.bus.topics import BusTopics
 
 
 def wait_for(predicate: Callable[[], bool], timeout: float = 10.0, interval: float = 0.02) -> bool:
@@ -60,3 +63,18 @@ def drain(q: queue.Queue, count: int, timeout: float = 10.0) -> list:
         except queue.Empty:
             break
     return out
+
+
+def record_poses(session: zenoh.Session, topics: BusTopics, into: queue.Queue,
+                 wrap: Callable[[m.PoseSample], object] = lambda s: s) -> zenoh.Subscriber:
+    """Every valid pose published on ``topics.pose``, decoded on Zenoh's thread into ``into`` (as ``wrap(pose)``).
+
+    A lossless test instrument for the tools that publish poses: pivotd's own bus keeps only the newest pose
+    while one is being decoded, so it may skip some. Undeclare the returned subscriber when done.
+    """
+    def on_sample(sample: zenoh.Sample) -> None:
+        with suppress(m.MessageError):
+            into.put(wrap(m.decode_pose(sample.payload.to_bytes(), topics.pose_type, topics.pose, topics.frame_id,
+                                        rx_time=time.monotonic())))
+
+    return session.declare_subscriber(ros.topic_key(topics.domain_id, topics.pose, None, "*"), on_sample)

@@ -237,3 +237,51 @@ def test_cloud_bad_fields_and_layouts():
     assert reason_of(m.decode_cloud, _cloud_msg(xyz, bytes(20), 2, 12, 24), "/c") == "malformed"  # data too short
     assert reason_of(m.decode_cloud, _cloud_msg(xyz, bytes(16), 2, 8, 16), "/c") == "malformed"  # z beyond step
     assert reason_of(m.decode_cloud, _cloud_msg(xyz, bytes(24), 2, 12, 12), "/c") == "malformed"  # row_step small
+
+
+def _rosbags_path_arrays(payload: bytes) -> tuple[np.ndarray, np.ndarray]:
+    msg = m.typestore().deserialize_cdr(payload, m.PATH)
+    pos = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in msg.poses]).reshape(-1, 3)
+    quat = np.array([[p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z, p.pose.orientation.w]
+                     for p in msg.poses]).reshape(-1, 4)
+    return pos, quat
+
+
+def test_path_decoder_reads_exactly_what_rosbags_reads():
+    """The direct CDR reader against rosbags' generic decoder: random sizes, stamps, frame ids of varying length
+    per pose (the strided fast path and the record-by-record path), both byte orders."""
+    t = m.typestore().types
+    rng = np.random.default_rng(7)
+    for trial in range(150):
+        n = int(rng.integers(0, 60))
+        pos, quat = rng.normal(size=(n, 3)) * 1e3, rng.normal(size=(n, 4))
+        mixed = trial % 3 == 0
+        frames = ["map" if not mixed else "f" * int(rng.integers(0, 9)) for _ in range(n)]
+        poses = [t[m.POSE_STAMPED](header=t["std_msgs/msg/Header"](stamp=m.seconds_to_stamp(rng.uniform(0, 1e9)),
+                                                                      frame_id=frames[i]),
+                                   pose=t["geometry_msgs/msg/Pose"](
+                                       position=t["geometry_msgs/msg/Point"](x=pos[i, 0], y=pos[i, 1], z=pos[i, 2]),
+                                       orientation=t["geometry_msgs/msg/Quaternion"](x=quat[i, 0], y=quat[i, 1],
+                                                                                     z=quat[i, 2], w=quat[i, 3])))
+                 for i in range(n)]
+        msg = t[m.PATH](header=t["std_msgs/msg/Header"](stamp=m.seconds_to_stamp(12.5), frame_id="map"), poses=poses)
+        little = bytes(m.typestore().serialize_cdr(msg, m.PATH))
+        big = bytes(m.typestore().serialize_cdr(msg, m.PATH, little_endian=False))
+        for payload in (little, big):
+            stamp, frame, p, q = m.path_arrays(payload, "/plan")
+            ref_p, ref_q = _rosbags_path_arrays(payload)
+            assert stamp == 12.5 and frame == "map"
+            np.testing.assert_array_equal(p, ref_p)
+            np.testing.assert_array_equal(q, ref_q)
+
+
+def test_large_path_decodes_to_its_poses_and_truncations_are_malformed():
+    from pivotd.bus.large_messages import large_path
+
+    payload = large_path(200_000, step=0.5)
+    path = m.decode_path(payload, "/plan")
+    ref_p, _ = _rosbags_path_arrays(payload)
+    np.testing.assert_array_equal(path.positions, ref_p)
+    assert len(payload) >= 200_000 and path.positions.shape[0] > 2500
+    for cut in (5, 30, len(payload) // 2, len(payload) - 1):
+        assert reason_of(m.decode_path, payload[:cut], "/plan") == "malformed"

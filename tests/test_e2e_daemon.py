@@ -90,9 +90,17 @@ def test_tracking_run_end_to_end(tmp_path, backend):
                 bad = ros.RosNode(probe.session, "vandal", cfg.topics.domain_id)
                 pub = bad.publisher(cfg.topics.pose, ODOMETRY)
                 time.sleep(0.5)
-                pub.put(b"\x00\x01\x00\x00garbage")
-                pub.put(encode_odometry(time.time(), "map", "base_link", np.array([np.nan, 0, 0]),
-                                        np.array([0, 0, 0, 1.0])))
+                # Poses are latest-wins: a bad one may be replaced by the robot's next pose before it is decoded,
+                # so each is sent again until the daemon has counted it.
+                nan_pose = encode_odometry(time.time(), "map", "base_link", np.array([np.nan, 0, 0]),
+                                           np.array([0, 0, 0, 1.0]))
+                def counted(payload: bytes, reason: str) -> bool:
+                    pub.put(payload)
+                    return probe.status.get("bus", {}).get(cfg.topics.pose, {}).get(reason, 0) >= 1
+
+                for payload, reason in ((b"\x00\x01\x00\x00garbage", "dropped_malformed"),
+                                        (nan_pose, "dropped_nonfinite")):
+                    assert wait_until(lambda p=payload, r=reason: counted(p, r), 10, 0.2), daemon.output()
                 assert wait_until(lambda: probe.status.get("state") == "holding", 12), daemon.output()
                 assert wait_until(lambda: probe.status.get("state") == "tracking", 6), daemon.output()
                 # SIGHUP with a broken config keeps the running one.

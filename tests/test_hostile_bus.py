@@ -76,13 +76,14 @@ def test_far_path_is_dropped_and_counted_and_the_bus_keeps_accepting(sessions):
         odom = remote.publisher("/odom", m.ODOMETRY)
         assert wait_for(plan.matched) and wait_for(odom.matched)
         plan.put(m.encode_path(0.0, "map", [[0, 0, 0], [1e200, 0, 0]]))
+        # paths are latest-wins: the next one would replace this one if it came before it was decoded
+        assert wait_for(lambda: bus.counters()["/plan"].get("dropped_out_of_range") == 1)
         odom.put(m.encode_odometry(0.0, "map", "b", [0, 0, 0], [0, 0, 0, 1e300]))
         plan.put(m.encode_path(0.0, "map", [[0, 0, 0], [4, 0, 0]]))
         first, second = drain(events, 2)
         kinds = {first[0]: first[1], second[0]: second[1]}
         np.testing.assert_allclose(kinds["path"].positions, [[0, 0, 0], [4, 0, 0]])
         np.testing.assert_allclose(kinds["pose"].quat, [0, 0, 0, 1])
-        assert wait_for(lambda: bus.counters()["/plan"].get("dropped_out_of_range") == 1)
         assert bus.counters()["/plan"]["accepted"] == 1
         assert wait_for(bus.view_plan_publisher.matched)
         bus.publish_view_plan(MAX_SEC + 0.999999999, np.zeros((1, 3)), np.array([[1.0, 0, 0]]))

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bus_support import drain, free_port, wait_for
+from bus_support import drain, free_port, record_poses, wait_for
 
 from pivotd.bus import messages as m
 from pivotd.bus.pivot_bus import PivotBus
@@ -114,8 +114,8 @@ def listener():
 def test_sim_pose_publishes_odometry_and_path_and_honours_gap(listener):
     session, endpoint = listener
     events = queue.Queue()
-    bus = PivotBus(session, BusTopics(), on_pose=lambda s: events.put(("pose", s)),
-                   on_path=lambda p: events.put(("path", p)))
+    bus = PivotBus(session, BusTopics(), on_path=lambda p: events.put(("path", p)))
+    recorder = record_poses(session, BusTopics(), events, lambda s: ("pose", s))
     rate, speed = 20.0, 2.0
     proc = run_tool("--connect", endpoint, "--rate", str(rate), "--speed", str(speed), "--gap", "1.0:1.0",
                     "--duration", "60", "--wait-subscribers", "30", "--quiet")
@@ -132,6 +132,7 @@ def test_sim_pose_publishes_odometry_and_path_and_honours_gap(listener):
         assert proc.returncode == 0
     finally:
         stop_tool(proc)
+        recorder.undeclare()
         bus.close()
 
     # The path is the hallway route, published at t = 0 (same stamp as the first pose).
@@ -158,8 +159,9 @@ def test_sim_pose_publishes_odometry_and_path_and_honours_gap(listener):
 def test_sim_pose_csv_route_as_pose_stamped(listener):
     session, endpoint = listener
     events = queue.Queue()
-    bus = PivotBus(session, BusTopics(pose="/robot/pose", pose_type=m.POSE_STAMPED, path="/robot/plan", domain_id=4),
-                   on_pose=events.put)
+    topics = BusTopics(pose="/robot/pose", pose_type=m.POSE_STAMPED, path="/robot/plan", domain_id=4)
+    bus = PivotBus(session, topics)
+    recorder = record_poses(session, topics, events)
     proc = run_tool("--connect", endpoint, "--route", f"csv:{YCORRIDOR}", "--odom-topic", "", "--pose-topic",
                     "/robot/pose", "--path-topic", "/robot/plan", "--domain-id", "4", "--rate", "50",
                     "--wait-subscribers", "30", "--duration", "60", "--quiet")
@@ -167,8 +169,10 @@ def test_sim_pose_csv_route_as_pose_stamped(listener):
         first = drain(events, 1, timeout=60)
         assert first, "no PoseStamped received"
         assert wait_for(lambda: bus.counters()["/robot/plan"]["accepted"] >= 1, timeout=30)
+        assert wait_for(lambda: bus.counters()["/robot/pose"]["accepted"] >= 1, timeout=30)
     finally:
         stop_tool(proc)
+        recorder.undeclare()
         bus.close()
     assert proc.returncode == 0
     data = load_path(YCORRIDOR)
@@ -214,7 +218,7 @@ def test_pose_noise_in_process(listener):
 
     session, endpoint = listener
     events = queue.Queue()
-    bus = PivotBus(session, BusTopics(), on_pose=events.put)
+    recorder = record_poses(session, BusTopics(), events)
     args = build_parser().parse_args(["--connect", endpoint, "--rate", "100", "--speed", "1", "--pose-noise", "0.1",
                                       "--duration", "1.5", "--wait-subscribers", "30", "--path-topic", "", "--quiet"])
     result = []
@@ -224,7 +228,7 @@ def test_pose_noise_in_process(listener):
         worker.join(timeout=60)
         poses = drain(events, 151, timeout=10)
     finally:
-        bus.close()
+        recorder.undeclare()
     assert result == [0]
     assert len(poses) == 151
     t0 = poses[0].stamp

@@ -4,7 +4,8 @@ Reports medians (and p99 for latencies) measured in one run, single process, two
 sessions connected over TCP on 127.0.0.1 (scouting off):
 
 * codec: encode JointState, decode Odometry, encode view plan (N poses), decode PointCloud2 (N points),
-  encode the live markers of a plan (pivotd's CDR writer vs rosbags objects, side by side)
+  encode the live markers of a plan (pivotd's CDR writer vs rosbags objects, side by side),
+  decode a 4 MiB Path with pivotd's reader and with rosbags' generic decoder (side by side)
 * latency: remote Odometry put -> PivotBus ``on_pose`` callback (CDR decode + validation included),
   and PivotBus.publish_joint_state -> a raw subscriber in the other session.
 """
@@ -26,6 +27,10 @@ import numpy as np
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="fewer repeats and smaller clouds")
     parser.add_argument("--json", default=None, metavar="FILE", help="also write the results as JSON")
+    parser.add_argument("--flood", type=float, default=None, metavar="SECONDS",
+                        help="instead: the daemon tracking while flooded with large messages, SECONDS per phase "
+                             "(pivotd.bench.flood)")
+    parser.add_argument("--flood-mb", type=float, default=20.0, help="size of each flood message [MB]")
 
 
 def _median_us(fn: Callable[[], object], repeats: int) -> float:
@@ -64,6 +69,12 @@ def codec_results(quick: bool) -> dict[str, float]:
         cloud = m.encode_cloud(1.0, "map", rng.normal(size=(n, 3)), rng.uniform(0, 1, n))
         out[f"decode_cloud_{n}_us"] = _median_us(lambda c=cloud, k=n: m.decode_cloud(c, "/c", max_points=k),
                                                  5 if quick else 15)
+    # A path at the default size limit (4 MiB, ~58k poses): pivotd's CDR reader vs rosbags' generic decoder.
+    from pivotd.bus.large_messages import large_path
+
+    path = large_path(4 * 1024 * 1024)
+    out["decode_path_4MiB_us"] = _median_us(lambda: m.decode_path(path, "/p"), 3 if quick else 7)
+    out["decode_path_4MiB_rosbags_us"] = _median_us(lambda: m.deserialize(path, m.PATH, "/p"), 1 if quick else 3)
     return out
 
 
@@ -137,6 +148,10 @@ def _latencies(name: str, count: int, send: Callable[[], None], arrivals: queue.
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.flood is not None:
+        from pivotd.bench.flood import run_flood
+
+        return run_flood(args.flood, args.flood_mb, args.json)
     results = {"quick": bool(args.quick), **codec_results(args.quick), **latency_results(args.quick)}
     for key, value in results.items():
         if key != "quick":

@@ -3,8 +3,10 @@
 :class:`PivotBus` declares one rmw_zenoh node with subscriptions for the pose, path, landmarks and
 targets, publishers for joint states and the view plan, and a plain Zenoh publisher + queryable for
 status. The map layers also take the latest stored sample at start (:mod:`pivotd.bus.stored`).
-Subscription callbacks run on Zenoh's threads: they decode, validate and hand the typed message to the
-daemon's callback; anything wrong is dropped, counted and logged (rate limited).
+Subscription callbacks run on Zenoh's threads and only check the message type and the payload
+size (``topics.max_*_bytes``) before queueing the raw payload (:mod:`pivotd.bus.inbox`, newest kept);
+two decoding threads (poses; paths and clouds) decode, validate and hand the typed message to the
+daemon's callback. Anything wrong is dropped, counted and logged (rate limited).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import numpy as np
 import zenoh
 
 from pivotd.bus import messages as m
+from pivotd.bus.inbox import Decoder, Inbox
 from pivotd.bus.qos import QoS, TopicQoS
 from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.bus.ros import RosNode, RosPublisher, msgtype_of_key
@@ -30,13 +33,17 @@ from pivotd.bus.topics import BusTopics, normalize_topic
 log = logging.getLogger(__name__)
 
 CLOUD_LAYERS = ("landmarks", "targets")
+#: Payloads each input topic may hold while waiting to be decoded. Every input is a state whose newest
+#: message supersedes the older ones (pose, path, a whole cloud layer), so only the newest is kept.
+INBOX_CAPACITY = 1
 
 
 class PivotBus:
     """pivotd's presence on the bus. Construct with an open session; call :meth:`close` when done.
 
     Callbacks: ``on_pose(PoseSample)``, ``on_path(PathMsg)``, ``on_cloud(layer, CloudMsg)`` with layer
-    ``"landmarks"`` or ``"targets"``. They run on Zenoh threads and must be short. ``on_raw(topic, msgtype,
+    ``"landmarks"`` or ``"targets"``. They run on the bus's decoding threads (poses on one, paths and clouds on
+another) and should be short. ``on_raw(topic, msgtype,
     cdr)`` (e.g. for an MCAP recorder) sees every accepted input and every published ROS message; on the
     publishing side it runs on the caller's thread.
     """
@@ -57,17 +64,28 @@ class PivotBus:
         self._closed = False
         self.node = RosNode(session, node_name, topics.domain_id, topics.namespace, humble=topics.humble)
         self._entities: list[Any] = []
+        self._takers: dict[str, Callable[[bytes, float], None]] = {}
+        self._msgtypes: dict[str, str] = {}
+        # Poses are decoded on their own thread so that a large path or cloud never delays them.
+        self._pose_inbox, self._bulk_inbox = Inbox(), Inbox()
+        self._decoders: list[Decoder] = []
+        m.warm_up()
         try:
             self._entities.append(self.node.subscriber(topics.pose, topics.pose_type, self._handler(
-                topics.pose, topics.pose_type, self._take_pose), qos.pose, any_type=True))
+                topics.pose, topics.pose_type, self._take_pose, self._pose_inbox, topics.max_pose_bytes),
+                qos.pose, any_type=True))
             self._entities.append(self.node.subscriber(topics.path, m.PATH, self._handler(
-                topics.path, m.PATH, self._take_path), qos.path, any_type=True))
+                topics.path, m.PATH, self._take_path, self._bulk_inbox, topics.max_path_bytes), qos.path,
+                any_type=True))
             for layer in CLOUD_LAYERS:
                 topic = getattr(topics, layer)
-                handler = self._handler(topic, m.POINT_CLOUD2, self._cloud_taker(layer))
+                handler = self._handler(topic, m.POINT_CLOUD2, self._cloud_taker(layer), self._bulk_inbox,
+                                        topics.max_cloud_bytes)
                 sub = self.node.subscriber(topic, m.POINT_CLOUD2, handler, getattr(qos, layer), any_type=True)
                 self._entities.append(sub)
                 fetch_stored(session, sub.key, handler, lambda t=sub.topic: self._received(t))
+            self._decoders = [Decoder(self._pose_inbox, self._decode, f"{node_name}-pose-decoder"),
+                              Decoder(self._bulk_inbox, self._decode, f"{node_name}-bulk-decoder")]
             # Public for observers (liveliness, matching); publish through the methods below.
             self.joint_state_publisher = self.node.publisher(topics.joint_states, m.JOINT_STATE, qos.joint_states)
             self.view_plan_publisher = self.node.publisher(topics.view_plan, m.PATH, qos.view_plan)
@@ -82,33 +100,51 @@ class PivotBus:
 
     # ------------------------------------------------------------------ inputs
 
-    def _handler(self, topic: str, msgtype: str,
-                 take: Callable[[bytes, float], None]) -> Callable[[zenoh.Sample], None]:
+    def _handler(self, topic: str, msgtype: str, take: Callable[[bytes, float], None],
+                 inbox: Inbox, max_bytes: int) -> Callable[[zenoh.Sample], None]:
+        """The Zenoh callback of an input topic: type and size checks only, then the raw payload goes to
+        ``inbox`` for the decoding thread (nothing is decoded on Zenoh's thread)."""
         name = normalize_topic(topic)
+        self._takers[name] = take
+        self._msgtypes[name] = msgtype
+        inbox.add_topic(name, INBOX_CAPACITY)
 
         def on_sample(sample: zenoh.Sample) -> None:
             rx = time.monotonic()
             self._count(name, "received")
-            try:
-                got = msgtype_of_key(str(sample.key_expr))
-                if got != msgtype:
-                    raise m.MessageError(name, "wrong_type", f"message of type {got or '?'} on a {msgtype} topic")
-                payload = sample.payload.to_bytes()
-                take(payload, rx)
-                if self._on_raw is not None:
-                    self._on_raw(name, msgtype, payload)
-            except m.MessageError as exc:
-                self._count(name, f"dropped_{exc.reason}")
-                self._ratelog.warning(f"{name}:{exc.reason}", f"dropped message: {exc}")
+            got = msgtype_of_key(str(sample.key_expr))
+            if got != msgtype:
+                self._drop(name, "wrong_type", f"{name}: message of type {got or '?'} on a {msgtype} topic")
                 return
-            except Exception as exc:  # a failing daemon callback must not kill Zenoh's thread
-                self._count(name, "dropped_callback_error")
-                self._ratelog.warning(f"{name}:callback", f"{name}: handler failed: {exc!r}")
-                log.debug("handler failure", exc_info=True)
+            size = len(sample.payload)
+            if size > max_bytes:
+                self._drop(name, "too_large", f"{name}: payload of {size} bytes exceeds the {max_bytes}-byte limit")
                 return
-            self._count(name, "accepted")
+            if not inbox.put(name, (sample.payload.to_bytes(), rx)) and not self._closed:
+                self._drop(name, "queue_full", f"{name}: a newer message replaced one not yet decoded")
 
         return on_sample
+
+    def _decode(self, name: str, item: tuple[bytes, float]) -> None:
+        """Decode one queued payload (decoding thread): typed message to the daemon's callback, counted."""
+        payload, rx = item
+        try:
+            self._takers[name](payload, rx)
+            if self._on_raw is not None:
+                self._on_raw(name, self._msgtypes[name], payload)
+        except m.MessageError as exc:
+            self._drop(name, exc.reason, f"dropped message: {exc}")
+            return
+        except Exception as exc:  # a failing daemon callback must not stop the decoding thread
+            self._count(name, "dropped_callback_error")
+            self._ratelog.warning(f"{name}:callback", f"{name}: handler failed: {exc!r}")
+            log.debug("handler failure", exc_info=True)
+            return
+        self._count(name, "accepted")
+
+    def _drop(self, name: str, reason: str, message: str) -> None:
+        self._count(name, f"dropped_{reason}")
+        self._ratelog.warning(f"{name}:{reason}", message)
 
     def _take_pose(self, payload: bytes, rx: float) -> None:
         t = self.topics
@@ -142,7 +178,11 @@ class PivotBus:
             return self._counters.get(topic, {}).get("received", 0)
 
     def counters(self) -> dict[str, dict[str, int]]:
-        """Per input topic: ``received``, ``accepted`` and ``dropped_<reason>`` counts (a copy)."""
+        """Per input topic: ``received``, ``accepted`` and ``dropped_<reason>`` counts (a copy).
+
+        Reasons: ``wrong_type``, ``too_large`` (above the payload limit, not decoded), ``queue_full`` (replaced
+        by a newer message before it was decoded), ``callback_error`` and the decoders' reasons
+        (:class:`~pivotd.bus.messages.MessageError`)."""
         with self._lock:
             return {topic: dict(c) for topic, c in self._counters.items()}
 
@@ -216,6 +256,8 @@ class PivotBus:
         self._closed = True
         for entity in reversed(self._entities):
             entity.close()
+        for decoder in self._decoders:
+            decoder.close()
         for attr in ("_status_queryable", "status_publisher"):
             obj = getattr(self, attr, None)
             if obj is not None:

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import zenoh
 
+from pivotd.bus.security import exposure_warning, security_overlay
+from pivotd.bus.security_settings import ZenohSecurity
 from pivotd.errors import ConfigError
 
 log = logging.getLogger(__name__)
@@ -36,10 +38,16 @@ def validate_endpoint(endpoint: str, what: str = "endpoint") -> str:
 
 
 def build_config(mode: str = "peer", connect: Iterable[str] = (), listen: Iterable[str] = (),
-                 config_file: str | Path | None = None, multicast_scouting: bool = False) -> zenoh.Config:
+                 config_file: str | Path | None = None, multicast_scouting: bool = False,
+                 security: ZenohSecurity | None = None, input_keys: Iterable[str] = (),
+                 max_message_bytes: int | None = None) -> zenoh.Config:
     """A :class:`zenoh.Config` from a base file (TLS, auth, …) overlaid with the given settings.
 
     Without a file and without ``listen`` endpoints, a peer listens on :data:`DEFAULT_PEER_LISTEN`.
+    ``security`` (the config's ``zenoh.security``) adds mutual TLS and access control; ``input_keys`` are
+    the key expressions only its listed peers may publish on (:func:`pivotd.bus.security.input_key_exprs`).
+    ``max_message_bytes`` bounds what Zenoh reassembles from a link (larger messages are dropped inside Zenoh,
+    uncounted; Zenoh's own default is 1 GiB).
     """
     if mode not in MODES:
         raise ConfigError(f"invalid Zenoh mode {mode!r} (expected one of {', '.join(MODES)})")
@@ -66,19 +74,29 @@ def build_config(mode: str = "peer", connect: Iterable[str] = (), listen: Iterab
         config.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast_scouting)))
         if config_file is None:  # as rmw_zenoh's default config: transient-local publishers timestamp samples
             config.insert_json5("timestamping/enabled", "true")
+        if max_message_bytes is not None:
+            config.insert_json5("transport/link/rx/max_message_size", json.dumps(int(max_message_bytes)))
+        if security is not None:
+            for key, value in security_overlay(security, input_keys).items():
+                config.insert_json5(key, json.dumps(value))
     except zenoh.ZError as exc:
         raise ConfigError(f"invalid Zenoh setting: {_one_line(exc)}") from exc
     return config
 
 
 def open_session(mode: str = "peer", connect: Iterable[str] = (), listen: Iterable[str] = (),
-                 config_file: str | Path | None = None, multicast_scouting: bool = False) -> zenoh.Session:
+                 config_file: str | Path | None = None, multicast_scouting: bool = False,
+                 security: ZenohSecurity | None = None, input_keys: Iterable[str] = (),
+                 max_message_bytes: int | None = None) -> zenoh.Session:
     """Open a Zenoh session; raises :class:`ConfigError` with a one-line reason on bad settings.
 
     A ``connect`` endpoint that is well-formed but unreachable does not fail in peer mode (Zenoh
     keeps retrying); in client mode Zenoh fails when no router answers, reported as ConfigError.
     """
-    config = build_config(mode, connect, listen, config_file, multicast_scouting)
+    config = build_config(mode, connect, listen, config_file, multicast_scouting, security, input_keys,
+                          max_message_bytes)
+    if (warning := exposure_warning(config)) is not None:
+        log.warning("%s", warning)
     try:
         session = zenoh.open(config)
     except zenoh.ZError as exc:

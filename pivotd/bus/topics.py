@@ -15,6 +15,9 @@ ODOMETRY = "nav_msgs/msg/Odometry"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 POSE_TYPES = (ODOMETRY, POSE_STAMPED)
 TOPIC_FIELDS = ("pose", "path", "landmarks", "targets", "joint_states", "view_plan")
+#: Payload size limits of the input topics (``topics`` keys) [bytes] and their smallest allowed value.
+PAYLOAD_LIMITS = ("max_pose_bytes", "max_path_bytes", "max_cloud_bytes")
+MIN_PAYLOAD_LIMIT = 256
 
 
 def status_key_for(name: str) -> str:
@@ -45,11 +48,16 @@ def normalize_topic(topic: str) -> str:
     return "/" + stripped
 
 
+#: Zenoh's reassembly limit is this many times the largest payload limit: messages up to it arrive and are
+#: counted as too large; beyond it Zenoh drops them before allocating them.
+ZENOH_MESSAGE_LIMIT_FACTOR = 2
+
+
 @dataclass(frozen=True)
 class BusTopics:
     """Topic names, types and validation settings of the bus.
 
-    The fields from ``domain_id`` to ``max_cloud_points`` are the keys of the config's ``topics`` section
+    The fields from ``domain_id`` to ``max_cloud_bytes`` are the keys of the config's ``topics`` section
     (same names and defaults). ``status_key`` follows the config's ``name`` (:func:`status_key_for`).
     ``namespace`` is the ROS namespace of pivotd's node (the config's ``topics.namespace``): relative topic
     names, such as the defaults, resolve under it on construction (:func:`resolve_topic`), so the fields
@@ -57,6 +65,7 @@ class BusTopics:
     and keep their defaults in the daemon: ``accept_empty_frame``: messages with an empty ``frame_id`` are
     taken as being in ``frame_id``; ``humble``: publish with rmw_zenoh's Humble key form (no type hash)
     instead of RIHS01 hashes. ``frame_id`` None accepts any frame.
+    ``max_*_bytes``: payload size limits [bytes] of the pose, path and cloud topics, checked before decoding.
     """
 
     domain_id: int = 0
@@ -69,6 +78,9 @@ class BusTopics:
     view_plan: str = "pivot/view_plan"
     frame_id: str | None = "map"
     max_cloud_points: int = 1_000_000
+    max_pose_bytes: int = 16 * 1024
+    max_path_bytes: int = 4 * 1024 * 1024
+    max_cloud_bytes: int = 32 * 1024 * 1024
     status_key: str = status_key_for("pivotd")
     accept_empty_frame: bool = True
     namespace: str = "/"
@@ -79,6 +91,9 @@ class BusTopics:
             raise ConfigError(f"pose_type {self.pose_type!r} must be one of {', '.join(POSE_TYPES)}")
         if self.max_cloud_points < 1:
             raise ConfigError(f"max_cloud_points must be >= 1, got {self.max_cloud_points}")
+        for name in PAYLOAD_LIMITS:
+            if getattr(self, name) < MIN_PAYLOAD_LIMIT:
+                raise ConfigError(f"{name} must be >= {MIN_PAYLOAD_LIMIT}, got {getattr(self, name)}")
         if not isinstance(self.domain_id, int) or not 0 <= self.domain_id <= 232:
             raise ConfigError(f"domain_id must be an integer in 0..232, got {self.domain_id!r}")
         object.__setattr__(self, "namespace", normalize_namespace(self.namespace))
@@ -87,3 +102,8 @@ class BusTopics:
         key = self.status_key
         if not key or key.startswith("/") or key.endswith("/") or any(c in key for c in "*$?# "):
             raise ConfigError(f"status_key {key!r} is not a plain Zenoh key such as pivot/pivotd/status")
+
+    @property
+    def max_message_bytes(self) -> int:
+        """Largest message [bytes] the session needs to reassemble (Zenoh drops larger ones unseen)."""
+        return ZENOH_MESSAGE_LIMIT_FACTOR * max(getattr(self, name) for name in PAYLOAD_LIMITS)

@@ -27,7 +27,19 @@ def run(args: argparse.Namespace) -> int:
     cloud = load_landmarks(cfg.map.file) if cfg.map.file is not None else None
     _check_occupancy(cfg, cloud)
     sys.stdout.write("\n".join(summary_lines(cfg, cloud)) + "\n")
+    if (warning := bus_exposure_warning(cfg)) is not None:
+        sys.stderr.write(f"warning: {warning}\n")
     return 0
+
+
+def bus_exposure_warning(cfg: Config) -> str | None:
+    """The one-line warning when the daemon's Zenoh session would let unauthenticated peers publish its inputs."""
+    from pivotd.bus.security import exposure_warning, input_key_exprs
+    from pivotd.bus.session import build_config
+
+    z = cfg.zenoh
+    return exposure_warning(build_config(z.mode, z.connect, z.listen, z.config_file, z.multicast_scouting,
+                                         z.security, input_key_exprs(cfg.topics)))
 
 
 def _check_occupancy(cfg: Config, cloud: LandmarkCloud | None) -> None:
@@ -67,7 +79,9 @@ def summary_lines(cfg: Config, cloud: LandmarkCloud | None) -> list[str]:
         f"node: {cfg.name} (status key {cfg.status_key})",
         f"zenoh: {z.mode}, connect {list(z.connect)}, listen {list(z.listen)}, "
         f"multicast scouting {'on' if z.multicast_scouting else 'off'}"
-        + (f", config file {z.config_file}" if z.config_file else ""),
+        + (f", config file {z.config_file}" if z.config_file else "")
+        + (", mutual TLS" if z.security.tls else "")
+        + (", access control on the inputs" if z.security.access_control else ""),
         f"topics (domain {t.domain_id}): pose {t.pose} [{t.pose_type}], path {t.path}, landmarks {t.landmarks}, "
         f"targets {t.targets}, joint states {t.joint_states}, view plan {t.view_plan}, frame {t.frame_id}",
         map_line,

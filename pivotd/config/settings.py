@@ -17,7 +17,8 @@ from pathlib import Path
 from firmware_proto.messages import Config as ConfigMessage
 from firmware_proto.messages import config_problems
 from pivotd.bus.qos import DURABILITY_NAMES, MAX_DEPTH, RELIABILITY_NAMES, QoS, TopicQoS
-from pivotd.bus.topics import POSE_TYPES, BusTopics, status_key_for
+from pivotd.bus.security_settings import ZenohSecurity
+from pivotd.bus.topics import MIN_PAYLOAD_LIMIT, PAYLOAD_LIMITS, POSE_TYPES, BusTopics, status_key_for
 from pivotd.config.yaml_reader import Section, read_yaml
 from pivotd.errors import ConfigError, InputError
 from pivotd.gimbal.kinematics import JointLimits, Mount
@@ -55,6 +56,7 @@ class ZenohConfig:
     listen: tuple[str, ...] = ()
     config_file: Path | None = None  # a Zenoh JSON5 config (TLS, auth) applied before the keys above
     multicast_scouting: bool = False
+    security: ZenohSecurity = field(default_factory=ZenohSecurity)
 
 
 @dataclass(frozen=True)
@@ -121,6 +123,7 @@ class PlannerConfig:
     replan_hz: float = 5.0
     max_landmarks_per_waypoint: int = 2000
     max_step: float | None = None
+    max_path_offset: float = 3.0  # [m]: progress along the path advances only with the pose this close to it
 
 
 def _default_limits() -> JointLimits:
@@ -194,6 +197,16 @@ class ControlConfig:
 
 
 @dataclass(frozen=True)
+class PoseGateConfig:
+    """Plausibility of a pose against the last accepted one: largest speed [m/s], largest single jump [m] and
+    largest turn rate [rad/s] (docs/SECURITY.md)."""
+
+    max_speed: float = 5.0
+    max_jump: float = 2.0
+    max_turn_rate: float = math.radians(360.0)
+
+
+@dataclass(frozen=True)
 class LoggingConfig:
     level: str = "INFO"
 
@@ -238,6 +251,7 @@ class Config:
     motion: MotionConfig = field(default_factory=MotionConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
     logging: LoggingConfig = field(default_factory=LoggingConfig)
+    pose_gate: PoseGateConfig = field(default_factory=PoseGateConfig)
     sim: SimConfig | None = None
     ros: RosConfig = field(default_factory=RosConfig)
     source: Path | None = None  # the file this was loaded from
@@ -334,6 +348,7 @@ def load_config(path: str | Path) -> Config:
         motion=_motion(root.section("motion")),
         control=control,
         logging=_logging(root.section("logging")),
+        pose_gate=_pose_gate(root.section("pose_gate")),
         sim=_sim(root.section("sim")) if root.has("sim") else None,
         ros=_ros(root.section("ros")),
         source=path.resolve(),
@@ -396,8 +411,51 @@ def _zenoh(s: Section) -> ZenohConfig:
         raise s.error("connect", "client mode needs a router endpoint (or multicast_scouting: true)")
     if config_file is not None:
         _check_zenoh_file(s, mode, connect, listen, config_file, scouting)
+    security = _zenoh_security(s.section("security"))
     s.finish()
-    return ZenohConfig(mode, connect, listen, config_file, scouting)
+    return ZenohConfig(mode, connect, listen, config_file, scouting, security)
+
+
+_ZID_RE = r"[0-9a-f]{1,32}"
+_PEM_FILES = ("ca", "cert", "key")
+
+
+def _zenoh_security(s: Section) -> ZenohSecurity:
+    d = ZenohSecurity()
+    files = {k: s.path_value(k, None) for k in _PEM_FILES}
+    given = [k for k, v in files.items() if v is not None]
+    if given and len(given) < len(_PEM_FILES):
+        missing = next(k for k in _PEM_FILES if files[k] is None)
+        raise s.error(missing, f"required with {', '.join(given)} (mutual TLS needs ca, cert and key)")
+    for k, path in files.items():
+        if path is not None and (problem := _pem_problem(path)):
+            raise s.error(k, f"{path}: {problem}")
+    out = ZenohSecurity(
+        **files,
+        verify_name_on_connect=s.boolean("verify_name_on_connect", d.verify_name_on_connect),
+        allow_cert_common_names=s.string_list("allow_cert_common_names", d.allow_cert_common_names,
+                                              check=lambda v: None if v.strip() else "must not be empty"),
+        allow_interfaces=s.string_list("allow_interfaces", d.allow_interfaces,
+                                       check=lambda v: None if v.strip() else "must not be empty"),
+        allow_zids=s.string_list("allow_zids", d.allow_zids, check=lambda v: None if re.fullmatch(_ZID_RE, v) else
+                                 "a Zenoh id: 1 to 32 lowercase hex digits"),
+    )
+    if out.allow_cert_common_names and not out.tls:
+        raise s.error("allow_cert_common_names", "needs mutual TLS (set ca, cert and key)")
+    s.finish()
+    return out
+
+
+def _pem_problem(path: Path) -> str | None:
+    """Why ``path`` is not a readable PEM file (None when it is)."""
+    if not path.is_file():
+        return "not a file"
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(64 * 1024)
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror or exc})"
+    return None if b"-----BEGIN " in head else "not a PEM file (no -----BEGIN line)"
 
 
 def _check_zenoh_file(s: Section, mode: str, connect: tuple[str, ...], listen: tuple[str, ...], config_file: Path,
@@ -432,6 +490,7 @@ def _topics(s: Section) -> BusTopics:
         view_plan=topic("view_plan"),
         frame_id=s.string("frame_id", d.frame_id, pattern=_FRAME_RE, pattern_help="a TF frame name"),
         max_cloud_points=s.number("max_cloud_points", d.max_cloud_points, min=1, integer=True),
+        **{k: s.number(k, getattr(d, k), min=MIN_PAYLOAD_LIMIT, integer=True) for k in PAYLOAD_LIMITS},
     )
     s.finish()
     return out
@@ -505,6 +564,7 @@ def _planner(s: Section, control: ControlConfig) -> PlannerConfig:
             "max_landmarks_per_waypoint", d.max_landmarks_per_waypoint, min=1, integer=True
         ),
         max_step=_radians_or_none(s.number("max_step_deg", None, min=MAX_STEP_RANGE_DEG[0], max=MAX_STEP_RANGE_DEG[1])),
+        max_path_offset=s.number("max_path_offset", d.max_path_offset, min=0.0, min_open=True),
     )
     s.finish()
     return out
@@ -648,6 +708,18 @@ def _control(s: Section) -> ControlConfig:
         status_hz=s.number("status_hz", d.status_hz, min=1.0, max=5.0),
         joint_state_hz=s.number("joint_state_hz", d.joint_state_hz, min=0.0, max=rate, min_open=True),
         realtime_priority=s.number("realtime_priority", d.realtime_priority, min=0, max=99, integer=True),
+    )
+    s.finish()
+    return out
+
+
+def _pose_gate(s: Section) -> PoseGateConfig:
+    d = PoseGateConfig()
+    out = PoseGateConfig(
+        max_speed=s.number("max_speed", d.max_speed, min=0.0, min_open=True),
+        max_jump=s.number("max_jump", d.max_jump, min=0.0, min_open=True),
+        max_turn_rate=math.radians(s.number("max_turn_rate_deg_s", math.degrees(d.max_turn_rate), min=0.0,
+                                            min_open=True)),
     )
     s.finish()
     return out

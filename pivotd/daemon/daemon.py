@@ -28,15 +28,23 @@ from pivotd.bus.markers import PlanVisuals
 from pivotd.bus.messages import CloudMsg, PathMsg, PoseSample
 from pivotd.bus.pivot_bus import PivotBus
 from pivotd.bus.ratelimit import RateLimitedLog
+from pivotd.bus.security import input_key_exprs
 from pivotd.bus.session import open_session
 from pivotd.config import Config, load_config
 from pivotd.daemon.control import ControlLoop
 from pivotd.daemon.planner import Plan
+from pivotd.daemon.pose_gate import PoseGate, PoseVerdict
 from pivotd.daemon.reload import apply_reload, plan_reload
 from pivotd.daemon.states import DaemonState
 from pivotd.daemon.systemd import Notifier, watchdog_interval
 from pivotd.daemon.visuals import build_plan_visuals
-from pivotd.daemon.wiring import build_control_loop, build_control_settings, build_gimbal, park_joints
+from pivotd.daemon.wiring import (
+    build_control_loop,
+    build_control_settings,
+    build_gimbal,
+    park_joints,
+    return_large_frees_to_the_os,
+)
 from pivotd.daemon.worker import PlannerWorker, WorkerError
 from pivotd.errors import PivotdError
 from pivotd.gimbal.interface import GimbalInterface, GimbalMode, LinkState
@@ -86,7 +94,8 @@ class Daemon:
         self._planner_wake = threading.Event()  # cuts the planner thread's wait short (reload, stop)
         self._lock = threading.Lock()
         # Latest inputs: immutable objects swapped by reference.
-        self.pose: PoseSample | None = None
+        self.pose: PoseSample | None = None  # the last pose the pose gate accepted
+        self._pose_gate = PoseGate()
         self._path: tuple[np.ndarray, np.ndarray | None, int] | None = None
         self._path_version = 0
         self._pending_clouds: dict[str, CloudMsg] = {}
@@ -122,9 +131,17 @@ class Daemon:
         return load_config(self.config_path).with_overrides(
             port=ov.port, connect=list(ov.connect) or None, listen=list(ov.listen) or None)
 
-    # ------------------------------------------------------------------ bus callbacks (Zenoh threads)
+    # ------------------------------------------------------------------ bus callbacks (bus decoding threads)
     def _on_pose(self, pose: PoseSample) -> None:
-        self.pose = pose
+        verdict = self._pose_gate.check(pose, self.cfg.pose_gate, self.cfg.control.pose_timeout_s)
+        if verdict is PoseVerdict.ACCEPTED:
+            self.pose = pose
+            return
+        last = self.pose
+        where = "" if last is None else f" (last accepted at {np.round(last.position, 2).tolist()})"
+        self._rl.warning(f"pose:{verdict.value}", f"{self.cfg.topics.pose}: pose at "
+                         f"{np.round(pose.position, 2).tolist()} refused: exceeds the pose_gate {verdict.value} "
+                         f"limit{where}")
 
     def _on_path(self, path: PathMsg) -> None:
         with self._lock:
@@ -338,6 +355,7 @@ class Daemon:
                 "tilt_deg": round(float(np.degrees(st.tilt)), 3),
                 "age_s": round(time.monotonic() - st.rx_time, 3),
             },
+            "pose_gate": self._pose_gate.counters(),
             "clear_fault_attempts": self._clear_attempts,
             "fault_episodes": self._fault_episodes,
             "planner": {
@@ -446,9 +464,12 @@ class Daemon:
 
     def _start(self) -> None:
         cfg = self.cfg
+        return_large_frees_to_the_os()
         z = cfg.zenoh
         self.session = open_session(mode=z.mode, connect=z.connect, listen=z.listen, config_file=z.config_file,
-                                    multicast_scouting=z.multicast_scouting)
+                                    multicast_scouting=z.multicast_scouting, security=z.security,
+                                    input_keys=input_key_exprs(cfg.topics),
+                                    max_message_bytes=cfg.topics.max_message_bytes)
         if self.overrides.record is not None:
             from pivotd.daemon.recorder import METADATA_NAME, Recorder
 

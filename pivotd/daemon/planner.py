@@ -110,7 +110,8 @@ class Plan:
 class PlannerSettings:
     """fov: full cone opening [rad]; lam: smoothness weight λ; spacing [m]; horizon: waypoints;
     max_step: hard limit on the turn between consecutive planned directions, from the commanded one
-    on [rad] (None: no limit)."""
+    on [rad] (None: no limit); max_path_offset [m]: progress advances only with the robot this close to the
+    path, and by at most the robot's displacement since the last replan plus this distance."""
 
     fov: float
     lam: float = 0.6
@@ -122,6 +123,7 @@ class PlannerSettings:
     back_window: float = 1.0
     ahead_window: float = 5.0
     max_step: float | None = None
+    max_path_offset: float = 3.0
     cold_polish: bool = False  # step-limited polish of cold starts (the warm replans after them do not polish)
 
     @property
@@ -165,6 +167,7 @@ class RecedingHorizonPlanner:
         self._tracker: Polyline | None = None
         self._path_version = -1
         self.progress: float | None = None
+        self._located_at: np.ndarray | None = None  # body position of the last progress update [m]
         self.last_plan: Plan | None = None
         self._cache_key: tuple[int, int] | None = None
         self._cache: dict[int, np.ndarray] = {}
@@ -179,6 +182,22 @@ class RecedingHorizonPlanner:
                          else Polyline(positions, quats, ignore_constant_quats=True))
         self.progress = None
         self.unwind_target = None
+        self._located_at = None
+
+    def _advance(self, body_position: np.ndarray) -> float:
+        """The robot's progress along the path [m]: never backwards, only while the robot is within
+        ``max_path_offset`` of the path, and by at most its displacement since the last call plus that
+        distance (a pose far from the path, or next to a later stretch of it, cannot push it ahead)."""
+        st = self.settings
+        previous, located_at = self.progress, self._located_at
+        found, offset = self._tracker.locate(body_position, previous, st.back_window, st.ahead_window)
+        self._located_at = body_position.copy()
+        if previous is None or located_at is None:
+            return found
+        if offset > st.max_path_offset:
+            return previous
+        moved = float(np.linalg.norm(body_position - located_at))
+        return min(found, previous + moved + st.max_path_offset)
 
     def _horizon_arc(self, progress: float) -> np.ndarray:
         """Arc lengths of the horizon: the robot's progress, then the path's fixed grid k · spacing ahead.
@@ -254,7 +273,7 @@ class RecedingHorizonPlanner:
         body_position = np.asarray(body_position, float)
         body_quat = normalize(np.asarray(body_quat, float))
         if self._tracker is not None:
-            self.progress, _ = self._tracker.locate(body_position, self.progress, st.back_window, st.ahead_window)
+            self.progress = self._advance(body_position)
             s = self._horizon_arc(self.progress)
             body_pos, quats = self._tracker.sample(s)
             # The first waypoint is where the robot is now, with its measured attitude.

@@ -66,6 +66,21 @@ def release_free_memory() -> None:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
 
 
+M_MMAP_THRESHOLD = -3  # glibc mallopt parameter
+MMAP_THRESHOLD_BYTES = 1 << 20
+
+
+def return_large_frees_to_the_os() -> None:
+    """Serve allocations of 1 MiB and more with their own memory maps, returned to the OS when freed (glibc).
+
+    By default glibc raises that threshold up to 32 MiB after the first large free, so large messages
+    received one after another (Zenoh reassembles each on its own threads) land in per-thread heaps that
+    keep their peak size. A fixed threshold keeps resident memory flat under a flood. No-op elsewhere.
+    """
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6").mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
+
+
 def build_planner(cfg: Config) -> RecedingHorizonPlanner:
     """Receding-horizon planner from the ``pivot`` and ``planner`` sections and the gimbal geometry."""
     p, pl = cfg.pivot, cfg.planner
@@ -76,6 +91,7 @@ def build_planner(cfg: Config) -> RecedingHorizonPlanner:
         horizon=pl.horizon,
         max_landmarks_per_waypoint=pl.max_landmarks_per_waypoint,
         max_step=pl.max_step,
+        max_path_offset=pl.max_path_offset,
         retained_filter=build_retained_filter(cfg),
         options=TrajectoryOptions(width_deg=math.degrees(p.transition_width), max_iterations=p.iterations,
                                   warm_iterations=min(p.iterations, TrajectoryOptions.warm_iterations),

@@ -1,0 +1,43 @@
+"""End to end: the real daemon tracking while a peer floods it with large messages, then SIGTERM mid-flood.
+
+The flood (a valid Path above ``topics.max_path_bytes`` and a PointCloud2 made of PointField entries, each
+once a second) must be dropped before decoding and counted, must not starve the control loop into a device
+watchdog trip, and SIGTERM during the flood must still park the gimbal and end the process cleanly.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from pivotd.bench.flood import run_phase, watchdog_trips
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
+
+
+def test_flooded_daemon_keeps_control_counts_the_drops_and_parks_on_sigterm(tmp_path):
+    # a generous park timeout: on a loaded machine the park move itself may need more than the default 3 s
+    r = run_phase("flood", seconds=5.0, flood_mb=8.0, tmp=tmp_path, forged_poses=4,
+                  changes={"gimbal.park_timeout_s": 15.0})
+    assert r["messages_sent"] >= 4
+    # a second publisher's poses 700 m away are refused by the pose gate; the robot's own are not
+    gate = r["pose_gate"]
+    assert r["forged_sent"] == 4 and 1 <= gate["rejected"]["jump"] <= 4, gate  # (one may be replaced unread)
+    assert gate["accepted"] > 50 and gate["rejected"]["speed"] == gate["rejected"]["turn"] == 0, gate
+    path, targets = r["bus"]["/plan"], r["bus"]["/pivot/targets"]
+    assert path.get("dropped_too_large", 0) >= 2, r
+    assert targets.get("dropped_bad_fields", 0) >= 2, r
+    assert path["accepted"] >= 1  # the robot's own path still gets through
+    assert r["watchdog_trips"] == 0, r
+    assert r["setpoints"] > 0
+    assert r["exit_code"] == 0 and r["parked"], r
+
+
+def test_watchdog_trips_count_rising_edges_inside_the_window():
+    import numpy as np
+
+    from firmware_proto.messages import FAULT_WATCHDOG
+
+    faults = np.array([0, FAULT_WATCHDOG, FAULT_WATCHDOG, 0, FAULT_WATCHDOG, 0, 0])
+    assert watchdog_trips(faults) == 2
+    assert watchdog_trips(faults, np.array([True, True, True, True, False, False, False])) == 1
+    assert watchdog_trips(np.array([FAULT_WATCHDOG, 0])) == 1
