@@ -434,8 +434,9 @@ class Daemon:
         tol = np.radians(0.5)
         while time.monotonic() < deadline:
             st = link.state
-            if link.link_state != LinkState.UP:
-                break
+            if link.link_state != LinkState.UP:  # a link hiccup: the supervisor reconnects; keep parking
+                time.sleep(0.02)
+                continue
             if st is not None and abs(st.pan - target[0]) < tol and abs(st.tilt - target[1]) < tol \
                     and abs(st.pan_rate) < 0.01 and abs(st.tilt_rate) < 0.01:
                 break
