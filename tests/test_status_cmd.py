@@ -7,7 +7,7 @@ import subprocess
 import pytest
 from support import PYTHON, REPO, child_env, free_tcp_port
 
-from pivotd.cli.status import dropped_inputs, format_table
+from pivotd.cli.status import dropped_inputs, format_table, link_drops
 
 
 def document(name: str, **changes) -> dict:
@@ -34,9 +34,9 @@ def test_table_has_one_row_per_daemon_with_its_numbers():
     assert [h.strip() for h in head if h.strip()][:5] == ["NAME", "STATE", "LINK", "POSE AGE", "VISIBLE"]
     row1, row2 = lines[1], lines[2]
     assert row1.split()[:8] == ["robot1", "tracking", "up", "0.01", "s", "17", "42", "12.3/40.0"]
-    assert row1.split()[8:] == ["0.46", "none", "0"]
+    assert row1.split()[8:] == ["0.46", "none", "0", "-"]  # no framed gimbal link in this document
     assert row2.split()[:7] == ["robot2", "fault", "up", "-", "-", "0", "-/-"]
-    assert row2.split()[-4:] == ["overcurrent", "(2", "seen)", "5"]
+    assert row2.split()[-5:] == ["overcurrent", "(2", "seen)", "5", "-"]
     assert lines[3] == "robot2: /robot2/odom: 5 dropped (bad_frame 2, wrong_type 3)"
     assert lines[4] == "robot2: last error: reload: bad.yaml:3: pivot.fov_deg: must be > 0"
     assert len(lines) == 5
@@ -51,6 +51,20 @@ def test_dropped_inputs_sums_the_reasons_per_topic():
                              "/b": {"received": 2, "accepted": 2}})
     assert dropped_inputs(doc) == {"/a": 4}
     assert dropped_inputs({"state": "starting"}) == {}
+
+
+def test_gimbal_link_decode_drops_show_per_daemon_with_their_reasons():
+    counters = {"frames_received": 900, "crc_errors": 3, "decode_drops": 5, "drop_framing": 1, "drop_length": 0,
+                "drop_crc": 3, "drop_version": 0, "drop_unknown_type": 0, "drop_payload": 1, "retries": 7}
+    clean = dict(counters, crc_errors=0, decode_drops=0, drop_framing=0, drop_crc=0, drop_payload=0)
+    docs = {"r1": document("r1", link_counters=counters), "r2": document("r2", link_counters=clean),
+            "r3": document("r3", link_counters={"sync_reads": 4, "comm_errors": 1})}
+    assert link_drops(docs["r1"]) == {"crc": 3, "framing": 1, "payload": 1}
+    assert link_drops(docs["r2"]) == {} and link_drops({"state": "starting"}) == {}
+    lines = format_table(docs).splitlines()
+    assert lines[0].endswith("DROPPED  LINK DROPS")
+    assert [row.split()[-1] for row in lines[1:4]] == ["5", "0", "-"]  # r3's link has no frame decoder
+    assert lines[4:] == ["r1: gimbal link: 5 frames dropped (crc 3, framing 1, payload 1)"]
 
 
 def run_status(*args: str) -> subprocess.CompletedProcess:

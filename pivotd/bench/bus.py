@@ -23,6 +23,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from pivotd.progress import with_progress
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="fewer repeats and smaller clouds")
@@ -152,7 +154,9 @@ def run(args: argparse.Namespace) -> int:
         from pivotd.bench.flood import run_flood
 
         return run_flood(args.flood, args.flood_mb, args.json)
-    results = {"quick": bool(args.quick), **codec_results(args.quick), **latency_results(args.quick)}
+    results: dict[str, float | bool] = {"quick": bool(args.quick)}
+    for stage in with_progress((codec_results, latency_results), "bus benchmarks"):
+        results.update(stage(args.quick))
     for key, value in results.items():
         if key != "quick":
             print(f"{key:<40} {value:12.1f}")

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from pivotd.errors import PivotdError
+from pivotd.progress import with_progress
 
 log = logging.getLogger(__name__)
 
@@ -353,7 +354,8 @@ def run(args: argparse.Namespace) -> int:
         seeds = write_corpus(corpus_dir, args.seed)
         by_name = {s.name: s for s in seeds}
         t0 = time.perf_counter()
-        for k, (seed, data) in enumerate(random_cases(seeds, args.cases, rng)):
+        cases = with_progress(random_cases(seeds, args.cases, rng), "fuzz cases", total=args.cases)
+        for k, (seed, data) in enumerate(cases):
             case_dir = work / str(k)
             case_dir.mkdir(parents=True)
             out = run_case(seed, by_name, data, case_dir)

@@ -20,6 +20,8 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, replace
 from pathlib import Path
 
+from pivotd.progress import with_progress
+
 log = logging.getLogger(__name__)
 
 REPO = Path(__file__).resolve().parents[2]
@@ -126,9 +128,10 @@ def run(args: argparse.Namespace) -> int:
     jobs = max(1, min(args.jobs, len(st.scenes), os.cpu_count() or 1))
     if jobs > 1:
         with ProcessPoolExecutor(jobs) as pool:
-            results = list(pool.map(_worker, [st] * len(st.scenes), st.scenes))
+            done = pool.map(_worker, [st] * len(st.scenes), st.scenes)
+            results = list(with_progress(done, "localization scenes", total=len(st.scenes)))
     else:
-        results = [run_scene(st, s) for s in st.scenes]
+        results = [run_scene(st, s) for s in with_progress(st.scenes, "localization scenes")]
     summaries = {r.scene: summarize(r) for r in results}
     goals = [g for r in results for g in check_goals(r.scene, summaries[r.scene])]
     _print_table(st, summaries, [threshold_label(i) for i in range(len(THRESHOLDS))])

@@ -20,6 +20,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from pivotd.progress import with_progress
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="fewer cycles (a few seconds)")
@@ -128,14 +130,14 @@ def measure(cycles: int, seed: int = 0) -> dict[str, object]:
     noisy_hold_no_deadband, gen6 = make_noisy_hold(0.0)
 
     results = {}
-    for name, fn in (
+    for name, fn in with_progress((
         ("kinematics", kinematics),
         ("step", step_only),
         ("set_target_and_step", replan_step),
         ("control_cycle", cycle),
         ("noisy_hold", noisy_hold),
         ("noisy_hold_no_deadband", noisy_hold_no_deadband),
-    ):
+    ), "motion timings"):
         fn(0)  # warm-up
         results[name] = _stats(_time_calls(fn, cycles))
     warm = min(300, cycles // 2)

@@ -19,10 +19,12 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from firmware_proto import codec
 from firmware_proto.messages import Setpoint, State
+from pivotd.progress import with_progress
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
@@ -210,12 +212,16 @@ def bench_faults(seconds: float, state_hz: float) -> dict[str, float]:
 def run(args: argparse.Namespace) -> int:
     n = 20_000 if args.quick else args.frames
     repeats = 3 if args.quick else args.repeats
-    results: dict[str, float] = {}
-    results.update(bench_decode(n, repeats))
-    results.update(bench_encode(n, repeats))
-    results.update(bench_link(1.0 if args.quick else args.link_seconds, args.state_hz))
+    stages: list[Callable[[], dict[str, float]]] = [
+        lambda: bench_decode(n, repeats),
+        lambda: bench_encode(n, repeats),
+        lambda: bench_link(1.0 if args.quick else args.link_seconds, args.state_hz),
+    ]
     if args.faults:
-        results.update(bench_faults(5.0 if args.quick else args.fault_seconds, args.state_hz))
+        stages.append(lambda: bench_faults(5.0 if args.quick else args.fault_seconds, args.state_hz))
+    results: dict[str, float] = {}
+    for stage in with_progress(stages, "protocol benchmarks"):
+        results.update(stage())
     width = max(len(k) for k in results)
     for key, value in results.items():
         shown = f"{value:,.3f}" if isinstance(value, float) and abs(value) < 1000 else f"{value:,.0f}"

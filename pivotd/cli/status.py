@@ -176,6 +176,21 @@ def dropped_inputs(doc: dict) -> dict[str, int]:
     return out
 
 
+def link_drops(doc: dict) -> dict[str, int]:
+    """Frames the gimbal link's decoder dropped, per reason (``link_counters.drop_<reason>``: framing after a
+    resync, length, crc, version, unknown_type, payload), reasons with drops only."""
+    counters = _get(doc, "link_counters") or {}
+    return {k[len("drop_"):]: int(v) for k, v in sorted(counters.items())
+            if k.startswith("drop_") and isinstance(v, int | float) and not isinstance(v, bool) and v}
+
+
+def _link_drops_cell(doc: dict) -> str:
+    counters = _get(doc, "link_counters")
+    if not isinstance(counters, dict) or not any(k.startswith("drop_") for k in counters):
+        return _NA  # no framed serial link (stopped, or a link without a frame decoder)
+    return str(sum(link_drops(doc).values()))
+
+
 def _faults(doc: dict) -> str:
     names = _get(doc, "gimbal", "fault_names") or []
     now = ",".join(str(n) for n in names) if names else "none"
@@ -196,6 +211,7 @@ COLUMNS: tuple[tuple[str, Any], ...] = (
     ("JITTER p99 ms", lambda name, d: _num(_get(d, "control", "jitter_ms_p99"), ".2f")),
     ("FAULTS", lambda name, d: _faults(d)),
     ("DROPPED", lambda name, d: str(sum(dropped_inputs(d).values()))),
+    ("LINK DROPS", lambda name, d: _link_drops_cell(d)),
 )
 
 
@@ -210,6 +226,10 @@ def format_table(docs: dict[str, dict]) -> str:
         for topic, n in dropped_inputs(doc).items():
             reasons = {k[len("dropped_"):]: v for k, v in doc["bus"][topic].items() if k.startswith("dropped_") and v}
             lines.append(f"{name}: {topic}: {n} dropped ({', '.join(f'{k} {v}' for k, v in sorted(reasons.items()))})")
+        drops = link_drops(doc)
+        if drops:
+            detail = ", ".join(f"{k} {v}" for k, v in drops.items())
+            lines.append(f"{name}: gimbal link: {sum(drops.values())} frames dropped ({detail})")
         error = doc.get("last_error") or doc.get("error")
         if error:
             lines.append(f"{name}: last error: {error}")

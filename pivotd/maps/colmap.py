@@ -24,8 +24,10 @@ from __future__ import annotations
 import array
 import logging
 import math
+import os
 import struct
 from collections.abc import Callable, Iterator
+from contextlib import closing
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +35,7 @@ import numpy as np
 from pivotd.errors import InputError
 from pivotd.geometry import MAX_COORDINATE, quat_to_matrix, safe_unit_quats
 from pivotd.maps.formats import LandmarkCloud, make_cloud
+from pivotd.progress import Progress
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +46,8 @@ _HEAD_BLOCK = 1 << 14  # records per block when reading heads (a multiple of 8; 
 _TRACK_BLOCK = 1 << 12  # records per block when reading tracks (a multiple of 4)
 _IMAGE_HEAD = struct.Struct("<idddddddi")  # 64 bytes
 _I32_MIN, _I32_MAX = -(1 << 31), (1 << 31) - 1
+_PROGRESS_BLOCK = 1 << 16  # point records between progress updates of the binary reader
+_PROGRESS_LINES = 1 << 14  # lines between progress updates of the text readers
 
 
 def resolve_model(path: Path) -> tuple[Path, Path | None]:
@@ -84,16 +89,18 @@ def load_colmap(path: Path) -> LandmarkCloud:
 # --- points3D ---------------------------------------------------------------------------------
 
 
-def _record_offsets(buf: bytes, path: Path, count: int) -> np.ndarray:
+def _record_offsets(buf: bytes, path: Path, count: int, progress: Progress) -> np.ndarray:
     """Byte offsets (count,) int64 of the variable-length point records (one cheap step per record)."""
     read_u64 = struct.Struct("<Q").unpack_from
     offsets = array.array("q")  # raw int64: lighter and faster to append than a list of ints
     append = offsets.append
     off = 8
     try:
-        for _ in range(count):
-            append(off)
-            off += _POINT_HEAD + _TRACK_ELEM * read_u64(buf, off + 43)[0]
+        for start in range(0, count, _PROGRESS_BLOCK):
+            for _ in range(min(_PROGRESS_BLOCK, count - start)):
+                append(off)
+                off += _POINT_HEAD + _TRACK_ELEM * read_u64(buf, off + 43)[0]
+            progress.update(off)
     except struct.error:
         k = len(offsets) - 1
         raise InputError(f"{path}: truncated at byte {offsets[-1]} (point record {k} of {count})") from None
@@ -153,7 +160,8 @@ def read_points3d_bin(path: Path, with_tracks: bool = True) -> tuple[np.ndarray,
             f"{path}: header claims {count} points but the file holds at most {(len(buf) - 8) // _POINT_HEAD} "
             "(not a points3D.bin, or truncated)"
         )
-    offsets = _record_offsets(buf, path, count)
+    with Progress(f"reading {path.name}", len(buf), "B") as progress:
+        offsets = _record_offsets(buf, path, count, progress)
     xyz, lengths = _record_heads(buf, offsets)
     if not with_tracks:
         return xyz, lengths, None
@@ -185,10 +193,15 @@ def read_points3d_txt(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     Values go straight into typed arrays (8 bytes per number), so memory stays a small multiple of the
     file size whatever its content.
     """
+    with closing(_text_lines(path)) as numbered:  # closed (progress line ended) before an error propagates
+        return _points3d_rows(path, numbered)
+
+
+def _points3d_rows(path: Path, numbered: Iterator[tuple[int, str]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     xyz = array.array("d")
     lengths = array.array("q")
     track_img = array.array("i")
-    for lineno, line in _text_lines(path):
+    for lineno, line in numbered:
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         fields = line.split()
@@ -258,12 +271,17 @@ def read_images_bin(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 def read_images_txt(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Image ids (K,) and camera centres (K, 3) from ``images.txt``; errors name the line."""
+    with closing(_text_lines(path)) as numbered:  # closed (progress line ended) before an error propagates
+        return _images_rows(path, numbered)
+
+
+def _images_rows(path: Path, numbered: Iterator[tuple[int, str]]) -> tuple[np.ndarray, np.ndarray]:
     ids = array.array("i")
     poses = array.array("d")
     # Each image takes two lines; the keypoint line (possibly empty) follows its header line.
     # Blank lines between images are skipped.
     keypoints_next = False
-    for lineno, line in _text_lines(path):
+    for lineno, line in numbered:
         if line.lstrip().startswith("#"):
             continue
         if keypoints_next:
@@ -308,8 +326,14 @@ def _check_poses(path: Path, ids: np.ndarray, poses: np.ndarray, what: str) -> N
 def _text_lines(path: Path) -> Iterator[tuple[int, str]]:
     """(1-based line number, line) of a text file, read lazily; errors name the file."""
     try:
-        with open(path) as fh:
-            yield from enumerate(fh, start=1)
+        with open(path) as fh, Progress(f"reading {path.name}", os.fstat(fh.fileno()).st_size, "B") as progress:
+            chars = 0
+            for lineno, line in enumerate(fh, start=1):
+                chars += len(line)  # characters: bytes for the ASCII of COLMAP text files
+                if not lineno % _PROGRESS_LINES:
+                    progress.update(chars)
+                yield lineno, line
+            progress.update(chars)
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read ({exc})") from None
 
@@ -334,8 +358,10 @@ def observation_directions(
     centers32 = np.concatenate([centers, np.zeros((1, 3))]).astype(np.float32)  # row K: unknown image
     first = np.concatenate([[0], np.cumsum(lengths)])
     missing = 0
+    progress = Progress("observation directions", n, "points")  # no exits below but the loop's end
     for a in range(0, n, _BLOCK):
         b = min(n, a + _BLOCK)
+        progress.update(b)
         lk = lengths[a:b]
         if first[b] == first[a]:
             continue
@@ -354,6 +380,7 @@ def observation_directions(
         mnorm = np.sqrt(np.einsum("ij,ij->i", mean, mean))
         good = mnorm > 1e-6
         out[a + seen[good]] = mean[good] / mnorm[good, None]
+    progress.close()
     if missing:
         log.info("%d observations refer to images missing from the model; ignored", missing)
     return out

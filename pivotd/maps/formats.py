@@ -84,7 +84,7 @@ def load_landmarks(
         cloud = load_ply(path, weight_property=weight_property)
     elif suffix == ".npy":
         _no_weight_property(path, weight_property, ".npy arrays")
-        cloud = cloud_from_array(path, _read_npy(path))
+        cloud = _npy_cloud(path, _read_npy(path))
     elif suffix in TEXT_SUFFIXES:
         _no_weight_property(path, weight_property, "text maps")
         cloud = cloud_from_array(path, read_numeric_text(path, (3, 4), what="landmark", dtype=POINT_DTYPE))
@@ -141,6 +141,27 @@ def _read_npy(path: Path) -> np.ndarray:
         return np.load(path, allow_pickle=False, mmap_mode="r")
     except (ValueError, OSError, EOFError) as exc:
         raise InputError(f"{path}: not a readable .npy array ({' '.join(str(exc).split())})") from None
+
+
+_NPY_BLOCK = 1 << 18  # rows converted per block (progress granularity; temporaries stay small)
+
+
+def _npy_cloud(path: Path, arr: np.ndarray) -> LandmarkCloud:
+    """Cloud of a memory-mapped (N, 3|4) array, converted to float32 in blocks of rows (the file is read
+    here, with a progress line over its bytes); values and errors as :func:`cloud_from_array`."""
+    n, cols = arr.shape
+    points = np.empty((n, 3), POINT_DTYPE)
+    weights = np.empty(n, POINT_DTYPE) if cols == 4 else None
+    row_bytes = cols * arr.dtype.itemsize
+    with Progress(f"reading {path.name}", n * row_bytes, "B") as progress, \
+            np.errstate(over="ignore", invalid="ignore"):  # beyond float32 becomes inf: make_cloud reports it
+        for a in range(0, n, _NPY_BLOCK):
+            b = min(n, a + _NPY_BLOCK)
+            points[a:b] = arr[a:b, :3]
+            if weights is not None:
+                weights[a:b] = arr[a:b, 3]
+            progress.update(b * row_bytes)
+    return make_cloud(path, points, weights)
 
 
 def _npy_header(path: Path) -> tuple[tuple[int, ...], np.dtype, int]:

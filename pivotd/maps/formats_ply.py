@@ -15,16 +15,42 @@ import plyfile
 
 from pivotd.errors import InputError
 from pivotd.maps.formats import CappedReader, LandmarkCloud, make_cloud
+from pivotd.progress import Progress
 
 DEFAULT_WEIGHT_PROPERTY = "weight"
 
 
 def load_ply(path: Path, *, weight_property: str | None = None) -> LandmarkCloud:
     """Read vertex x, y, z (and a weight) from a PLY file; errors name the file and the vertex row."""
+    with Progress(f"reading {path.name}", None, "B") as progress:
+        return _load_ply(path, weight_property, progress)
+
+
+class _ReportingReader(CappedReader):
+    """A :class:`CappedReader` that reports the bytes read through it to ``progress`` (memory-mapped element
+    data is not read through it: :func:`_copy_columns` reports that)."""
+
+    def __init__(self, path: Path, progress: Progress) -> None:
+        super().__init__(path)
+        self.progress = progress
+
+    def read(self, size: int | None = -1) -> bytes:
+        data = super().read(size)
+        self.progress.advance(len(data))
+        return data
+
+    def read1(self, size: int = -1) -> bytes:  # what the text wrapper of ASCII PLY reads through
+        data = super().read1(size)
+        self.progress.advance(len(data))
+        return data
+
+
+def _load_ply(path: Path, weight_property: str | None, progress: Progress) -> LandmarkCloud:
     try:
         with CappedReader(path) as fh:  # list lengths read from the file cannot over-allocate
             _check_counts(path, fh)
-            fh.seek(0)
+        with _ReportingReader(path, progress) as fh:
+            progress.total = os.fstat(fh.fileno()).st_size or None
             with np.errstate(all="ignore"):  # out-of-range values become inf / wrap; make_cloud rejects them
                 ply = plyfile.PlyData.read(fh, mmap="c")  # binary scalar elements: one vectorised copy
     except plyfile.PlyElementParseError as exc:
@@ -44,10 +70,9 @@ def load_ply(path: Path, *, weight_property: str | None = None) -> LandmarkCloud
     if missing:
         raise InputError(f"{path}: PLY vertex lacks {', '.join(missing)} (properties: {', '.join(props)})")
     data = vertex.data
-    points = np.empty((len(data), 3), dtype=np.float32)
-    for k, c in enumerate("xyz"):
+    for c in "xyz":
         _check_scalar(path, vertex, c)
-        points[:, k] = data[c]
+    points = _copy_columns(data, progress)
     weights = None
     name = weight_property
     if name is None and DEFAULT_WEIGHT_PROPERTY in props:
@@ -60,6 +85,23 @@ def load_ply(path: Path, *, weight_property: str | None = None) -> LandmarkCloud
         _check_scalar(path, vertex, name)
         weights = np.asarray(data[name], dtype=np.float32)
     return make_cloud(path, points, weights, row_name="vertex")
+
+
+_COPY_BLOCK = 1 << 18  # vertices copied per block (memory-mapped data is read here)
+
+
+def _copy_columns(data: np.ndarray, progress: Progress) -> np.ndarray:
+    """x, y, z of the vertex records ``data`` (N,) as (N, 3) float32, in blocks; the progress line moves
+    from where parsing left it to the file's size."""
+    n = len(data)
+    points = np.empty((n, 3), dtype=np.float32)
+    start, total = progress.done, progress.total or 0.0
+    for a in range(0, n, _COPY_BLOCK):
+        b = min(n, a + _COPY_BLOCK)
+        for k, c in enumerate("xyz"):
+            points[a:b, k] = data[c][a:b]
+        progress.update(max(progress.done, start + (total - start) * b / n))
+    return points
 
 
 def _check_counts(path: Path, fh) -> None:
