@@ -20,6 +20,7 @@ import contextlib
 import csv
 import json
 import logging
+import os
 import queue
 import random
 import signal
@@ -41,10 +42,11 @@ DEMO = REPO / "config" / "demo.yaml"
 DEVICE_EVENTS = {"unplug": 3, "bitflips": 2, "drops": 2, "reboot": 2, "fault_bit": 3}
 BUS_EVENTS = {"nan_pose": 1, "teleport": 1, "past_pose": 1, "pose_flood": 1, "garbage": 1, "path_empty": 1,
               "path_single": 1, "path_far": 1, "path_huge": 1, "path_garbage": 1}
+RANDOM_EXTRA_EVENTS = {"silent": 1, "stale_pose": 1, "planner_stall": 1}
 UNPLUG_SECONDS = {0.5: 4, 5.0: 4, 60.0: 1}  # replug after [s]: relative weights
 NOISE_SECONDS = 5.0
 RECOVERY_TIMEOUT_S = 60.0
-GRACE_S = 0.25  # [s] status documents younger than this after an event may predate its effect
+GRACE_S = 0.05  # [s] status documents made this soon after a fault may predate its effect
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -55,6 +57,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--warmup", type=float, default=None, metavar="S",
                         help="seconds before the RSS baseline (default: 10%% of the run, 5..120 s)")
     parser.add_argument("--out", type=Path, default=None, help="keep the logs in this directory")
+    parser.add_argument("--matrix", action="store_true",
+                        help="instead of random faults, each fault of docs/RELIABILITY.md once, with its recovery time")
+    parser.add_argument("--skip-long", action="store_true", help="--matrix without the 60 s unplug")
     parser.add_argument("--json", type=Path, help="write the results to this file")
 
 
@@ -309,112 +314,173 @@ class Vandal:
             raise ValueError(f"unknown bus event {kind!r}")
 
 
-# ---------------------------------------------------------------------------------------------- the run
+# ---------------------------------------------------------------------------------------------- the stack
 def _healthy(st: dict) -> bool:
     g = st.get("gimbal") or {}
     return (st.get("state") == "tracking" and st.get("link") == "up" and g.get("mode") == "enabled"
             and not g.get("faults"))
 
 
-def soak(minutes: float, out: Path, seed: int = 1, mean_gap: float = 6.0, warmup: float | None = None) -> dict:
-    """Run the soak for ``minutes`` with logs in ``out``; returns the results (see the module docstring)."""
-    from pivotd.bench.control import _tree_rss_mb
-    from pivotd.bus.probe import BusProbe
-    from pivotd.config import load_config
-    from pivotd.sim.launch import derive_config, free_port, spawn
+class SoakStack:
+    """Daemon (config/demo.yaml) + :class:`SoakDevice` + ``tools/sim_pose`` looping the hallway, Zenoh on loopback,
+    logs in ``out``; :meth:`inject` applies one named fault (:data:`EVENT_KINDS`). Use as a context manager."""
 
-    duration = minutes * 60.0
-    warmup = min(120.0, max(5.0, 0.1 * duration)) if warmup is None else warmup
-    rng = random.Random(seed)
-    device = SoakDevice(out / "gimbal.csv", seed)
-    device.start()
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    cfg_path = derive_config(DEMO, out / "soak.yaml", {"zenoh.listen": [endpoint], "gimbal.port": device.url,
-                                                       "control.status_hz": 5})
-    cfg = load_config(cfg_path)
-    py = sys.executable
-    daemon = spawn([py, "-m", "pivotd.cli", "--config", str(cfg_path)], out / "pivotd.log")
-    sim = probe = None
-    events: list[dict] = []
-    rss: list[tuple[float, float]] = []
-    exit_code = None
-    try:
-        probe = BusProbe.connect(endpoint, cfg.topics)
-        sim = spawn([py, str(REPO / "tools" / "sim_pose"), "--route", "hallway", "--connect", endpoint,
-                     "--speed", "1.0", "--rate", "50", "--loop", "--quiet", "--wait-subscribers", "30"],
-                    out / "sim_pose.log")
-        vandal = Vandal(probe.session, cfg, rng)
-        t_start = time.monotonic()
+    def __init__(self, out: Path, seed: int = 1, changes: dict | None = None) -> None:
+        from pivotd.config import load_config
+        from pivotd.sim.launch import derive_config, free_port
 
-        def wait_healthy(timeout: float) -> float | None:
-            """Seconds until the daemon tracks with the link up and no fault (None: not within ``timeout``)."""
-            t0 = time.monotonic()
-            next_rss = 0.0
-            while time.monotonic() - t0 < timeout:
-                if daemon.poll() is not None:
-                    raise RuntimeError(f"pivotd exited with {daemon.returncode}; see {out / 'pivotd.log'}")
-                if _healthy(probe.status):
-                    return time.monotonic() - t0
-                if time.monotonic() >= next_rss:
-                    sample_rss()
-                    next_rss = time.monotonic() + 5.0
-                time.sleep(0.02)
-            return None
+        self.out = out
+        self.rng = random.Random(seed)
+        self.device = SoakDevice(out / "gimbal.csv", seed)
+        self.device.start()
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.config_path = derive_config(DEMO, out / "soak.yaml", {
+            "zenoh.listen": [self.endpoint], "gimbal.port": self.device.url, "control.status_hz": 5,
+            **(changes or {})})
+        self.cfg = load_config(self.config_path)
+        self.daemon = self.sim = self.probe = self.vandal = None
+        self.daemon_starts = 0
+        self.rss: list[tuple[float, float]] = []
+        self.t_start = time.monotonic()
+        self._last_rss = -np.inf
 
-        last_rss = [0.0]
+    # ------------------------------------------------------------------ processes
+    def start_daemon(self) -> None:
+        from pivotd.sim.launch import spawn
 
-        def sample_rss() -> None:
-            now = time.monotonic()
-            if now - last_rss[0] >= 5.0:
-                last_rss[0] = now
-                rss.append((now - t_start, _tree_rss_mb(daemon.pid)[0]))
+        self.daemon_starts += 1
+        log_path = self.out / ("pivotd.log" if self.daemon_starts == 1 else f"pivotd.{self.daemon_starts}.log")
+        self.daemon = spawn([sys.executable, "-m", "pivotd.cli", "--config", str(self.config_path)], log_path)
 
-        if wait_healthy(90.0) is None:
-            raise RuntimeError(f"pivotd never started tracking; see {out / 'pivotd.log'}")
-        kinds = {**DEVICE_EVENTS, **BUS_EVENTS}
-        names, weights = list(kinds), list(kinds.values())
-        while time.monotonic() - t_start < duration:
-            gap_end = time.monotonic() + rng.uniform(0.5, 1.5) * mean_gap
-            while time.monotonic() < gap_end:
-                sample_rss()
-                time.sleep(0.1)
-            if time.monotonic() - t_start >= duration:
-                break
-            kind = rng.choices(names, weights)[0]
-            event: dict = {"t_s": round(time.monotonic() - t_start, 2), "kind": kind}
-            if kind == "unplug":
-                seconds = rng.choices(list(UNPLUG_SECONDS), list(UNPLUG_SECONDS.values()))[0]
-                event["seconds"] = seconds
-                device.unplug(seconds)
-                time.sleep(seconds)
-            elif kind in ("bitflips", "drops"):
-                device.noise(0.1 if kind == "drops" else 0.0, 0.05 if kind == "bitflips" else 0.0)
-                time.sleep(NOISE_SECONDS)
-                device.noise(0.0, 0.0)
-            elif kind == "reboot":
-                device.reboot()
-            elif kind == "fault_bit":
-                event["bit"] = bit = rng.randrange(8)
-                device.fault(bit)
-            else:
-                position = probe.poses[-1][1] if probe.poses else np.zeros(3)
-                vandal.send(kind, np.asarray(position, float))
-            time.sleep(GRACE_S)  # let the event show before judging recovery
-            recovery = wait_healthy(RECOVERY_TIMEOUT_S)
-            event["recovery_s"] = None if recovery is None else round(recovery + GRACE_S, 2)
-            events.append(event)
-            log.info("event %s", event)
-        sample_rss()
-        exit_code = _stop(daemon, signal.SIGTERM, 20.0)
-    finally:
-        for proc in (sim, daemon):
+    def __enter__(self) -> SoakStack:
+        from pivotd.bus.probe import BusProbe
+        from pivotd.sim.launch import spawn
+
+        try:
+            self.start_daemon()
+            self.probe = BusProbe.connect(self.endpoint, self.cfg.topics)
+            self.sim = spawn([sys.executable, str(REPO / "tools" / "sim_pose"), "--route", "hallway", "--connect",
+                              self.endpoint, "--speed", "1.0", "--rate", "50", "--loop", "--quiet",
+                              "--wait-subscribers", "30"], self.out / "sim_pose.log")
+            self.vandal = Vandal(self.probe.session, self.cfg, self.rng)
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        for proc in (self.sim, self.daemon):
             if proc is not None and proc.poll() is None:
                 _stop(proc, signal.SIGKILL, 10.0)
-        if probe is not None:
-            probe.close()
-        device.stop()
-    check = check_device_log(cfg, out / "gimbal.csv")
-    tracebacks, first = count_tracebacks(out / "pivotd.log")
+        if self.probe is not None:
+            self.probe.close()
+            self.probe = None
+        self.device.stop()
+
+    def stop_daemon(self, sig: int = signal.SIGTERM, timeout: float = 20.0) -> int | None:
+        """Signal the daemon and wait for its exit code (None: still running after ``timeout``, then killed)."""
+        return _stop(self.daemon, sig, timeout)
+
+    def daemon_logs(self) -> list[Path]:
+        return sorted(self.out.glob("pivotd*.log"))
+
+    # ------------------------------------------------------------------ observation
+    @property
+    def status(self) -> dict:
+        return self.probe.status if self.probe is not None else {}
+
+    def sample_rss(self, every: float = 5.0) -> None:
+        """Record the daemon's resident memory (daemon + planner process) at most every ``every`` s."""
+        from pivotd.bench.control import _tree_rss_mb
+
+        now = time.monotonic()
+        if now - self._last_rss >= every and self.daemon is not None and self.daemon.poll() is None:
+            self._last_rss = now
+            with contextlib.suppress(OSError, ValueError, KeyError):
+                self.rss.append((now - self.t_start, _tree_rss_mb(self.daemon.pid)[0]))
+
+    def wait(self, predicate, timeout: float, since: float | None = None) -> float | None:
+        """Seconds from ``since`` (wall clock, default now) to the daemon's time stamp of the first status document
+        made after ``since`` for which ``predicate(status)`` holds; None when none came within ``timeout``.
+        Samples RSS meanwhile."""
+        since = time.time() if since is None else since
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < timeout:
+            if self.daemon.poll() is not None:
+                raise RuntimeError(f"pivotd exited with {self.daemon.returncode}; see {self.daemon_logs()[-1]}")
+            st = self.status
+            if st.get("time", 0.0) > since and predicate(st):
+                return max(0.0, st["time"] - since)
+            self.sample_rss()
+            time.sleep(0.02)
+        return None
+
+    def wait_healthy(self, timeout: float, since: float | None = None) -> float | None:
+        """:meth:`wait` until the daemon tracks with the link up, the gimbal enabled and no fault bit."""
+        return self.wait(_healthy, timeout, since)
+
+    # ------------------------------------------------------------------ faults
+    def inject(self, kind: str, **params) -> dict:
+        """Apply the fault ``kind`` (blocking for its duration) and return its description."""
+        event: dict = {"t_s": round(time.monotonic() - self.t_start, 2), "kind": kind, **params}
+        device = self.device
+        if kind == "unplug":
+            device.unplug(params["seconds"])
+            time.sleep(params["seconds"])
+        elif kind in ("bitflips", "drops", "silent"):
+            drop, corrupt = {"bitflips": (0.0, 0.05), "drops": (0.1, 0.0), "silent": (1.0, 0.0)}[kind]
+            device.noise(drop, corrupt)
+            time.sleep(params.get("seconds", NOISE_SECONDS))
+            device.noise(0.0, 0.0)
+        elif kind == "reboot":
+            device.reboot()
+        elif kind == "fault_bit":
+            device.fault(params["bit"])
+        elif kind == "stale_pose":  # the pose source stops publishing for a while
+            self.sim.send_signal(signal.SIGSTOP)
+            time.sleep(params.get("seconds", 2.0))
+            self.sim.send_signal(signal.SIGCONT)
+        elif kind == "planner_stall":  # the planner process gets no CPU at all for a while
+            pid = (self.status.get("planner") or {}).get("worker_pid")
+            event["pid"] = pid
+            if pid:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGSTOP)
+                    time.sleep(params.get("seconds", 3.0))
+                    os.kill(pid, signal.SIGCONT)
+        elif kind in BUS_EVENTS:
+            position = self.probe.poses[-1][1] if self.probe.poses else np.zeros(3)
+            self.vandal.send(kind, np.asarray(position, float))
+        else:
+            raise ValueError(f"unknown fault {kind!r}")
+        return event
+
+    def inject_and_recover(self, kind: str, **params) -> dict:
+        """:meth:`inject`, then the recovery time: from the end of the fault to the first status document that
+        shows the daemon healthy again (documents at 5 Hz, so a resolution of 0.2 s; those made within
+        ``GRACE_S`` of the end may predate the fault's effect and are not judged)."""
+        event = self.inject(kind, **params)
+        end = time.time()
+        recovery = self.wait_healthy(RECOVERY_TIMEOUT_S, since=end + GRACE_S)
+        event["recovery_s"] = None if recovery is None else round(recovery + GRACE_S, 2)
+        log.info("event %s", event)
+        return event
+
+
+EVENT_KINDS = (*DEVICE_EVENTS, *BUS_EVENTS, "silent", "stale_pose", "planner_stall")
+
+
+def summarise(stack: SoakStack, events: list[dict], warmup: float, exit_code: int | None) -> dict:
+    """Setpoint check, tracebacks, RSS growth and recovery statistics of a finished run."""
+    check = check_device_log(stack.cfg, stack.out / "gimbal.csv")
+    tracebacks, first = 0, []
+    for path in stack.daemon_logs():
+        n, lines = count_tracebacks(path)
+        tracebacks += n
+        first += lines
     recoveries: dict[str, dict] = {}
     for kind in sorted({e["kind"] for e in events}):
         rec = [e["recovery_s"] for e in events if e["kind"] == kind]
@@ -423,26 +489,100 @@ def soak(minutes: float, out: Path, seed: int = 1, mean_gap: float = 6.0, warmup
                             "median_s": round(float(np.median(ok)), 2) if ok else None,
                             "max_s": round(max(ok), 2) if ok else None}
     return {
-        "minutes": minutes, "seed": seed, "events": len(events),
+        "events": len(events),
         "setpoints": check.setpoints, "checked_pairs": check.checked_pairs,
         "setpoints_beyond_limits": check.beyond_limits,
         "beyond": {"position": check.beyond_position, "velocity": check.beyond_velocity,
                    "acceleration": check.beyond_acceleration, "jerk": check.beyond_jerk},
         "worst_ratio_to_limit": check.worst,
-        "tracebacks": tracebacks, "traceback_lines": first,
-        "rss": rss_growth(rss, warmup), "warmup_s": warmup,
+        "tracebacks": tracebacks, "traceback_lines": first[:5],
+        "rss": rss_growth(stack.rss, warmup), "warmup_s": warmup,
         "recovery": recoveries, "not_recovered": sum(r["not_recovered"] for r in recoveries.values()),
         "daemon_exit_code": exit_code, "event_log": events,
     }
 
 
+def soak(minutes: float, out: Path, seed: int = 1, mean_gap: float = 6.0, warmup: float | None = None) -> dict:
+    """Random faults for ``minutes`` with logs in ``out``; returns the results (see the module docstring)."""
+    duration = minutes * 60.0
+    warmup = min(120.0, max(5.0, 0.1 * duration)) if warmup is None else warmup
+    events: list[dict] = []
+    with SoakStack(out, seed) as stack:
+        rng = stack.rng
+        if stack.wait_healthy(90.0) is None:
+            raise RuntimeError(f"pivotd never started tracking; see {out / 'pivotd.log'}")
+        kinds = {**DEVICE_EVENTS, **BUS_EVENTS, **RANDOM_EXTRA_EVENTS}
+        names, weights = list(kinds), list(kinds.values())
+        while time.monotonic() - stack.t_start < duration:
+            gap_end = time.monotonic() + rng.uniform(0.5, 1.5) * mean_gap
+            while time.monotonic() < gap_end:
+                stack.sample_rss()
+                time.sleep(0.1)
+            if time.monotonic() - stack.t_start >= duration:
+                break
+            kind = rng.choices(names, weights)[0]
+            params: dict = {}
+            if kind == "unplug":
+                params["seconds"] = rng.choices(list(UNPLUG_SECONDS), list(UNPLUG_SECONDS.values()))[0]
+            elif kind == "fault_bit":
+                params["bit"] = rng.randrange(8)
+            events.append(stack.inject_and_recover(kind, **params))
+        stack.sample_rss(every=0.0)
+        exit_code = stack.stop_daemon()
+    r = summarise(stack, events, warmup, exit_code)
+    return {"minutes": minutes, "seed": seed, **r}
+
+
+#: the deterministic fault matrix of docs/RELIABILITY.md: (kind, parameters), one after the other
+MATRIX: tuple[tuple[str, dict], ...] = (
+    ("unplug", {"seconds": 0.5}), ("unplug", {"seconds": 5.0}), ("unplug", {"seconds": 60.0}),
+    ("drops", {"seconds": 5.0}), ("bitflips", {"seconds": 5.0}), ("silent", {"seconds": 3.0}), ("reboot", {}),
+    *(("fault_bit", {"bit": b}) for b in range(8)),
+    ("stale_pose", {"seconds": 2.0}), ("nan_pose", {}), ("teleport", {}), ("pose_flood", {}), ("past_pose", {}),
+    ("garbage", {}), ("path_empty", {}), ("path_single", {}), ("path_far", {}), ("path_huge", {}),
+    ("path_garbage", {}), ("planner_stall", {"seconds": 3.0}),
+)
+
+
+def matrix(out: Path, seed: int = 1, skip_long: bool = False) -> dict:
+    """Every row of :data:`MATRIX` once (``skip_long``: without the 60 s unplug), then SIGKILL mid-motion and a
+    restart (time to tracking again), then SIGTERM mid-motion (time to exit); returns the results."""
+    rows: list[dict] = []
+    with SoakStack(out, seed) as stack:
+        if stack.wait_healthy(90.0) is None:
+            raise RuntimeError(f"pivotd never started tracking; see {out / 'pivotd.log'}")
+        for kind, params in MATRIX:
+            if skip_long and params.get("seconds", 0) > 30:
+                continue
+            time.sleep(2.0)
+            rows.append(stack.inject_and_recover(kind, **params))
+        time.sleep(2.0)
+        t0 = time.time()
+        stack.stop_daemon(signal.SIGKILL)  # daemon and planner process, as systemd stops a unit whose main died
+        stack.start_daemon()  # what systemd's Restart=on-failure does (after RestartSec)
+        healthy = stack.wait_healthy(RECOVERY_TIMEOUT_S, since=t0)
+        rows.append({"kind": "sigkill_restart", "recovery_s": None if healthy is None else round(healthy, 2)})
+        time.sleep(2.0)
+        t0 = time.monotonic()
+        code = stack.stop_daemon(signal.SIGTERM)
+        rows.append({"kind": "sigterm", "exit_code": code, "recovery_s": round(time.monotonic() - t0, 2)})
+    r = summarise(stack, rows, warmup=1e9, exit_code=code)
+    r.pop("rss")
+    return {"seed": seed, **r}
+
+
 def _stop(proc, sig: int, timeout: float) -> int | None:
+    """Send ``sig`` (SIGKILL: to the whole process group, planner process included) and wait for the exit code."""
     with contextlib.suppress(ProcessLookupError):
-        proc.send_signal(sig)
+        if sig == signal.SIGKILL:
+            os.killpg(proc.pid, sig)
+        else:
+            proc.send_signal(sig)
     try:
         return proc.wait(timeout=timeout)
     except Exception:
-        proc.kill()
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
         return None
 
@@ -450,18 +590,22 @@ def _stop(proc, sig: int, timeout: float) -> int | None:
 def passed(r: dict) -> bool:
     """The soak's verdict: no setpoint beyond limits, no traceback, RSS growth < 5 %, every event recovered,
     clean exit after SIGTERM."""
-    growth = r["rss"].get("growth")
+    growth = r.get("rss", {}).get("growth")
     return (r["setpoints_beyond_limits"] == 0 and r["tracebacks"] == 0 and r["not_recovered"] == 0
             and r["daemon_exit_code"] == 0 and (growth is None or growth < 0.05))
 
 
-def run(args: argparse.Namespace) -> int:
-    if args.minutes <= 0:
-        raise SystemExit("pivotd bench soak: --minutes must be > 0")
-    with contextlib.ExitStack() as stack:
-        out = args.out or Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="pivotd-soak-")))
-        out.mkdir(parents=True, exist_ok=True)
-        r = soak(args.minutes, out, args.seed, args.mean_gap, args.warmup)
+def _print_matrix(r: dict) -> None:
+    print(f"fault matrix (seed {r['seed']}): {r['events']} faults, {r['setpoints']} setpoints, "
+          f"{r['setpoints_beyond_limits']} beyond limits {r['beyond']}, {r['tracebacks']} tracebacks")
+    print(f"  {'fault':<16} {'parameters':<12} {'recovery':>9}")
+    for e in r["event_log"]:
+        params = ", ".join(f"{k}={v}" for k, v in e.items() if k in ("seconds", "bit", "exit_code"))
+        rec = "never" if e["recovery_s"] is None else f"{e['recovery_s']} s"
+        print(f"  {e['kind']:<16} {params:<12} {rec:>9}")
+
+
+def _print_soak(r: dict) -> None:
     rss = r["rss"]
     print(f"soak: {r['minutes']:g} min, {r['events']} events (seed {r['seed']}), {r['setpoints']} setpoints "
           f"({r['checked_pairs']} consecutive pairs checked for acceleration and jerk)")
@@ -475,6 +619,20 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {kind:<13} {rec['n']:>4} {str(rec['median_s']) + ' s':>16} {str(rec['max_s']) + ' s':>8} "
               f"{rec['not_recovered']:>14}")
     print(f"  daemon exit code after SIGTERM: {r['daemon_exit_code']}")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.minutes <= 0:
+        raise SystemExit("pivotd bench soak: --minutes must be > 0")
+    with contextlib.ExitStack() as stack:
+        out = args.out or Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="pivotd-soak-")))
+        out.mkdir(parents=True, exist_ok=True)
+        if args.matrix:
+            r = matrix(out, args.seed, args.skip_long)
+            _print_matrix(r)
+        else:
+            r = soak(args.minutes, out, args.seed, args.mean_gap, args.warmup)
+            _print_soak(r)
     ok = passed(r)
     print(f"  verdict: {'PASS' if ok else 'FAIL'} (0 beyond limits, 0 tracebacks, RSS growth < 5 %, all recovered, "
           "exit 0)")
