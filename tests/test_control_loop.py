@@ -145,11 +145,14 @@ class LaggingGimbal(FakeGimbal):
     def __init__(self, clock: FakeClock, delay: int = 3) -> None:
         super().__init__(clock)
         self.delay = delay
+        self.frozen = False  # no new state reaches the host (set by a test)
 
     def send_setpoint(self, pan, tilt, pan_rate=0.0, tilt_rate=0.0):
         if self.link_state != LinkState.UP:
             return None
         self.setpoints.append((pan, tilt, pan_rate, tilt_rate))
+        if self.frozen:
+            return len(self.setpoints)
         old = self.setpoints[max(0, len(self.setpoints) - 1 - self.delay)]
         self.state = replace(self.state, pan=old[0], tilt=old[1], pan_rate=old[2], tilt_rate=old[3],
                              mode=GimbalMode.ENABLED, faults=0, rx_time=self.clock())
@@ -236,3 +239,43 @@ def test_stall_with_the_device_still_enabled_restarts_from_the_measured_state(la
     # measured at the previous tick, advanced to this tick, then one period of motion
     assert abs(first[0] - (st.pan + 2 * st.pan_rate * dt)) <= 0.5 * amax[0] * dt * dt + 1e-9
     assert loop.restarts == 2
+
+
+def test_late_states_of_the_same_watchdog_hold_do_not_restart_the_stream_again(lag_rig):
+    """States the device sent while holding, before the restarted stream reached it, arrive late (a loaded host):
+    they describe the hold the stream already started from, so the stream stays continuous."""
+    cfg, clock, gimbal, loop = lag_rig
+    dt = cfg.control.dt
+    _run(loop, clock, 40, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    held = replace(gimbal.state, pan_rate=0.0, tilt_rate=0.0, mode=GimbalMode.HOLDING, faults=1 << 4,
+                   rx_time=clock.t)
+    gimbal.state = held
+    gimbal.frozen = True  # the host is slow: the states that follow are still those of the hold
+    n, restarts = len(gimbal.setpoints), loop.restarts
+    _run(loop, clock, 2, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert loop.restarts == restarts + 1
+    gimbal.state = replace(held, rx_time=clock.t)  # a later state of the same hold
+    _run(loop, clock, 2, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    gimbal.frozen = False  # then the device's states show it following the stream
+    _run(loop, clock, 20, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert loop.restarts == restarts + 1
+    _assert_jerk_limited(cfg, np.vstack([[0.0, 0.0], np.array(gimbal.setpoints[n:])[:, 2:]]), dt)
+
+
+def test_disabled_device_gets_no_setpoints_and_the_stream_starts_where_it_stands_once_enabled(lag_rig):
+    cfg, clock, gimbal, loop = lag_rig
+    _run(loop, clock, 30, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    n = len(gimbal.setpoints)
+    gimbal.state = replace(gimbal.state, pan=-0.3, tilt=0.1, pan_rate=0.0, tilt_rate=0.0, mode=GimbalMode.DISABLED,
+                           rx_time=clock.t)
+    off = _run(loop, clock, 50, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert all(t.setpoint is None and t.mode == DaemonState.HOLDING for t in off)
+    assert len(gimbal.setpoints) == n and gimbal.heartbeats == 50
+    gimbal.state = replace(gimbal.state, mode=GimbalMode.ENABLED, rx_time=clock.t)  # ENABLE acknowledged
+    loop.invalidate()  # as the daemon does after ENABLE
+    _run(loop, clock, 30, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    resumed = np.array(gimbal.setpoints[n:])
+    amax, _ = _limits(cfg)
+    dt = cfg.control.dt
+    assert np.all(np.abs(resumed[0, :2] - [-0.3, 0.1]) <= amax * dt * dt + 1e-9)
+    _assert_jerk_limited(cfg, np.vstack([[0.0, 0.0], resumed[:, 2:]]), dt)

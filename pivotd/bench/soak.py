@@ -46,6 +46,7 @@ RANDOM_EXTRA_EVENTS = {"silent": 1, "stale_pose": 1, "planner_stall": 1}
 UNPLUG_SECONDS = {0.5: 4, 5.0: 4, 60.0: 1}  # replug after [s]: relative weights
 NOISE_SECONDS = 5.0
 RECOVERY_TIMEOUT_S = 60.0
+MAX_STREAM_GAP_S = 0.1  # [s] setpoints sent further apart than this are not one continuous stream
 GRACE_S = 0.05  # [s] status documents made this soon after a fault may predate its effect
 
 
@@ -171,8 +172,9 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
 
     Position and velocity hold for every setpoint. Acceleration (rate difference / dt) and jerk hold between
     setpoints of one continuous stream: consecutive frame numbers (no frame lost or corrupted between them),
-    no device reboot between them, and the device following the stream (mode ENABLED in its last STATE).
-    Across a break the controller restarts from the measured state, which the stream cannot show.
+    sent at most ``MAX_STREAM_GAP_S`` apart (a longer stall of the control loop restarts the stream), no device
+    reboot between them, and the device following the stream (mode ENABLED in its last STATE). Across a break
+    the controller restarts from the measured state, which the stream cannot show.
     """
     from firmware_proto.messages import MODE_ENABLED
     from pivotd.sim.analysis import WIRE_RESOLUTION
@@ -188,7 +190,7 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
     allow_v, allow_a, allow_j = res / dt, 2 * res / dt, 4 * res / dt**2
     out = SetpointCheck()
     mode = -1
-    prev: tuple[int, np.ndarray] | None = None  # (seq, rate) of the previous setpoint in the stream
+    prev: tuple[int, int, np.ndarray] | None = None  # (seq, host time [µs], rate) of the previous setpoint
     prev_acc: np.ndarray | None = None
     last_t = -np.inf
     with open(path, newline="") as fh:
@@ -214,8 +216,10 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
             out.beyond_position += int(np.any(pos < lo) or np.any(pos > hi))
             out.worst["velocity"] = max(out.worst["velocity"], float(np.max(np.abs(rate) / vmax)))
             out.beyond_velocity += int(np.any(np.abs(rate) > vmax + allow_v))
-            if prev is not None and seq == (prev[0] + 1) & 0xFF and mode == MODE_ENABLED:
-                acc = (rate - prev[1]) / dt
+            host = int(row["host_time_us"])
+            if (prev is not None and seq == (prev[0] + 1) & 0xFF and mode == MODE_ENABLED
+                    and ((host - prev[1]) & 0xFFFFFFFF) <= MAX_STREAM_GAP_S * 1e6):
+                acc = (rate - prev[2]) / dt
                 out.checked_pairs += 1
                 out.worst["acceleration"] = max(out.worst["acceleration"], float(np.max(np.abs(acc) / amax)))
                 out.beyond_acceleration += int(np.any(np.abs(acc) > amax + allow_a))
@@ -226,7 +230,7 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                 prev_acc = acc
             else:
                 prev_acc = None
-            prev = (seq, rate)
+            prev = (seq, host, rate)
     out.worst = {k: round(v, 3) for k, v in out.worst.items()}
     return out
 

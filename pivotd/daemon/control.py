@@ -7,15 +7,16 @@ motion generator produce the setpoint. A stale pose or a missing plan means a je
 and hold; a lost link or a faulted gimbal means no motion at all.
 
 The setpoint stream is continuous while the device follows it. Whenever it did not (link down, fault,
-device disabled or holding after its watchdog, or a stall of the loop longer than ``stall_s``) the
-generator restarts from a measured state received after the interruption, so motion resumes from where
-the gimbal really is, jerk-limited, instead of where the stream left off. A restart requested while the
+device disabled (no setpoints are sent then), its watchdog stopped it, or a stall of the loop longer than
+``stall_s``) the generator restarts from a measured state received after the interruption, so motion resumes
+from where the gimbal really is, jerk-limited, instead of where the stream left off. A restart requested while the
 device kept following (e.g. after clearing a latched fault bit) keeps the stream as it is: a restart
 from the measured state would only add the device's tracking lag as a step.
 """
 
 from __future__ import annotations
 
+import logging
 import time
 from collections import deque
 from collections.abc import Callable
@@ -29,6 +30,8 @@ from pivotd.daemon.states import DaemonState
 from pivotd.gimbal.interface import GimbalInterface, GimbalMode, GimbalState, LinkState
 from pivotd.gimbal.kinematics import JointLimits, Mount, joints_to_world_direction, world_direction_to_joints
 from pivotd.gimbal.motion import MotionGenerator
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -81,7 +84,8 @@ class ControlLoop:
         self._need_reset = True
         self._hard_reset = True  # the device did not follow the stream: restart even if it now follows again
         self._reset_after = -np.inf  # a restart needs a measured state received at or after this time [s]
-        self._seed_rx = -np.inf  # receive time of the measured state the generator last restarted from [s]
+        self._seen_mode: int | None = None  # device mode in the newest state seen by a tick
+        self._seen_rx = -np.inf  # its receive time [s]
         self._last_tick: float | None = None
         self._streaming = False  # the previous tick sent a setpoint
         self.restarts = 0  # restarts of the stream from a measured state
@@ -109,18 +113,23 @@ class ControlLoop:
         if state.mode == GimbalMode.ENABLED:
             pos = pos + rate * float(np.clip(now - state.rx_time, 0.0, self.settings.stall_s))
         self.motion.reset(pos, rate)
-        self._seed_rx = state.rx_time
         self._need_reset = self._hard_reset = False
         self.restarts += 1
 
-    def _resynchronise(self, now: float, state: GimbalState, stalled: bool, streaming: bool) -> bool:
+    def _resynchronise(self, now: float, state: GimbalState, gap: float, streaming: bool) -> bool:
         """Restart the stream from ``state`` if needed (see the module docstring); False while a state measured
-        after the interruption is still missing. ``stalled``: the loop did not tick for over ``stall_s``;
-        ``streaming``: the previous tick sent a setpoint."""
-        if stalled:
+        after the interruption is still missing. ``gap``: time since the previous tick [s]; ``streaming``: the
+        previous tick sent a setpoint."""
+        if gap > self.settings.stall_s:
+            log.info("control loop stalled for %.3f s: restarting the setpoint stream from a fresh measured state",
+                     gap)
             self._request_reset(now, hard=True)  # the loop stalled: the device did not get the stream
-        if state.mode != GimbalMode.ENABLED and state.rx_time > self._seed_rx:
-            self._request_reset(state.rx_time, hard=True)  # disabled, or holding after its watchdog
+        if state.rx_time > self._seen_rx:
+            if state.mode == GimbalMode.HOLDING and self._seen_mode == GimbalMode.ENABLED:
+                # Its watchdog stopped it: restart once, from this state. Later states of the same hold were
+                # sent before the device got the restarted stream (which resumes it) and are not followed.
+                self._request_reset(state.rx_time, hard=True)
+            self._seen_mode, self._seen_rx = state.mode, state.rx_time
         if not self._need_reset:
             return True
         if state.rx_time < self._reset_after:
@@ -182,7 +191,7 @@ class ControlLoop:
         mount = self.mount  # one mount for the whole tick, even if a reload swaps it meanwhile
         link_state = self.link.link_state
         state = self.link.state
-        stalled = self._last_tick is not None and now - self._last_tick > self.settings.stall_s
+        gap = 0.0 if self._last_tick is None else now - self._last_tick
         streaming = self._streaming
         self._last_tick, self._streaming = now, False
         if link_state != LinkState.UP or state is None:
@@ -193,7 +202,13 @@ class ControlLoop:
             self._request_reset(now, hard=True)
             self.link.send_heartbeat()
             return TickResult(DaemonState.FAULT)
-        if not self._resynchronise(now, state, stalled, streaming):
+        if state.mode == GimbalMode.DISABLED:
+            # The device ignores setpoints until the daemon enables it; the stream then starts where it stands.
+            self._request_reset(now, hard=True)
+            self._seen_mode, self._seen_rx = state.mode, state.rx_time
+            self.link.send_heartbeat()
+            return TickResult(DaemonState.HOLDING)
+        if not self._resynchronise(now, state, gap, streaming):
             # Waiting (at most a state period) for a state measured after the interruption.
             self.link.send_heartbeat()
             return TickResult(DaemonState.HOLDING)

@@ -268,7 +268,7 @@ def read_numeric_text(path: Path, columns: tuple[int, ...], what: str, dtype: ty
                         delimiter = "," if "," in found[1] else None
                         ncols = _column_count(path, lineno + found[0], found[1], columns, what)
                 if ncols is not None:
-                    parsed = _parse_clean_lines(block, ncols, delimiter)
+                    parsed = parse_clean_block(block, ncols, delimiter)
                     if parsed is None:
                         parsed = _parse_lines(path, block, lineno, ncols)
                     with np.errstate(over="ignore"):
@@ -318,7 +318,7 @@ def _parse_lines(path: Path, block: str, lineno: int, ncols: int) -> np.ndarray:
     return np.frombuffer(out, dtype=np.float64)
 
 
-def _parse_clean_lines(block: str, ncols: int, delimiter: str | None) -> np.ndarray | None:
+def parse_clean_block(block: str, ncols: int, delimiter: str | None) -> np.ndarray | None:
     """Fast path for a well-formed block (numpy's C parser); None when anything is off, so that the
     line-by-line parser can name the offending line."""
     try:
