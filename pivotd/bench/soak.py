@@ -149,6 +149,100 @@ class SoakDevice:
         self.msg_log.close()
 
 
+def _serve_device(conn, log_path: str, seed: int) -> None:  # pragma: no cover - runs in the child
+    """Child process: a :class:`SoakDevice` driven by (command, argument) messages from ``conn``."""
+    device = SoakDevice(Path(log_path), seed)
+    device.start()
+    conn.send(device.url)
+    try:
+        while True:
+            try:
+                name, arg = conn.recv()
+            except (EOFError, OSError):
+                return
+            if name == "stop":
+                return
+            if name == "elapsed":
+                conn.send(device.device.elapsed())
+            elif name == "noise":
+                device.noise(*arg)
+            else:
+                getattr(device, name)(*arg)
+    finally:
+        device.stop()
+        with contextlib.suppress(OSError):
+            conn.send(None)
+
+
+class DeviceProcess:
+    """A :class:`SoakDevice` in its own process, as a real gimbal runs beside the host: the soak's own load
+    (publishing floods) cannot stall the device model. Same commands as :class:`SoakDevice`."""
+
+    def __init__(self, log_path: Path, seed: int) -> None:
+        import multiprocessing
+
+        ctx = multiprocessing.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        self._proc = ctx.Process(target=_serve_device, args=(child, str(log_path), seed), name="soak-device",
+                                 daemon=True)
+        self._proc.start()
+        child.close()
+        if not self._conn.poll(30.0):
+            self._proc.kill()
+            raise RuntimeError("the simulated gimbal did not start")
+        self.url: str = self._conn.recv()
+
+    def unplug(self, seconds: float) -> None:
+        self._conn.send(("unplug", (seconds,)))
+
+    def reboot(self) -> None:
+        self._conn.send(("reboot", ()))
+
+    def fault(self, bit: int) -> None:
+        self._conn.send(("fault", (bit,)))
+
+    def noise(self, drop: float, corrupt: float) -> None:
+        self._conn.send(("noise", (drop, corrupt)))
+
+    def elapsed(self) -> float:
+        """Seconds on the device clock."""
+        self._conn.send(("elapsed", ()))
+        return float(self._conn.recv())
+
+    def stop(self) -> None:
+        with contextlib.suppress(OSError):
+            self._conn.send(("stop", ()))
+            if self._conn.poll(10.0):
+                self._conn.recv()
+        self._proc.join(timeout=10.0)
+        if self._proc.is_alive():
+            self._proc.kill()
+        self._conn.close()
+
+
+def tree_rss_mb(pid: int) -> float:
+    """Resident memory [MB] of process ``pid`` and all its descendants (children of any of its threads)."""
+    parents: dict[int, int] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            with contextlib.suppress(OSError, ValueError, IndexError):
+                stat = (entry / "stat").read_text()
+                parents[int(entry.name)] = int(stat[stat.rindex(")") + 2:].split()[1])
+    tree, frontier = {pid}, [pid]
+    while frontier:
+        parent = frontier.pop()
+        for child, ppid in parents.items():
+            if ppid == parent and child not in tree:
+                tree.add(child)
+                frontier.append(child)
+    total = 0.0
+    for p in tree:
+        with contextlib.suppress(OSError, ValueError, StopIteration):
+            line = next(x for x in Path(f"/proc/{p}/status").read_text().splitlines() if x.startswith("VmRSS:"))
+            total += int(line.split()[1]) / 1024.0
+    return total
+
+
 # ---------------------------------------------------------------------------------------------- checks
 @dataclass
 class SetpointCheck:
@@ -335,8 +429,7 @@ class SoakStack:
 
         self.out = out
         self.rng = random.Random(seed)
-        self.device = SoakDevice(out / "gimbal.csv", seed)
-        self.device.start()
+        self.device = DeviceProcess(out / "gimbal.csv", seed)
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.config_path = derive_config(DEMO, out / "soak.yaml", {
             "zenoh.listen": [self.endpoint], "gimbal.port": self.device.url, "control.status_hz": 5,
@@ -398,13 +491,10 @@ class SoakStack:
 
     def sample_rss(self, every: float = 5.0) -> None:
         """Record the daemon's resident memory (daemon + planner process) at most every ``every`` s."""
-        from pivotd.bench.control import _tree_rss_mb
-
         now = time.monotonic()
         if now - self._last_rss >= every and self.daemon is not None and self.daemon.poll() is None:
             self._last_rss = now
-            with contextlib.suppress(OSError, ValueError, KeyError):
-                self.rss.append((now - self.t_start, _tree_rss_mb(self.daemon.pid)[0]))
+            self.rss.append((now - self.t_start, tree_rss_mb(self.daemon.pid)))
 
     def wait(self, predicate, timeout: float, since: float | None = None) -> float | None:
         """Seconds from ``since`` (wall clock, default now) to the daemon's time stamp of the first status document
@@ -501,6 +591,7 @@ def summarise(stack: SoakStack, events: list[dict], warmup: float, exit_code: in
         "worst_ratio_to_limit": check.worst,
         "tracebacks": tracebacks, "traceback_lines": first[:5],
         "rss": rss_growth(stack.rss, warmup), "warmup_s": warmup,
+        "rss_samples": [(round(t, 1), round(v, 1)) for t, v in stack.rss],
         "recovery": recoveries, "not_recovered": sum(r["not_recovered"] for r in recoveries.values()),
         "daemon_exit_code": exit_code, "event_log": events,
     }
