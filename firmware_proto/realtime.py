@@ -152,6 +152,12 @@ class RealTimeDevice:
         if self._thread is not None:
             self._thread.join(timeout=2.0)
 
+    def inject_fault(self, bit: int) -> None:
+        """Latch fault ``bit`` (0..15) now; callable from any thread (the device thread applies it)."""
+        with self._cond:
+            self.faults_at.insert(0, (self.elapsed(), int(bit)))
+            self._cond.notify_all()
+
     def write(self, data: bytes) -> None:
         """Bytes from the host (any chunking); faults are applied per frame."""
         with self._cond:

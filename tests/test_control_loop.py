@@ -90,9 +90,13 @@ def test_link_down_sends_nothing_and_reseeds_from_the_measured_state(rig):
     down = _run(loop, clock, 10, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
     assert {t.mode for t in down} == {DaemonState.LINK_DOWN}
     assert len(gimbal.setpoints) == n and all(t.setpoint is None for t in down)
-    # The device moved while the link was down (e.g. it was re-powered at its home pose).
+    # The device moved while the link was down (e.g. it was re-powered at its home pose). The state kept from
+    # before the loss is not trusted: nothing moves until a state measured after the reconnect arrives.
     gimbal.state = replace(gimbal.state, pan=-0.4, tilt=0.3, pan_rate=0.0, tilt_rate=0.0)
     gimbal.link_state = LinkState.UP
+    waiting = _run(loop, clock, 2, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert [t.setpoint for t in waiting] == [None, None] and len(gimbal.setpoints) == n
+    gimbal.state = replace(gimbal.state, rx_time=clock.t)
     up = _run(loop, clock, 1, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
     assert up[0].mode == DaemonState.TRACKING
     np.testing.assert_allclose(up[0].setpoint[:2], [-0.4, 0.3], atol=0.01)
@@ -149,3 +153,146 @@ def test_takes_the_pan_branch_the_plan_chose_over_its_horizon(rig):
         _run(loop, clock, 600, pose_at, lambda t, pans=pans: replace(plan_towards(d, t), pans=pans))
         ends.append(math.degrees(gimbal.setpoints[-1][0]))
     assert ends == [pytest.approx(200.0, abs=0.1), pytest.approx(-160.0, abs=0.1)]
+
+
+class LaggingGimbal(FakeGimbal):
+    """A plant that reports, as its measured state, the setpoint of ``delay`` ticks ago (a device that tracks with
+    lag); a setpoint puts a holding device back into ENABLED, like the reference device."""
+
+    def __init__(self, clock: FakeClock, delay: int = 3) -> None:
+        super().__init__(clock)
+        self.delay = delay
+        self.frozen = False  # no new state reaches the host (set by a test)
+
+    def send_setpoint(self, pan, tilt, pan_rate=0.0, tilt_rate=0.0):
+        if self.link_state != LinkState.UP:
+            return None
+        self.setpoints.append((pan, tilt, pan_rate, tilt_rate))
+        if self.frozen:
+            return len(self.setpoints)
+        old = self.setpoints[max(0, len(self.setpoints) - 1 - self.delay)]
+        self.state = replace(self.state, pan=old[0], tilt=old[1], pan_rate=old[2], tilt_rate=old[3],
+                             mode=GimbalMode.ENABLED, faults=0, rx_time=self.clock())
+        return len(self.setpoints)
+
+
+@pytest.fixture
+def lag_rig():
+    cfg = load_config(REPO / "config" / "demo.yaml")
+    clock = FakeClock()
+    gimbal = LaggingGimbal(clock)
+    return cfg, clock, gimbal, build_control_loop(cfg, gimbal, clock=clock)
+
+
+def _limits(cfg):
+    m = cfg.motion
+    return (np.array([m.pan.max_acceleration, m.tilt.max_acceleration]),
+            np.array([m.pan.max_jerk, m.tilt.max_jerk]))
+
+
+def _assert_jerk_limited(cfg, rates, dt):
+    """Rate steps within a_max·dt and acceleration steps within j_max·dt over a run of setpoint rates (N, 2)."""
+    amax, jmax = _limits(cfg)
+    acc = np.diff(np.asarray(rates, float), axis=0) / dt
+    assert np.all(np.abs(acc) <= amax * (1 + 1e-6) + 1e-9), (np.abs(acc) / amax).max(axis=0)
+    jerk = np.diff(acc, axis=0) / dt
+    assert np.all(np.abs(jerk) <= jmax * (1 + 1e-6) + 1e-6), (np.abs(jerk) / jmax).max(axis=0)
+
+
+def test_clearing_a_fault_bit_while_following_keeps_the_stream_continuous(lag_rig):
+    """The daemon restarts the loop after CLEAR_FAULT; the device kept following, so the stream must not jump to
+    the (lagging) measured state: that was a rate step of 2× the acceleration limit."""
+    cfg, clock, gimbal, loop = lag_rig
+    dt = cfg.control.dt
+    _run(loop, clock, 25, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))  # accelerating towards +90° pan
+    measured, commanded = gimbal.state.pan_rate, gimbal.setpoints[-1][2]
+    assert abs(commanded - measured) > 2 * _limits(cfg)[0][0] * dt  # the lag a restart would add as a step
+    loop.invalidate()
+    _run(loop, clock, 30, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    _assert_jerk_limited(cfg, np.array(gimbal.setpoints)[:, 2:], dt)
+    assert loop.restarts == 1  # the initial one only
+
+
+def test_stall_that_tripped_the_device_watchdog_resumes_from_the_measured_state(lag_rig):
+    """The loop stalls for 1.5 s mid-motion; the device's watchdog stopped it meanwhile (HOLDING at rest, watchdog
+    bit). The stream resumes from where the device stands, at rest, jerk-limited."""
+    cfg, clock, gimbal, loop = lag_rig
+    dt = cfg.control.dt
+    _run(loop, clock, 40, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert abs(gimbal.setpoints[-1][2]) > 0.3  # moving fast
+    n = len(gimbal.setpoints)
+    clock.t += 1.5
+    # The first tick after the stall has only a state from before it: it waits (heartbeat, no setpoint).
+    waiting = _run(loop, clock, 1, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert waiting[0].setpoint is None and len(gimbal.setpoints) == n
+    rest = (gimbal.state.pan + 0.05, gimbal.state.tilt)  # it braked a little further on
+    gimbal.state = replace(gimbal.state, pan=rest[0], tilt=rest[1], pan_rate=0.0, tilt_rate=0.0,
+                           mode=GimbalMode.HOLDING, faults=1 << 4, rx_time=clock.t)
+    _run(loop, clock, 60, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    resumed = np.array(gimbal.setpoints[n:])
+    amax, _ = _limits(cfg)
+    # Continuous with the measured state: position within one period of motion, rate within one a_max step.
+    assert np.all(np.abs(resumed[0, :2] - rest) <= amax * dt * dt + 1e-9)
+    assert np.all(np.abs(resumed[0, 2:]) <= amax * dt * (1 + 1e-6))
+    _assert_jerk_limited(cfg, np.vstack([[0.0, 0.0], resumed[:, 2:]]), dt)
+    assert resumed[-1, 2] > 0.1  # and it moves on towards the target
+
+
+def test_stall_with_the_device_still_enabled_restarts_from_the_measured_state(lag_rig):
+    """A stall longer than stall_s that the device's watchdog did not catch: restart from the measured state
+    (advanced by its rate to now), not from where the stream left off."""
+    cfg, clock, gimbal, loop = lag_rig
+    _run(loop, clock, 40, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    n = len(gimbal.setpoints)
+    clock.t += 2 * loop.settings.stall_s
+    assert _run(loop, clock, 1, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))[0].setpoint is None
+    st = replace(gimbal.state, rx_time=clock.t)
+    gimbal.state = st
+    _run(loop, clock, 1, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    first = gimbal.setpoints[n]
+    amax, _ = _limits(cfg)
+    dt = cfg.control.dt
+    assert abs(first[2] - st.pan_rate) <= amax[0] * dt * (1 + 1e-6)
+    # measured at the previous tick, advanced to this tick, then one period of motion
+    assert abs(first[0] - (st.pan + 2 * st.pan_rate * dt)) <= 0.5 * amax[0] * dt * dt + 1e-9
+    assert loop.restarts == 2
+
+
+def test_late_states_of_the_same_watchdog_hold_do_not_restart_the_stream_again(lag_rig):
+    """States the device sent while holding, before the restarted stream reached it, arrive late (a loaded host):
+    they describe the hold the stream already started from, so the stream stays continuous."""
+    cfg, clock, gimbal, loop = lag_rig
+    dt = cfg.control.dt
+    _run(loop, clock, 40, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    held = replace(gimbal.state, pan_rate=0.0, tilt_rate=0.0, mode=GimbalMode.HOLDING, faults=1 << 4,
+                   rx_time=clock.t)
+    gimbal.state = held
+    gimbal.frozen = True  # the host is slow: the states that follow are still those of the hold
+    n, restarts = len(gimbal.setpoints), loop.restarts
+    _run(loop, clock, 2, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert loop.restarts == restarts + 1
+    gimbal.state = replace(held, rx_time=clock.t)  # a later state of the same hold
+    _run(loop, clock, 2, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    gimbal.frozen = False  # then the device's states show it following the stream
+    _run(loop, clock, 20, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert loop.restarts == restarts + 1
+    _assert_jerk_limited(cfg, np.vstack([[0.0, 0.0], np.array(gimbal.setpoints[n:])[:, 2:]]), dt)
+
+
+def test_disabled_device_gets_no_setpoints_and_the_stream_starts_where_it_stands_once_enabled(lag_rig):
+    cfg, clock, gimbal, loop = lag_rig
+    _run(loop, clock, 30, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    n = len(gimbal.setpoints)
+    gimbal.state = replace(gimbal.state, pan=-0.3, tilt=0.1, pan_rate=0.0, tilt_rate=0.0, mode=GimbalMode.DISABLED,
+                           rx_time=clock.t)
+    off = _run(loop, clock, 50, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert all(t.setpoint is None and t.mode == DaemonState.HOLDING for t in off)
+    assert len(gimbal.setpoints) == n and gimbal.heartbeats == 50
+    gimbal.state = replace(gimbal.state, mode=GimbalMode.ENABLED, rx_time=clock.t)  # ENABLE acknowledged
+    loop.invalidate()  # as the daemon does after ENABLE
+    _run(loop, clock, 30, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    resumed = np.array(gimbal.setpoints[n:])
+    amax, _ = _limits(cfg)
+    dt = cfg.control.dt
+    assert np.all(np.abs(resumed[0, :2] - [-0.3, 0.1]) <= amax * dt * dt + 1e-9)
+    _assert_jerk_limited(cfg, np.vstack([[0.0, 0.0], resumed[:, 2:]]), dt)

@@ -1,5 +1,6 @@
 """systemd/pivotd.service: required settings present; `systemd-analyze verify` clean where available."""
 
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -102,3 +103,47 @@ def test_parser_catches_broken_units():
     with pytest.raises(AssertionError):
         parse_unit("Type=notify\n")
     assert parse_unit("[Service]\nDeviceAllow=a\nDeviceAllow=b\n")["Service"]["DeviceAllow"] == ["a", "b"]
+
+
+def test_resource_limits_and_stop_behaviour(unit):
+    service = unit["Service"]
+    units = {"K": 2**10, "M": 2**20, "G": 2**30}
+
+    def size(text: str) -> int:
+        return int(float(text[:-1]) * units[text[-1]]) if text[-1] in units else int(text)
+
+    high, hard = size(service["MemoryHigh"][0]), size(service["MemoryMax"][0])
+    # Room for a 1M-landmark map (<= 200 MB measured) and below what a robot computer can spare.
+    assert 400 * 2**20 <= high < hard <= 2 * 2**30
+    assert service["MemorySwapMax"] == ["0"]
+    assert 64 <= int(service["TasksMax"][0]) <= 1024
+    assert service["KillMode"] == ["mixed"]  # SIGTERM to the daemon alone: it parks, then stops its planner
+    assert "~@privileged" in service["SystemCallFilter"]
+
+
+def _offline_security_supported() -> tuple[bool, str]:
+    exe = shutil.which("systemd-analyze")
+    if exe is None:
+        return False, "systemd-analyze is not installed"
+    version = subprocess.run([exe, "--version"], capture_output=True, text=True, timeout=30).stdout.split()
+    number = int(version[1]) if len(version) > 1 and version[1].isdigit() else 0
+    if number < 250:
+        return False, f"systemd-analyze {number} has no 'security --offline' (needs systemd >= 250)"
+    return True, ""
+
+
+@pytest.mark.skipif(not _offline_security_supported()[0], reason=_offline_security_supported()[1])
+def test_systemd_analyze_security_exposure(tmp_path):
+    copy = tmp_path / "pivotd.service"
+    copy.write_text(UNIT.read_text())
+    result = subprocess.run(["systemd-analyze", "security", "--offline=yes", "--no-pager", str(copy)],
+                            capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    match = re.search(r"Overall exposure level for pivotd\.service: (\d+(?:\.\d+)?)", result.stdout)
+    assert match, result.stdout[-2000:]
+    assert float(match.group(1)) <= 2.5, result.stdout
+    passed = {line.split()[1] for line in result.stdout.splitlines() if line.startswith("✓")}
+    for setting in ("NoNewPrivileges=", "ProtectSystem=", "ProtectHome=", "PrivateTmp=", "RestrictSUIDSGID=",
+                    "SystemCallFilter=~@privileged", "CapabilityBoundingSet=~CAP_SYS_ADMIN", "ProtectKernelModules=",
+                    "RestrictNamespaces=~user", "LockPersonality="):
+        assert setting in passed, (setting, result.stdout)

@@ -20,6 +20,7 @@ BENCHES: dict[str, str] = {
     "bus": "Zenoh/ROS 2 bus codec costs and loopback delivery latency",
     "localization": "simulated visual localization success per camera policy (needs pivotd[bench])",
     "fuzz": "pivotd plan/check over mutated maps, paths and configs: tracebacks, time, reader memory",
+    "soak": "full stack under random device faults and hostile bus input: limits, tracebacks, RSS, recovery",
 }
 
 

@@ -47,6 +47,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--repeats", type=int, default=None, help="timing repeats (default 5, 3 with --quick)")
     parser.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--readers", action="store_true",
+                        help="only the ASCII PLY reader: numpy block parser vs plyfile on 200k vertices")
 
 
 def _median_time(fn: Callable[[], object], repeats: int) -> float:
@@ -166,6 +168,12 @@ def run(args: argparse.Namespace) -> int:
         results[key] = value
         print(f"{key:<44} {value:12.4g} {unit}", flush=True)
 
+    if args.readers:
+        _bench_ascii_ply(rng, repeats, report)
+        if args.json:
+            Path(args.json).write_text(json.dumps(results, indent=2) + "\n")
+        return 0
+
     pts, center = _uniform_map(m, rng)
     with tempfile.TemporaryDirectory(prefix="pivotd-bench-maps-") as tmp:
         tmpdir = Path(tmp)
@@ -203,6 +211,35 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=2) + "\n")
     return 0
+
+
+def _bench_ascii_ply(rng: np.random.Generator, repeats: int, report, n: int = 200_000) -> None:
+    """An ASCII PLY of ``n`` vertices (x y z float, red green blue uchar, faces after them): the block parser
+    against plyfile's own ASCII reader (the fallback path), timed alternately in one run."""
+    from unittest import mock
+
+    import plyfile
+
+    from pivotd.maps import formats_ply
+
+    v = np.zeros(n, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    for c in "xyz":
+        v[c] = rng.uniform(-50, 50, n)
+    f = np.zeros(n // 2, dtype=[("vertex_indices", "i4", (3,))])
+    f["vertex_indices"] = rng.integers(0, n, (n // 2, 3))
+    with tempfile.TemporaryDirectory(prefix="pivotd-bench-ply-") as tmp:
+        path = Path(tmp) / "map.ply"
+        plyfile.PlyData([plyfile.PlyElement.describe(v, "vertex"), plyfile.PlyElement.describe(f, "face")],
+                        text=True).write(str(path))
+
+        def slow() -> None:
+            with mock.patch.object(formats_ply, "_ascii_vertices", lambda *a: None):
+                load_landmarks(path)
+
+        fast_t, slow_t, ratio = _paired_times(lambda: load_landmarks(path), slow, max(3, repeats))
+    report("load_ply_ascii_200k_block_parser_s", fast_t, "s")
+    report("load_ply_ascii_200k_plyfile_s", slow_t, "s")
+    report("load_ply_ascii_plyfile_over_block_parser", 1.0 / ratio, "x")
 
 
 def _bench_queries(pts: np.ndarray, center: np.ndarray, repeats: int, report) -> None:

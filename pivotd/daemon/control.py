@@ -5,10 +5,18 @@ rate with absolute deadlines. Each tick compensates body motion with the **lates
 converts the plan's world direction to joint angles within limits, and lets the jerk-limited
 motion generator produce the setpoint. A stale pose or a missing plan means a jerk-limited stop
 and hold; a lost link or a faulted gimbal means no motion at all.
+
+The setpoint stream is continuous while the device follows it. Whenever it did not (link down, fault,
+device disabled (no setpoints are sent then), its watchdog stopped it, or a stall of the loop longer than
+``stall_s``) the generator restarts from a measured state received after the interruption, so motion resumes
+from where the gimbal really is, jerk-limited, instead of where the stream left off. A restart requested while the
+device kept following (e.g. after clearing a latched fault bit) keeps the stream as it is: a restart
+from the measured state would only add the device's tracking lag as a step.
 """
 
 from __future__ import annotations
 
+import logging
 import time
 from collections import deque
 from collections.abc import Callable
@@ -23,6 +31,8 @@ from pivotd.gimbal.interface import GimbalInterface, GimbalMode, GimbalState, Li
 from pivotd.gimbal.kinematics import JointLimits, Mount, joints_to_world_direction, world_direction_to_joints
 from pivotd.gimbal.motion import MotionGenerator
 
+log = logging.getLogger(__name__)
+
 
 @dataclass(frozen=True)
 class ControlSettings:
@@ -33,6 +43,7 @@ class ControlSettings:
     pose_timeout: float = 0.5
     lookahead: float = 0.2
     plan_timeout: float = 1.0
+    stall_s: float = 0.25  # [s] a gap between ticks longer than this restarts the stream from the measured state
 
 
 @dataclass(frozen=True)
@@ -71,17 +82,63 @@ class ControlLoop:
         self.commanded_direction: np.ndarray | None = None  # world direction of the last setpoint
         self.override_target: tuple[float, float] | None = None  # e.g. the park pose
         self._need_reset = True
+        self._hard_reset = True  # the device did not follow the stream: restart even if it now follows again
+        self._reset_after = -np.inf  # a restart needs a measured state received at or after this time [s]
+        self._seen_mode: int | None = None  # device mode in the newest state seen by a tick
+        self._seen_rx = -np.inf  # its receive time [s]
+        self._last_tick: float | None = None
+        self._streaming = False  # the previous tick sent a setpoint
+        self.restarts = 0  # restarts of the stream from a measured state
         self._last_pose_rx: float | None = None
         self._prev_pose: PoseSample | None = None
         self._speed = 0.0
 
     def invalidate(self) -> None:
-        """Re-seed the motion generator from the measured state at the next tick (after reconnects)."""
-        self._need_reset = True
+        """Restart the stream from a state measured from now on, unless the device kept following it (see the
+        module docstring); the daemon calls this after it re-enabled the gimbal or cleared a fault."""
+        self._request_reset(self.clock(), hard=False)
 
-    def _reset_from(self, state: GimbalState) -> None:
-        self.motion.reset((state.pan, state.tilt), (state.pan_rate, state.tilt_rate))
-        self._need_reset = False
+    def _request_reset(self, after: float, hard: bool) -> None:
+        if not self._need_reset:
+            self._reset_after = after
+        else:
+            self._reset_after = max(self._reset_after, after)
+        self._need_reset = True
+        self._hard_reset = self._hard_reset or hard
+
+    def _reset_from(self, state: GimbalState, now: float) -> None:
+        """Restart the generator at the measured state, advanced to ``now`` when the device was moving on its own."""
+        pos = np.array([state.pan, state.tilt])
+        rate = np.array([state.pan_rate, state.tilt_rate])
+        if state.mode == GimbalMode.ENABLED:
+            pos = pos + rate * float(np.clip(now - state.rx_time, 0.0, self.settings.stall_s))
+        self.motion.reset(pos, rate)
+        self._need_reset = self._hard_reset = False
+        self.restarts += 1
+
+    def _resynchronise(self, now: float, state: GimbalState, gap: float, streaming: bool) -> bool:
+        """Restart the stream from ``state`` if needed (see the module docstring); False while a state measured
+        after the interruption is still missing. ``gap``: time since the previous tick [s]; ``streaming``: the
+        previous tick sent a setpoint."""
+        if gap > self.settings.stall_s:
+            log.info("control loop stalled for %.3f s: restarting the setpoint stream from a fresh measured state",
+                     gap)
+            self._request_reset(now, hard=True)  # the loop stalled: the device did not get the stream
+        if state.rx_time > self._seen_rx:
+            if state.mode == GimbalMode.HOLDING and self._seen_mode == GimbalMode.ENABLED:
+                # Its watchdog stopped it: restart once, from this state. Later states of the same hold were
+                # sent before the device got the restarted stream (which resumes it) and are not followed.
+                self._request_reset(state.rx_time, hard=True)
+            self._seen_mode, self._seen_rx = state.mode, state.rx_time
+        if not self._need_reset:
+            return True
+        if state.rx_time < self._reset_after:
+            return False
+        if not self._hard_reset and streaming and state.mode == GimbalMode.ENABLED:
+            self._need_reset = False  # the device followed the stream all along: keep it continuous
+            return True
+        self._reset_from(state, now)
+        return True
 
     def _estimate_speed(self, pose: PoseSample) -> None:
         prev = self._prev_pose
@@ -136,16 +193,27 @@ class ControlLoop:
         mount = self.mount  # one mount for the whole tick, even if a reload swaps it meanwhile
         link_state = self.link.link_state
         state = self.link.state
+        gap = 0.0 if self._last_tick is None else now - self._last_tick
+        streaming = self._streaming
+        self._last_tick, self._streaming = now, False
         if link_state != LinkState.UP or state is None:
-            self._need_reset = True
+            self._request_reset(now, hard=True)
             return TickResult(DaemonState.LINK_DOWN)
         if faulted or state.mode == GimbalMode.FAULT:
             # No motion while faulted; keep the watchdog fed so the fault, not a link loss, is reported.
-            self._need_reset = True
+            self._request_reset(now, hard=True)
             self.link.send_heartbeat()
             return TickResult(DaemonState.FAULT)
-        if self._need_reset:
-            self._reset_from(state)
+        if state.mode == GimbalMode.DISABLED:
+            # The device ignores setpoints until the daemon enables it; the stream then starts where it stands.
+            self._request_reset(now, hard=True)
+            self._seen_mode, self._seen_rx = state.mode, state.rx_time
+            self.link.send_heartbeat()
+            return TickResult(DaemonState.HOLDING)
+        if not self._resynchronise(now, state, gap, streaming):
+            # Waiting (at most a state period) for a state measured after the interruption.
+            self.link.send_heartbeat()
+            return TickResult(DaemonState.HOLDING)
 
         clamped = False
         if self.override_target is not None:
@@ -168,6 +236,7 @@ class ControlLoop:
         pan, tilt = float(sample.position[0]), float(sample.position[1])
         vp, vt = float(sample.velocity[0]), float(sample.velocity[1])
         self.link.send_setpoint(pan, tilt, vp, vt)
+        self._streaming = True
         self.stats.setpoints += 1
         self.stats.clamped += int(clamped)
         if pose is not None:

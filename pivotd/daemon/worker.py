@@ -62,8 +62,26 @@ def _map_info(store) -> MapInfo:
     return MapInfo(len(snap), snap.version, {name: info.count for name, info in snap.layers.items()})
 
 
+class _ParentPipe:
+    """The worker's end of the pipe: a daemon that is gone (killed, or stopped before the worker was ready) ends
+    the worker quietly instead of with a BrokenPipeError traceback."""
+
+    def __init__(self, conn) -> None:
+        self._conn = conn
+
+    def send(self, obj: object) -> None:
+        try:
+            self._conn.send(obj)
+        except (BrokenPipeError, ConnectionResetError):
+            raise SystemExit(0) from None
+
+    def recv(self) -> object:
+        return self._conn.recv()
+
+
 def _worker_main(conn, cfg: Config, log_level: int) -> None:  # pragma: no cover - runs in the child
     """Child process entry: build map + planner from ``cfg``, then serve requests until told to stop."""
+    conn = _ParentPipe(conn)
     # The daemon handles SIGINT/SIGHUP; the worker only ends on "stop", a closed pipe or SIGTERM.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGHUP, signal.SIG_IGN)

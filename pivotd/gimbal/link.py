@@ -27,6 +27,7 @@ import serial
 from firmware_proto import codec
 from firmware_proto.messages import (
     NACK_NAMES,
+    NACK_NOT_CONFIGURED,
     PROTOCOL_VERSION,
     Ack,
     ClearFault,
@@ -151,6 +152,11 @@ class GimbalLink(SupervisedLink):
         if self._link_state != LinkState.UP:
             return False
         ack = self._request(Enable(1 if on else 0), timeout)
+        if ack is not None and ack.status == NACK_NOT_CONFIGURED and self._conn is not None:
+            # The device forgot its CONFIG: it rebooted behind a port that stayed open. Drop the connection
+            # so the supervisor runs the whole handshake (HELLO, CONFIG, ENABLE) again.
+            self._conn.error = "the gimbal lost its configuration (rebooted?): handshaking again"
+            log.warning("gimbal at %s: %s", self.url, self._conn.error)
         return ack is not None and ack.status == 0
 
     def clear_fault(self, timeout: float | None = None) -> bool:

@@ -211,12 +211,12 @@ def _points3d_rows(path: Path, numbered: Iterator[tuple[int, str]]) -> tuple[np.
                 f"got {len(fields)} fields"
             )
         try:
-            p = [float(f) for f in fields[1:4]]
+            x, y, z = float(fields[1]), float(fields[2]), float(fields[3])
             int(fields[0])
-            track = [int(f) for f in fields[8::2]]
+            track = list(map(int, fields[8::2]))
         except ValueError:
             raise InputError(f"{path}:{lineno}: not a number in {line.strip()[:80]!r}") from None
-        if not all(math.isfinite(v) for v in p):
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
             raise InputError(f"{path}:{lineno}: coordinate is not finite (NaN or inf)")
         try:
             track_img.extend(track)
@@ -224,7 +224,7 @@ def _points3d_rows(path: Path, numbered: Iterator[tuple[int, str]]) -> tuple[np.
             bad = next(v for v in track if not _I32_MIN <= v <= _I32_MAX)
             raise InputError(f"{path}:{lineno}: image id {bad} is out of range (COLMAP ids are 32-bit)") from None
         lengths.append(len(track))
-        xyz.extend(p)
+        xyz.extend((x, y, z))
     return (np.frombuffer(xyz, dtype=np.float64).reshape(-1, 3), np.frombuffer(lengths, dtype=np.int64),
             np.frombuffer(track_img, dtype=np.int32))
 

@@ -18,6 +18,7 @@ import logging
 import os
 import re
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from tokenize import TokenError
@@ -275,33 +276,40 @@ def read_numeric_text(path: Path, columns: tuple[int, ...], what: str, dtype: ty
     values = array.array("d" if np.dtype(dtype) == np.float64 else "f")
     ncols: int | None = None
     delimiter: str | None = None
+    for lineno, block in text_blocks(path):
+        if ncols is None:
+            found = _first_data_line(block)
+            if found is not None:
+                delimiter = "," if "," in found[1] else None
+                ncols = _column_count(path, lineno + found[0], found[1], columns, what)
+        if ncols is not None:
+            parsed = parse_clean_block(block, ncols, delimiter)
+            if parsed is None:
+                parsed = _parse_lines(path, block, lineno, ncols)
+            with np.errstate(over="ignore"):
+                values.frombytes(parsed.astype(dtype, copy=False).tobytes())
+    if ncols is None:
+        return np.zeros((0, columns[0]), dtype)
+    return np.frombuffer(values, dtype=dtype).reshape(-1, ncols)
+
+
+def text_blocks(path: Path, size: int = _TEXT_BLOCK) -> Iterator[tuple[int, str]]:
+    """(lines before the block, block) of a text file read in blocks of about ``size`` characters, each ending
+    at a line end (the last one may not); errors name the file."""
     lineno = 0
     try:
         with open(path) as fh, Progress(f"reading {path.name}", os.fstat(fh.fileno()).st_size, "B") as progress:
             while True:
-                block = fh.read(_TEXT_BLOCK)
+                block = fh.read(size)
                 if not block:
-                    break
+                    return
                 if not block.endswith("\n"):
                     block += fh.readline()  # complete the last line
                 progress.advance(len(block))  # characters: bytes for the ASCII of numeric text
-                if ncols is None:
-                    found = _first_data_line(block)
-                    if found is not None:
-                        delimiter = "," if "," in found[1] else None
-                        ncols = _column_count(path, lineno + found[0], found[1], columns, what)
-                if ncols is not None:
-                    parsed = _parse_clean_lines(block, ncols, delimiter)
-                    if parsed is None:
-                        parsed = _parse_lines(path, block, lineno, ncols)
-                    with np.errstate(over="ignore"):
-                        values.frombytes(parsed.astype(dtype, copy=False).tobytes())
+                yield lineno, block
                 lineno += block.count("\n")
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read ({exc})") from None
-    if ncols is None:
-        return np.zeros((0, columns[0]), dtype)
-    return np.frombuffer(values, dtype=dtype).reshape(-1, ncols)
 
 
 def _first_data_line(block: str) -> tuple[int, str] | None:
@@ -341,7 +349,7 @@ def _parse_lines(path: Path, block: str, lineno: int, ncols: int) -> np.ndarray:
     return np.frombuffer(out, dtype=np.float64)
 
 
-def _parse_clean_lines(block: str, ncols: int, delimiter: str | None) -> np.ndarray | None:
+def parse_clean_block(block: str, ncols: int, delimiter: str | None) -> np.ndarray | None:
     """Fast path for a well-formed block (numpy's C parser); None when anything is off, so that the
     line-by-line parser can name the offending line."""
     try:

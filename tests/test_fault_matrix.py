@@ -1,0 +1,263 @@
+"""Rows of the fault matrix (docs/RELIABILITY.md) that need the whole stack: the real daemon, tools/sim_pose and the
+reference device model on a loopback TCP port, with faults injected while the gimbal moves (pivotd.bench.soak).
+
+Recovery times are measured by ``pivotd bench soak --matrix``, not here: these tests check behaviour only.
+"""
+
+from __future__ import annotations
+
+import csv
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from proto_support import link_config
+
+from firmware_proto.messages import FAULT_WATCHDOG, FAULTS_SEVERE, MODE_DISABLED, MODE_ENABLED, MODE_FAULT, MODE_HOLDING
+from pivotd.bench.soak import SoakDevice, SoakStack, check_device_log, count_tracebacks, soak
+from pivotd.gimbal.link import GimbalLink
+
+RECOVER_S = 60.0  # generous: a shared machine; the measured times are in docs/RELIABILITY.md
+
+
+def rows(path: Path) -> list[dict]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def no_tracebacks(stack: SoakStack) -> None:
+    for path in stack.daemon_logs():
+        n, lines = count_tracebacks(path)
+        assert n == 0, (path, lines)
+
+
+def resumed_setpoints(log: list[dict], after_row: int) -> tuple[dict, dict]:
+    """After row ``after_row``: the first SETPOINT of the next connection (after its HELLO) and the last STATE the
+    device sent before it."""
+    hello = next(i for i in range(after_row, len(log)) if log[i]["dir"] == "rx" and log[i]["type"] == "HELLO")
+    first = next(i for i in range(hello, len(log)) if log[i]["dir"] == "rx" and log[i]["type"] == "SETPOINT")
+    state = next(log[i] for i in range(first, 0, -1) if log[i]["dir"] == "tx" and log[i]["type"] == "STATE")
+    return log[first], state
+
+
+def assert_continuous_with_the_device(stack: SoakStack, setpoint: dict, state: dict) -> None:
+    """The first setpoint after an interruption starts where the device is, at its (resting) rate."""
+    cfg = stack.cfg
+    dt = cfg.control.dt
+    amax = np.array([cfg.motion.pan.max_acceleration, cfg.motion.tilt.max_acceleration])
+    pos = np.array([float(setpoint["pan"]), float(setpoint["tilt"])])
+    rate = np.array([float(setpoint["pan_rate"]), float(setpoint["tilt_rate"])])
+    measured = np.array([float(state["pan"]), float(state["tilt"])])
+    measured_rate = np.array([float(state["pan_rate"]), float(state["tilt_rate"])])
+    assert int(state["mode"]) in (MODE_ENABLED, MODE_HOLDING, MODE_DISABLED)
+    assert np.all(np.abs(measured_rate) < 1e-3), state  # it stood still (watchdog hold, then re-enabled)
+    assert np.all(np.abs(rate - measured_rate) <= amax * dt + 1e-5), (setpoint, state)
+    assert np.all(np.abs(pos - measured) <= amax * dt * dt + 1e-5), (setpoint, state)
+
+
+def moving(stack: SoakStack, since: float) -> bool:
+    """The daemon tracks and the gimbal turned by more than a degree since ``since`` (wall clock)."""
+    docs = [s for s in list(stack.probe.statuses) if s.get("time", 0) > since and s.get("gimbal")]
+    return len(docs) >= 2 and abs(docs[-1]["gimbal"]["pan_deg"] - docs[0]["gimbal"]["pan_deg"]) > 1.0
+
+
+@pytest.fixture
+def stack(tmp_path):
+    with SoakStack(tmp_path, seed=3) as s:
+        assert s.wait_healthy(RECOVER_S) is not None, (tmp_path / "pivotd.log").read_text()[-3000:]
+        yield s
+
+
+def _unplug_and_check(stack: SoakStack, seconds: float) -> None:
+    assert stack.wait(lambda st: moving(stack, time.time() - 1.0), RECOVER_S) is not None
+    n_rows = len(rows(stack.out / "gimbal.csv"))
+    t_unplug = time.time()
+    stack.inject("unplug", seconds=seconds)
+    assert stack.wait_healthy(RECOVER_S) is not None, stack.status
+    assert any(s.get("state") == "link-down" for s in stack.probe.statuses if s.get("time", 0) > t_unplug)
+    setpoint, state = resumed_setpoints(rows(stack.out / "gimbal.csv"), n_rows)
+    assert_continuous_with_the_device(stack, setpoint, state)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_unplug_mid_motion_and_replug_resumes_from_the_measured_state(stack):
+    """Replug after 0.5 s and after 5 s (the device's watchdog stopped it in both): link-down is reported, the link
+    comes back by itself, and the stream restarts at the device's resting pose, jerk-limited."""
+    for seconds in (0.5, 5.0):
+        _unplug_and_check(stack, seconds)
+    code = stack.stop_daemon()
+    assert code == 0
+    assert check_device_log(stack.cfg, stack.out / "gimbal.csv").beyond_limits == 0
+    no_tracebacks(stack)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_unplug_for_a_minute_mid_motion_and_replug_resumes(stack):
+    """A replug after 60 s: the link retries at its longest backoff the whole minute and still comes back."""
+    _unplug_and_check(stack, 60.0)
+    assert stack.status["link_counters"]["reconnects"] >= 1
+    assert stack.stop_daemon() == 0
+    assert check_device_log(stack.cfg, stack.out / "gimbal.csv").beyond_limits == 0
+    no_tracebacks(stack)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_every_fault_bit_and_a_device_reboot_are_recovered_without_moving_through_a_fault(stack):
+    for bit in range(8):
+        episodes = stack.status.get("fault_episodes", 0)
+        t0 = time.time()
+        stack.inject("fault_bit", bit=bit)
+        assert stack.wait(lambda st, e=episodes: st.get("fault_episodes", 0) > e, RECOVER_S) is not None, bit
+        assert stack.wait_healthy(RECOVER_S, since=t0) is not None, (bit, stack.status)
+    stack.inject("reboot")
+    assert stack.wait_healthy(RECOVER_S) is not None, stack.status
+    assert stack.stop_daemon() == 0
+    log = rows(stack.out / "gimbal.csv")
+    states = [r for r in log if r["dir"] == "tx" and r["type"] == "STATE"]
+    seen = 0
+    for r in states:
+        seen |= int(r["faults"])
+    assert seen & 0xFF == 0xFF  # every bit was reported by the device ...
+    assert sum(r["type"] == "CLEAR_FAULT" for r in log if r["dir"] == "rx") >= 8  # ... and cleared by the host
+    # No setpoint reaches a device in FAULT mode later than frames already in flight (0.1 s) after it said so.
+    fault_since = None
+    for r in log:
+        if r["dir"] == "tx" and r["type"] == "STATE":
+            faulted = int(r["mode"]) == MODE_FAULT
+            fault_since = (fault_since or float(r["t_s"])) if faulted else None
+        elif r["dir"] == "rx" and r["type"] == "SETPOINT" and fault_since is not None:
+            assert float(r["t_s"]) <= fault_since + 0.1, r
+    assert all(int(r["faults"]) & FAULTS_SEVERE == 0 or int(r["mode"]) == MODE_FAULT for r in states
+               if int(r["mode"]) != MODE_DISABLED)
+    # After the reboot the device was configured again (a second CONFIG on a new connection) and enabled.
+    assert sum(r["type"] == "CONFIG" for r in log if r["dir"] == "rx") >= 2
+    assert check_device_log(stack.cfg, stack.out / "gimbal.csv").beyond_limits == 0
+    no_tracebacks(stack)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_hostile_poses_and_paths_a_stale_pose_and_a_starved_planner_are_survived(stack):
+    """NaN, teleported, past-stamped and flooded poses, garbage, empty/single/far/huge/malformed paths: dropped and
+    counted or followed within the limits, never a traceback, never a device watchdog trip. A pose source that
+    stops and a planner process that gets no CPU for 3 s: a jerk-limited hold, then tracking again."""
+    flood: tuple[float, float] = (0.0, 0.0)  # device clock [s] around the pose flood
+    for kind in ("nan_pose", "teleport", "past_pose", "pose_flood", "garbage", "path_empty", "path_single",
+                 "path_far", "path_huge", "path_garbage"):
+        t0 = stack.device.elapsed()
+        stack.inject(kind)
+        assert stack.wait_healthy(RECOVER_S) is not None, (kind, stack.status)
+        if kind == "pose_flood":
+            flood = (t0, stack.device.elapsed() + 0.5)
+    for kind, seconds in (("stale_pose", 2.0), ("planner_stall", 3.0)):
+        t0 = time.time()
+        stack.inject(kind, seconds=seconds)
+        assert any(s.get("state") == "holding" for s in stack.probe.statuses if s.get("time", 0) > t0), kind
+        assert stack.wait_healthy(RECOVER_S) is not None, (kind, stack.status)
+    status = stack.probe.query_status()
+    odom = status["bus"][stack.cfg.topics.pose]
+    assert odom.get("dropped_nonfinite", 0) >= 1 and odom.get("dropped_malformed", 0) >= 1, odom
+    plan = status["bus"][stack.cfg.topics.path]
+    assert sum(v for k, v in plan.items() if k.startswith("dropped")) >= 2, plan
+    assert stack.stop_daemon() == 0
+    log = rows(stack.out / "gimbal.csv")
+    # The flood did not starve the control loop: the device's watchdog did not expire around it.
+    assert not any(int(r["faults"]) & FAULT_WATCHDOG for r in log if r["dir"] == "tx" and r["type"] == "STATE"
+                   and flood[0] <= float(r["t_s"]) <= flood[1])
+    assert check_device_log(stack.cfg, stack.out / "gimbal.csv").beyond_limits == 0
+    no_tracebacks(stack)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_sigkill_mid_motion_the_device_holds_and_a_restart_resumes_from_where_it_stopped(stack):
+    assert stack.wait(lambda st: moving(stack, time.time() - 1.0), RECOVER_S) is not None
+    stack.stop_daemon(signal.SIGKILL)
+    n_rows = len(rows(stack.out / "gimbal.csv"))
+    time.sleep(1.0)
+    log = rows(stack.out / "gimbal.csv")
+    after = [r for r in log[n_rows:] if r["dir"] == "tx" and r["type"] == "STATE"]
+    assert after and int(after[-1]["mode"]) == MODE_HOLDING and int(after[-1]["faults"]) & FAULT_WATCHDOG
+    assert abs(float(after[-1]["pan_rate"])) < 1e-6  # the device's watchdog stopped the motion
+    stack.start_daemon()  # what Restart=on-failure does
+    assert stack.wait_healthy(RECOVER_S, since=time.time()) is not None, stack.daemon_logs()[-1].read_text()[-3000:]
+    setpoint, state = resumed_setpoints(rows(stack.out / "gimbal.csv"), n_rows)
+    assert_continuous_with_the_device(stack, setpoint, state)
+    assert stack.stop_daemon() == 0
+    assert check_device_log(stack.cfg, stack.out / "gimbal.csv").beyond_limits == 0
+    no_tracebacks(stack)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_short_soak_has_no_setpoint_beyond_limits_no_traceback_and_recovers_from_every_fault(tmp_path):
+    r = soak(0.25, tmp_path, seed=11, mean_gap=1.0)
+    assert r["events"] >= 4 and r["setpoints"] > 700 and r["checked_pairs"] > 300, r
+    assert r["setpoints_beyond_limits"] == 0, r["beyond"]
+    assert r["tracebacks"] == 0, r["traceback_lines"]
+    assert r["not_recovered"] == 0, r["event_log"]
+    assert r["daemon_exit_code"] == 0
+
+
+def test_check_device_log_counts_rate_steps_in_a_stream_and_positions_beyond_the_limits(tmp_path):
+    """The soak's setpoint check can fail: a rate step inside one stream counts, the same step across a break of
+    the stream (a lost frame, a stall) does not, and a position beyond the joint limits always counts."""
+    from firmware_proto.realtime import LOG_COLUMNS
+    from pivotd.config import load_config
+    from pivotd.sim.launch import REPO
+
+    cfg = load_config(REPO / "config" / "demo.yaml")
+    dt = cfg.control.dt
+    step = 2.0 * cfg.motion.pan.max_acceleration * dt  # twice what one period may change the rate by
+
+    def row(t, direction, kind, seq="", pan=0.0, rate=0.0, mode=""):
+        values = dict.fromkeys(LOG_COLUMNS, "")
+        values.update(t_s=f"{t:.6f}", dir=direction, type=kind, seq=seq, pan=pan, tilt=0.0, pan_rate=rate,
+                      tilt_rate=0.0, mode=mode, faults=0 if kind == "STATE" else "",
+                      host_time_us=round(t * 1e6) if kind == "SETPOINT" else "")
+        return values
+
+    log = [row(0.0, "tx", "STATE", mode=MODE_ENABLED)]
+    log += [row(0.01 * k, "rx", "SETPOINT", seq=k, rate=0.0) for k in range(1, 4)]
+    log += [row(0.04, "rx", "SETPOINT", seq=4, rate=step)]  # a step inside the stream
+    log += [row(0.06, "rx", "SETPOINT", seq=6, rate=0.0)]  # seq 5 lost: not judged against seq 4
+    log += [row(0.07, "rx", "SETPOINT", seq=7, pan=cfg.gimbal.limits.pan_max + 0.01, rate=0.0)]
+    log += [row(0.5, "rx", "SETPOINT", seq=8, rate=step)]  # after a stall of the loop: a new stream
+    path = tmp_path / "log.csv"
+    with open(path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=LOG_COLUMNS)
+        writer.writeheader()
+        writer.writerows(log)
+    check = check_device_log(cfg, path)
+    assert check.setpoints == 7
+    assert check.beyond_acceleration == 1 and check.beyond_position == 1 and check.beyond_velocity == 0
+    assert check.worst["acceleration"] == pytest.approx(2.0, rel=1e-3)
+
+
+def test_device_reboot_behind_an_open_port_is_configured_and_enabled_again(tmp_path):
+    """The device restarts (forgets CONFIG, comes up disabled) while the port stays open: ENABLE is refused as
+    not configured, so the link runs the whole handshake again instead of retrying ENABLE forever."""
+    device = SoakDevice(tmp_path / "gimbal.csv", seed=0)
+    device.start()
+    link = GimbalLink(device.url, link_config(reconnect_backoff_s=(0.05, 0.2)))
+    try:
+        link.start()
+        assert link.wait_up(10.0), link.last_error
+        assert link.wait_state(lambda st: st.mode == MODE_ENABLED, 5.0) is not None
+        device.reboot()
+        assert link.wait_state(lambda st: st.mode == MODE_DISABLED, 5.0) is not None
+        assert link.set_enabled(True) is False  # NACK: not configured
+        assert link.wait_state(lambda st: st.mode == MODE_ENABLED, 10.0) is not None, link.last_error
+        assert link.counters()["reconnects"] == 1
+        assert "lost its configuration" in (link.last_error or "")
+    finally:
+        link.stop()
+        device.stop()
+    log = rows(tmp_path / "gimbal.csv")
+    assert [r["type"] for r in log if r["dir"] == "rx" and r["type"] in ("HELLO", "CONFIG")] == [
+        "HELLO", "CONFIG", "HELLO", "CONFIG"]
