@@ -1,12 +1,14 @@
 """Single-pose PIVOT: the viewing direction that keeps the most (weighted) landmarks in a conical FoV.
 
 Practical enhancements of the paper (§IV-C): multi-start initialisation (centroid, orthogonal and
-tangent directions, landmark-seeded directions and the best directions of a coarse lattice scored on a
-strided subsample, each moved by two mean-shift steps, ranked on the subsample, near-duplicates pruned),
+tangent directions, landmark-seeded directions and the best directions of a coarse lattice, all scored
+on a cube-map summary of every landmark — per-cell weight and mean bearing, independent of the order
+of the landmarks — each moved by two mean-shift steps, ranked on the summary, near-duplicates pruned),
 ranking of the survivors by their hard visible weight on all landmarks after one more mean-shift step,
 refinement of the best one and of those whose widened-cone bound could still beat it, a hard-count
-polish, an optional FoV schedule that starts wide and narrows to α with k_s recomputed from a target
-transition width, and normalised, clipped, adaptively scaled steps (see :func:`pivotd.pivot._ascent.ascend`).
+search over a cap of directions around the best (flat landscapes have many shallow maxima close
+together), a hard-count polish, an optional FoV schedule that starts wide and narrows to α with k_s
+recomputed from a target transition width, and normalised, clipped, adaptively scaled steps (see :func:`pivotd.pivot._ascent.ascend`).
 """
 
 from __future__ import annotations
@@ -54,7 +56,7 @@ class ViewOptions:
     polish_deg: float = 1.0  # final pattern search on the hard count starting at this radius (0: off) ...
     polish_tol_deg: float = 0.1  # ... down to this radius (at most 0.05 α)
     cap_ratio: float = 0.5  # before it, the hard count on a spiral of directions within ratio · α of the best ...
-    cap_points: int = 192  # ... with this many directions (flat landscapes: the best peak nearby; 0: off)
+    cap_points: int = 96  # ... with this many directions (flat landscapes: the best peak nearby; 0: off)
 
 
 @dataclass
@@ -559,7 +561,8 @@ def cap_search(
     t1 = np.array([tx / nt, ty / nt, tz / nt])
     t2 = np.cross(c, t1)
     cand = np.cos(r) * c + np.sin(r) * (np.cos(phi) * t1 + np.sin(phi) * t2)  # (P, 3)
-    vals = (cand.astype(np.float32) @ bandT >= cos_a) @ wb
+    inside = cand.astype(np.float32) @ bandT  # (P, m)
+    vals = np.greater_equal(inside, cos_a, out=inside) @ wb  # 1.0 inside the cone
     k = int(np.argmax(vals))
     base = float(_row_weights(c.astype(np.float32)[None] @ bandT >= cos_a, wb, uniform)[0])
     return cand[k] / np.sqrt(cand[k] @ cand[k]) if vals[k] > base else c
