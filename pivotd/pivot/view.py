@@ -8,7 +8,8 @@ ranking of the survivors by their hard visible weight on all landmarks after one
 refinement of the best one and of those whose widened-cone bound could still beat it, a hard-count
 search over a cap of directions around the best (flat landscapes have many shallow maxima close
 together), a hard-count polish, an optional FoV schedule that starts wide and narrows to α with k_s
-recomputed from a target transition width, and normalised, clipped, adaptively scaled steps (see :func:`pivotd.pivot._ascent.ascend`).
+recomputed from a target transition width, and normalised, clipped, adaptively scaled steps (see
+:func:`pivotd.pivot._ascent.ascend`).
 """
 
 from __future__ import annotations
