@@ -138,3 +138,11 @@ def test_json_runs_stay_quiet_on_a_terminal(tmp_path, monkeypatch, capsys, as_js
         assert drawn == [] and capsys.readouterr().out.lstrip().startswith("{")
     else:
         assert drawn and drawn[-1].startswith("reading map.txt: 100%")
+
+
+def terminal(monkeypatch) -> FakeTTY:
+    """stderr as a fake terminal (set in the test body: pytest's capture replaces stderr after fixtures)."""
+    out = FakeTTY()
+    monkeypatch.setattr("sys.stderr", out)
+    monkeypatch.setattr(Progress, "__init__", _eager(Progress.__init__))
+    return out

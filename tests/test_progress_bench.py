@@ -6,28 +6,10 @@ from __future__ import annotations
 import json
 
 import pytest
-from test_progress import FakeTTY, _eager, frames
+from test_progress import FakeTTY, frames, not_silenced, terminal  # noqa: F401 (autouse fixture)
 
-from pivotd import progress
 from pivotd.bench import motion
 from pivotd.cli import main
-from pivotd.progress import Progress
-
-
-@pytest.fixture(autouse=True)
-def not_silenced(monkeypatch):
-    monkeypatch.delenv("JOURNAL_STREAM", raising=False)
-    progress.silence(False)
-    yield
-    progress.silence(False)
-
-
-def terminal(monkeypatch) -> FakeTTY:
-    """stderr as a fake terminal (set in the test body: pytest's capture replaces stderr after fixtures)."""
-    out = FakeTTY()
-    monkeypatch.setattr("sys.stderr", out)
-    monkeypatch.setattr(Progress, "__init__", _eager(Progress.__init__))
-    return out
 
 
 def counts(tty: FakeTTY, label: str) -> list[str]:

@@ -61,7 +61,7 @@ def _run(config: Path, endpoint: str, duration: float, out: Path) -> dict:
     """Daemon + sim_pose for ``duration`` s of walking; returns the final status and memory."""
     from pivotd.bus.session import open_session
     from pivotd.config import load_config
-    from pivotd.sim.launch import spawn
+    from pivotd.sim.launch import spawn, stop_processes
 
     cfg = load_config(config)
     py = sys.executable
@@ -93,13 +93,7 @@ def _run(config: Path, endpoint: str, duration: float, out: Path) -> dict:
         st["rss_mb"], st["rss_peak_mb"], st["rss_by_pid"] = round(rss, 1), round(hwm, 1), per
         return st
     finally:
-        for proc in (sim, daemon):
-            if proc is not None and proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-                try:
-                    proc.wait(timeout=15)
-                except Exception:
-                    proc.kill()
+        stop_processes((sim, daemon))
         session.close()
 
 

@@ -76,7 +76,7 @@ def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, chan
     from pivotd.bus.session import open_session
     from pivotd.config import load_config
     from pivotd.sim.analysis import read_device_log
-    from pivotd.sim.launch import derive_config, free_port, spawn
+    from pivotd.sim.launch import derive_config, free_port, spawn, stop_processes
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     device_log = tmp / f"gimbal_{name}.csv"
@@ -175,13 +175,7 @@ def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, chan
         return out
     finally:
         node.close()
-        for proc in (sim, daemon):
-            if proc is not None and proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-                try:
-                    proc.wait(timeout=15)
-                except Exception:
-                    proc.kill()
+        stop_processes((sim, daemon))
         session.close()
 
 

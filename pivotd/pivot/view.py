@@ -546,12 +546,10 @@ def cap_search(
     sensor inside a dense cloud) the nearby maxima are shallow and many, too far apart for a local
     search from one of them; the spiral's spacing ≈ radius · √(π/points) puts a direction near each.
     """
-    lo, hi = np.cos(min(np.pi, alpha + radius)), np.cos(max(0.0, alpha - radius))
-    sel = np.flatnonzero((cos_c >= lo) & (cos_c <= hi))
-    if sel.size == 0:
+    band = _edge_band(BT, w, cos_c, alpha, radius)
+    if band is None:
         return c
-    bandT = BT.take(sel, axis=1)  # (3, m)
-    wb = w.take(sel).astype(np.float32)
+    bandT, wb = band
     cos_a = np.float32(np.cos(alpha) - 1e-7)
     i = np.arange(points) + 0.5
     r = radius * np.sqrt(i / points)[:, None]  # (P, 1) polar radius: equal area per direction
@@ -567,6 +565,19 @@ def cap_search(
     k = int(np.argmax(vals))
     base = float(_row_weights(c.astype(np.float32)[None] @ bandT >= cos_a, wb, uniform)[0])
     return cand[k] / np.sqrt(cand[k] @ cand[k]) if vals[k] > base else c
+
+
+def _edge_band(
+    BT: np.ndarray, w: np.ndarray, cos_c: np.ndarray, alpha: float, reach: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The landmarks whose angle to the current axis is within α ± ``reach`` [rad] (``cos_c`` (n,) = c · k_j):
+    only they can enter or leave the cone while the axis moves by at most ``reach``. Their bearings (3, m)
+    and float32 weights (m,), or None when there are none."""
+    lo, hi = np.cos(min(np.pi, alpha + reach)), np.cos(max(0.0, alpha - reach))
+    sel = np.flatnonzero((cos_c >= lo) & (cos_c <= hi))
+    if sel.size == 0:
+        return None
+    return BT.take(sel, axis=1), w.take(sel).astype(np.float32)
 
 
 def polish_hard(
@@ -586,13 +597,10 @@ def polish_hard(
     within α ± 4.5·radius of ``c`` (``cos_c`` = c · k_j) can change the count: the others are counted
     once. Float32 inside; the caller recounts exactly. ``uniform``: all weights equal (counts instead of sums).
     """
-    reach = 4.5 * radius
-    lo, hi = np.cos(min(np.pi, alpha + reach)), np.cos(max(0.0, alpha - reach))
-    sel = np.flatnonzero((cos_c >= lo) & (cos_c <= hi))
-    if sel.size == 0:
+    band = _edge_band(BT, w, cos_c, alpha, 4.5 * radius)
+    if band is None:
         return c
-    bandT = BT.take(sel, axis=1)  # (3, m)
-    wb = w.take(sel).astype(np.float32)
+    bandT, wb = band
     cos_a = np.float32(np.cos(alpha) - 1e-7)
     radii = [radius]
     while radii[-1] * 0.5 >= tol:

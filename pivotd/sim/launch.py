@@ -5,7 +5,9 @@ Shared by the demo, the control benchmark and the end-to-end tests.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -57,6 +59,21 @@ def spawn(args: list[str], log_path: Path) -> subprocess.Popen:
     fh = open(log_path, "w")  # noqa: SIM115 - owned by the child for its lifetime
     return subprocess.Popen(args, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env,
                             cwd=str(REPO), start_new_session=True)
+
+
+def stop_processes(procs, timeout: float = 15.0) -> None:
+    """SIGTERM each process of ``procs`` still running (None entries skipped), in order; a process that has not
+    exited within ``timeout`` [s] is killed with its process group."""
+    for proc in procs:
+        if proc is None or proc.poll() is not None:
+            continue
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
 
 
 #: backends ``tools/mock_gimbal`` simulates (``gimbal.backend`` values)
