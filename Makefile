@@ -21,7 +21,7 @@ test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q
 
-# Everything except the tests marked slow (subprocesses, real time): the edit-test loop, under 30 s.
+# Everything except the tests marked slow (subprocesses, real time): the edit-test loop, about 45 s.
 test-fast: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q -m "not slow"
