@@ -60,6 +60,7 @@ def _tree_rss_mb(pid: int) -> tuple[float, float, dict[int, float]]:
 def _run(config: Path, endpoint: str, duration: float, out: Path) -> dict:
     """Daemon + sim_pose for ``duration`` s of walking; returns the final status and memory."""
     from pivotd.bus.session import open_session
+    from pivotd.cli.status import query_status
     from pivotd.config import load_config
     from pivotd.sim.launch import spawn, stop_processes
 
@@ -70,10 +71,7 @@ def _run(config: Path, endpoint: str, duration: float, out: Path) -> dict:
     session = open_session(connect=[endpoint])
     try:
         def status() -> dict | None:
-            for reply in session.get(cfg.status_key, timeout=2.0):
-                if reply.ok is not None:
-                    return json.loads(reply.ok.payload.to_bytes())
-            return None
+            return next(iter(query_status(session, cfg.status_key, 2.0).values()), None)
 
         t0 = time.monotonic()
         while (st := status()) is None or st.get("link") != "up":

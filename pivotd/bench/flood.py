@@ -74,6 +74,7 @@ def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, chan
     from pivotd.bus import messages as m
     from pivotd.bus.ros import RosNode
     from pivotd.bus.session import open_session
+    from pivotd.cli.status import query_status
     from pivotd.config import load_config
     from pivotd.sim.analysis import read_device_log
     from pivotd.sim.launch import derive_config, free_port, spawn, stop_processes
@@ -93,10 +94,7 @@ def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, chan
     out: dict = {"phase": name}
     try:
         def status() -> dict | None:
-            for reply in session.get(cfg.status_key, timeout=2.0):
-                if reply.ok is not None:
-                    return json.loads(reply.ok.payload.to_bytes())
-            return None
+            return next(iter(query_status(session, cfg.status_key, 2.0).values()), None)
 
         def wait_state(key: str, value: str, limit: float) -> None:
             t0 = time.monotonic()
