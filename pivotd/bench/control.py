@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pivotd.bench._procs import process_tree, rss_mb
 from pivotd.progress import with_progress
 
 REPO = Path(__file__).resolve().parents[2]
@@ -38,22 +39,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="gimbal backends to measure, each against its simulator (default: pivot)")
 
 
-def _rss_mb(pid: int) -> tuple[float, float]:
-    """Resident and peak resident memory [MB] of process ``pid``."""
-    fields = {}
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        key, _, value = line.partition(":")
-        fields[key] = value.strip()
-    return int(fields["VmRSS"].split()[0]) / 1024.0, int(fields["VmHWM"].split()[0]) / 1024.0
-
-
 def _tree_rss_mb(pid: int) -> tuple[float, float, dict[int, float]]:
-    """RSS and peak RSS [MB] summed over ``pid`` and its child processes (the planner process)."""
-    pids = [pid]
-    children = Path(f"/proc/{pid}/task/{pid}/children")
-    if children.exists():
-        pids += [int(c) for c in children.read_text().split()]
-    per = {p: _rss_mb(p) for p in pids if Path(f"/proc/{p}/status").exists()}
+    """RSS and peak RSS [MB] summed over ``pid`` and its descendants (the planner process), and RSS per pid."""
+    per = {p: rss_mb(p) for p in process_tree(pid)}
     return sum(v[0] for v in per.values()), sum(v[1] for v in per.values()), {p: round(v[0], 1) for p, v in per.items()}
 
 

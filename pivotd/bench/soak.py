@@ -33,6 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pivotd.bench._procs import process_tree, rss_mb
+
 log = logging.getLogger("pivotd.bench.soak")
 
 REPO = Path(__file__).resolve().parents[2]
@@ -222,25 +224,7 @@ class DeviceProcess:
 
 def tree_rss_mb(pid: int) -> float:
     """Resident memory [MB] of process ``pid`` and all its descendants (children of any of its threads)."""
-    parents: dict[int, int] = {}
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            with contextlib.suppress(OSError, ValueError, IndexError):
-                stat = (entry / "stat").read_text()
-                parents[int(entry.name)] = int(stat[stat.rindex(")") + 2:].split()[1])
-    tree, frontier = {pid}, [pid]
-    while frontier:
-        parent = frontier.pop()
-        for child, ppid in parents.items():
-            if ppid == parent and child not in tree:
-                tree.add(child)
-                frontier.append(child)
-    total = 0.0
-    for p in tree:
-        with contextlib.suppress(OSError, ValueError, StopIteration):
-            line = next(x for x in Path(f"/proc/{p}/status").read_text().splitlines() if x.startswith("VmRSS:"))
-            total += int(line.split()[1]) / 1024.0
-    return total
+    return sum(rss_mb(p)[0] for p in process_tree(pid))
 
 
 # ---------------------------------------------------------------------------------------------- checks
