@@ -175,8 +175,10 @@ def test_view_plan_is_a_path_of_camera_poses(sessions):
 
 def test_liveliness_tokens_visible_from_another_session_and_withdrawn(sessions):
     events = queue.Queue()
+    # history: tokens declared before this subscription reached the other session are reported too
     lsub = sessions[1].liveliness().declare_subscriber("@ros2_lv/3/**",
-                                                       lambda s: events.put((s.kind, str(s.key_expr))))
+                                                       lambda s: events.put((s.kind, str(s.key_expr))),
+                                                       history=True)
     bus, _ = make_bus(sessions[0], domain_id=3)
     try:
         zid = str(sessions[0].info.zid())
