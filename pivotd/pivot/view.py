@@ -22,6 +22,7 @@ import numpy as np
 from pivotd.geometry import optical_frame_from_direction
 from pivotd.pivot import _ascent
 from pivotd.pivot._checks import feature_weights, finite_array, half_angle, unit_vector
+from pivotd.pivot.cone_kernel import ConeKernel, cell_keys, cone_kernel
 from pivotd.pivot.visibility import ks_from_width
 
 
@@ -38,9 +39,11 @@ class ViewOptions:
     max_iterations: int = 40  # iteration budget at α
     step_init_deg: float = 4.0
     step_max_deg: float = 15.0
-    tol_deg: float = 0.25
-    sample: int = 1024  # above this many landmarks the multi-start candidates are ranked on direction cells ...
-    cells: int = 16  # ... of a cube map with cells × cells per face (each cell: its weight and mean bearing)
+    tol_deg: float = 0.5  # refinement stops below this step (the hard-count searches go finer)
+    sample: int = 1024  # above this many landmarks the candidates come from a histogram of the bearings ...
+    cells: int | None = None  # ... on a cube map with cells × cells per face (None: from α, cone_kernel.cells_per_face)
+    hist_shift: int = 0  # mean-shift steps of the peaks (and the weighted centroid) on the histogram
+    peaks: int = 12  # distinct histogram peaks (cones centred on cells, by approximate weight) seeding the candidates
     seeds: int = 32  # landmark-seeded candidates
     mean_shift: int = 2  # mean-shift steps applied to every candidate before ranking
     coarse_ratio: float = 1.0  # global seed: a direction lattice spaced ≈ ratio · α scored on the subsample
@@ -57,7 +60,7 @@ class ViewOptions:
     polish_deg: float = 1.0  # final pattern search on the hard count starting at this radius (0: off) ...
     polish_tol_deg: float = 0.1  # ... down to this radius (at most 0.05 α)
     cap_ratio: float = 0.5  # before it, the hard count on a spiral of directions within ratio · α of the best ...
-    cap_points: int = 96  # ... with this many directions (flat landscapes: the best peak nearby; 0: off)
+    cap_points: int = 64  # ... with this many directions (flat landscapes: the best peak nearby; 0: off)
 
 
 @dataclass
@@ -91,18 +94,12 @@ def _candidates(
     init: np.ndarray | None,
     uniform: bool,
 ) -> np.ndarray:
-    """Multi-start directions (K ≤ refine, 3), best summary score first, none closer than distinct_ratio · α.
-
-    B (n, 3) unit bearings and BT (3, n) their float32 transpose; above ``sample`` landmarks the candidates
-    are seeded, shifted and scored on the cube-map summary of all of them (:func:`_cell_summary`).
+    """Multi-start directions (K ≤ refine, 3) for few landmarks (≤ ``sample``), best score first, none closer
+    than distinct_ratio · α: seeds (axes, centroid, landmarks, a coarse lattice) moved by mean shift and
+    scored on the landmarks themselves. B (n, 3) unit bearings and BT (3, n) their float32 transpose.
     ``uniform``: all weights ``w`` are equal (saves a weighted product per mean-shift step).
     """
-    n = B.shape[0]
-    if n > opts.sample:  # every landmark counts, in an order-independent summary
-        Bs, ws = _cell_summary(BT, None if uniform else w, opts.cells)
-        uniform = False
-    else:
-        Bs, ws = B.astype(np.float32), w.astype(np.float32)
+    Bs, ws = B.astype(np.float32), w.astype(np.float32)
     seeds = list(_AXES)
     centroid = ws @ Bs
     x, y, z = (float(v) for v in centroid)
@@ -156,31 +153,56 @@ def _candidates(
     return Co[kept].astype(float)
 
 
-def _cell_summary(BT: np.ndarray, w: np.ndarray | None, m: int) -> tuple[np.ndarray, np.ndarray]:
-    """Unit bearings BT (3, n) float32 with weights w (n,) (None: all 1) binned on a cube map of m × m cells
-    per face: each non-empty cell's unit mean bearing (k, 3) float32 and its total weight (k,) float32, in
-    cell order (independent of the order of the landmarks up to float rounding; k ≤ 6 m²)."""
-    x, y, z = BT
-    ax, ay, az = np.abs(x), np.abs(y), np.abs(z)
-    fx = (ax >= ay) & (ax >= az)
-    fz = ~fx & (az > ay)
-    fy = ~fx & ~fz
-    big = np.maximum(np.maximum(ax, ay), az)
-    big = np.maximum(big, np.float32(1e-12), out=big)
-    half = np.float32(0.5 * m)
-    major = np.where(fx, x, np.where(fy, y, z))
-    face = fy.astype(np.intp) + 2 * fz + 3 * (major < 0)
-    iu = np.where(fx, y, x) / big  # the two minor coordinates on the face, in [−1, 1]
-    iv = np.where(fz, y, z) / big
-    iu = np.clip((iu * half + half).astype(np.intp), 0, m - 1)
-    iv = np.clip((iv * half + half).astype(np.intp), 0, m - 1)
-    cell = (face * m + iu) * m + iv
-    size = 6 * m * m
-    wc = np.bincount(cell, weights=w, minlength=size)
-    S = np.stack([np.bincount(cell, weights=c if w is None else w * c, minlength=size) for c in (x, y, z)], axis=1)
-    nrm = np.sqrt(np.einsum("ij,ij->i", S, S))
-    keep = np.flatnonzero((wc > 0) & (nrm > 1e-12))
-    return (S[keep] / nrm[keep, None]).astype(np.float32), wc[keep].astype(np.float32)
+def _histogram_candidates(
+    BT: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, init: np.ndarray | None, uniform: bool,
+    kernel: ConeKernel,
+) -> np.ndarray:
+    """Multi-start directions (K ≤ refine, 3) for many landmarks, best approximate weight first, none closer
+    than distinct_ratio · α.
+
+    The bearings BT (3, n) float32 (weights w (n,), ``uniform``: all equal) are binned on the kernel's cube
+    map with one ``bincount`` (exact integer counts for equal weights: independent of the landmarks' order);
+    one sparse product gives the approximate weight of the cone centred on every cell; its ``peaks`` best
+    distinct cells (plus the weighted centroid and ``init``) take one mean-shift step on the histogram
+    (cells weighted by their estimated fraction inside the cone), and each keeps the better of its start and
+    its shifted position by the same estimate. Cost O(n + cells).
+    """
+    h = np.bincount(cell_keys(BT, kernel.m), weights=None if uniform else w, minlength=kernel.size).astype(np.float32)
+    A = kernel.counts(h)  # (C,) approximate weight of the cone on every cell centre
+    k = min(8 * max(1, opts.peaks), A.size)
+    top = np.argpartition(A, A.size - k)[A.size - k :]
+    top = top[np.argsort(-A.take(top), kind="stable")]
+    cos_d = np.cos(opts.distinct_ratio * alpha)
+    D = kernel.centres[top]
+    picks = _greedy_distinct(D, cos_d, max(1, opts.peaks))
+    seeds, score = [D[picks]], [A.take(top.take(picks))]
+    extra = []
+    if opts.hist_shift or init is not None:
+        hs = h.take(kernel.keys)  # (C,) weight per cell
+        if opts.hist_shift:
+            centroid = hs @ kernel.centres
+            nc = float(np.sqrt(centroid @ centroid))
+            if nc > 1e-6 * max(float(hs.sum()), 1e-12):
+                extra.append(centroid / nc)
+        if init is not None:
+            extra.append(init.astype(np.float32))
+    if extra:  # their approximate weights: each cell counted by its estimated fraction inside the cone
+        E = np.array(extra, np.float32)
+        seeds.append(E)
+        score.append(kernel.soft_weights(E @ kernel.centres.T) @ hs)
+    C, score = np.concatenate(seeds), np.concatenate(score)
+    for _ in range(opts.hist_shift):  # mean shift on the histogram, keeping the better of start and end
+        Wt = kernel.soft_weights(C @ kernel.centres.T)
+        Wt *= hs
+        moved = Wt @ kernel.centres
+        nrm = np.sqrt(np.einsum("ij,ij->i", moved, moved))
+        ok = nrm > 1e-12
+        M = np.where(ok[:, None], moved / np.where(ok, nrm, 1.0)[:, None], C)
+        C, score = np.concatenate([M, C]), np.concatenate([kernel.soft_weights(M @ kernel.centres.T) @ hs, score])
+    order = np.argsort(-score, kind="stable")
+    order = order[score[order] >= opts.keep_ratio * score[order[0]]]
+    Co = C[order]
+    return Co[_greedy_distinct(Co, cos_d, max(1, opts.refine))].astype(float)
 
 
 def _greedy_distinct(D: np.ndarray, cos_min: float, k: int) -> list[int]:
@@ -233,12 +255,15 @@ def optimize_view(
     *,
     init: np.ndarray | None = None,
     options: ViewOptions | None = None,
+    kernel: ConeKernel | None = None,
 ) -> ViewResult:
     """Maximise F(R) = Σ_j s_j v(θ_j) (eq. 6) over R ∈ SO(3) for unit ``bearings`` (n, 3), half-angle α [rad].
 
     ``weights`` (n,) are the feature weights s_j (None: uniform); zero-length bearings (a landmark at
-    the sensor) are ignored. ``init`` (3,) adds a starting direction to the multi-start set. Raises
-    ValueError on NaN/inf input or α outside (0, π).
+    the sensor) are ignored. ``init`` (3,) adds a starting direction to the multi-start set. ``kernel``:
+    the :func:`pivotd.pivot.cone_kernel.cone_kernel` of α (and ``options.cells``), built once by callers that
+    solve many poses with the same half-angle (None: built here when needed). Raises ValueError on NaN/inf
+    input, α outside (0, π) or a kernel of another half-angle.
     """
     opts = options or ViewOptions()
     alpha = half_angle(alpha)
@@ -249,7 +274,14 @@ def optimize_view(
         return ViewResult(d, optical_frame_from_direction(d), 0, 0.0, 0)
     w32 = w.astype(np.float32)
     uniform = weights is None or float(w.min()) == float(w.max())
-    C = _candidates(B, BT, w, alpha, opts, init_v, weights is None)
+    if B.shape[0] > opts.sample:
+        if kernel is None:
+            kernel = cone_kernel(alpha, opts.cells)
+        elif abs(kernel.alpha - alpha) > 1e-9 * alpha or (opts.cells is not None and kernel.m != opts.cells):
+            raise ValueError(f"kernel was built for alpha={kernel.alpha} with {kernel.m} cells per face, not {alpha}")
+        C = _histogram_candidates(BT, w, alpha, opts, init_v, uniform, kernel)
+    else:
+        C = _candidates(B, BT, w, alpha, opts, init_v, weights is None)
     rad = np.radians
     start = rad(opts.fov_start_deg) if opts.fov_start_deg is not None else min(np.pi / 2, alpha + rad(10.0))
     stages = schedule(alpha, start, opts.stages)
@@ -272,16 +304,19 @@ def optimize_view(
             break
         if all(float(C[k] @ C[j]) < cos_d for j in keep):
             keep.append(int(k))
-    # the chosen candidates are refined together (one band, a few numpy calls per step for all of them);
-    # each keeps the better of its start and its refined axis by full hard weight
-    R, steps = _refine(BT, w32, C[keep], cos_c[keep], alpha, opts, uniform)
-    iters += steps
-    s_r = _row_weights(R.astype(np.float32) @ BT >= cos_a32, w32, uniform)
-    dirs = [*R, *C[keep]]
-    scores = [*s_r.tolist(), *score[keep].tolist()]
-    best = int(np.argmax(scores))
-    c_best = dirs[best]
-    cos_best = c_best.astype(np.float32) @ BT if best < len(keep) else cos_c[keep[best - len(keep)]]
+    # the chosen candidates are refined one at a time, best first (each on its own band); a rival is refined only
+    # while its bound still exceeds the best hard weight found so far. Each refined axis competes with its start.
+    best_s, c_best, cos_best = -1.0, C[keep[0]], cos_c[keep[0]]
+    for j, k in enumerate(keep):
+        if j and bound[k] <= best_s:
+            continue
+        R, steps = _refine(BT, w32, C[k : k + 1], cos_c[k : k + 1], alpha, opts, uniform)
+        iters += steps
+        cos_r = R[0].astype(np.float32) @ BT
+        s_r = float(_row_weights((cos_r >= cos_a32)[None], w32, uniform)[0])
+        for c, cs, sc in ((R[0], cos_r, s_r), (C[k], cos_c[k], float(score[k]))):
+            if sc > best_s:
+                best_s, c_best, cos_best = sc, c, cs
     if opts.cap_points > 0 and opts.cap_ratio > 0:
         c_next = cap_search(c_best, BT, w32, alpha, opts.cap_ratio * alpha, opts.cap_points, cos_best, uniform)
         if c_next is not c_best:
