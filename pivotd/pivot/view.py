@@ -310,7 +310,7 @@ def optimize_view(
     for j, k in enumerate(keep):
         if j and bound[k] <= best_s:
             continue
-        R, steps = _refine(BT, w32, C[k : k + 1], cos_c[k : k + 1], alpha, opts, uniform)
+        R, steps = _refine(BT, w32, C[k : k + 1], cos_c[k : k + 1], alpha, opts, uniform, c_best if j else None)
         iters += steps
         cos_r = R[0].astype(np.float32) @ BT
         s_r = float(_row_weights((cos_r >= cos_a32)[None], w32, uniform)[0])
@@ -344,7 +344,8 @@ def optimize_view(
     x *= np.float32(0.5 * ks)
     np.tanh(x, out=x)  # v = (1 + tanh) / 2, in float32 like the ascent
     wb = w32.take(band)
-    f = 0.5 * float(wb.sum(dtype=np.float64) + x @ wb) + float(w32 @ (cos_f >= hi))
+    above = np.count_nonzero(cos_f >= hi) * float(w32[0]) if uniform else float(w32 @ (cos_f >= hi))
+    f = 0.5 * float(wb.sum(dtype=np.float64) + x @ wb) + above
     return ViewResult(c_best, _frame(c_best), visible, f, iters)
 
 
@@ -389,7 +390,10 @@ def _row_weights(mask: np.ndarray, w32: np.ndarray, uniform: bool) -> np.ndarray
     the count times that weight: one count_nonzero per long row beats a (K, n) cast and product."""
     if not uniform or mask.shape[0] > 8:
         return mask @ w32
-    return np.array([np.count_nonzero(r) for r in mask], np.float32) * (w32[0] if w32.size else np.float32(1.0))
+    unit = w32[0] if w32.size else np.float32(1.0)
+    if mask.shape[0] == 1:
+        return np.array([np.count_nonzero(mask)], np.float32) * unit
+    return np.array([np.count_nonzero(r) for r in mask], np.float32) * unit
 
 
 def _widened(
@@ -444,7 +448,7 @@ def _unit_bearings(bearings: np.ndarray, weights: np.ndarray | None) -> tuple[np
         sq += BT[1] * BT[1]
         sq += BT[2] * BT[2]
     # one reduction decides the common case: every row unit (to float32 rounding) and finite
-    dev = float(np.max(np.abs(sq - np.float32(1.0)), initial=0.0))
+    dev = max(1.0 - float(sq.min()), float(sq.max()) - 1.0) if sq.size else 0.0  # NaN stays NaN
     if dev <= 1e-6:
         return B, BT, w
     if not math.isfinite(dev):  # NaN/inf (raises) or beyond float32's range: rescale in float64
@@ -480,7 +484,14 @@ def _width(alpha: float, opts: ViewOptions) -> float:
 
 
 def _refine(
-    BT: np.ndarray, w: np.ndarray, C: np.ndarray, cos_c: np.ndarray, alpha: float, opts: ViewOptions, uniform: bool
+    BT: np.ndarray,
+    w: np.ndarray,
+    C: np.ndarray,
+    cos_c: np.ndarray,
+    alpha: float,
+    opts: ViewOptions,
+    uniform: bool,
+    avoid: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int]:
     """Gradient ascent at α from each unit axis of C (K, 3) over float32 bearings BT (3, n) / weights w (n,),
     all K at once; ``cos_c`` (K, n) = C · k_j; ``uniform``: all weights equal. Returns the final axes (K, 3)
@@ -491,6 +502,8 @@ def _refine(
     any axis; the band is re-selected when an axis drifts further than ``drift_deg`` from where it was
     selected. The step exp((h Ĵ)^) R turns the axis about the unit tangent Ĵ ⟂ c:
     c ← cos h · c + sin h · (Ĵ × c), so only the axes are tracked (the roll does not change the objective).
+    An axis that comes within distinct_ratio · α of ``avoid`` (3,) (an axis already refined) stops there: it
+    is climbing a basin that was already explored.
     One iteration is a handful of numpy calls whatever K: (K, 4) @ (4, m) gives (k_s/2)(c · k_j − cos α)
     for every axis (the band carries a row of ones), then tanh, and v(1 − v) @ band for the ascent directions.
     """
@@ -524,6 +537,8 @@ def _refine(
     h = [h0] * K
     active = list(range(K))
     A, AwT = band(cos_c)
+    ax, ay, az = (0.0, 0.0, 0.0) if avoid is None else (float(v) for v in avoid)
+    cos_avoid = 2.0 if avoid is None else math.cos(opts.distinct_ratio * alpha)
     it = 0
     for it in range(1, opts.max_iterations + 1):  # noqa: B007
         if not active or A.shape[1] == 0:
@@ -551,8 +566,10 @@ def _refine(
             ch, sh = math.cos(hk), math.sin(hk)
             x, y, z = ch * x + sh * (uy * z - uz * y), ch * y + sh * (uz * x - ux * z), ch * z + sh * (ux * y - uy * x)
             nrm = math.sqrt(x * x + y * y + z * z)
-            xyz[k] = [x / nrm, y / nrm, z / nrm]
-            still.append(k)
+            x, y, z = x / nrm, y / nrm, z / nrm
+            xyz[k] = [x, y, z]
+            if x * ax + y * ay + z * az < cos_avoid:
+                still.append(k)
             r = ref[k]
             moved |= xyz[k][0] * r[0] + xyz[k][1] * r[1] + xyz[k][2] * r[2] < cos_drift
         active = still
@@ -592,9 +609,10 @@ def cap_search(
     x, y, z = (float(v) for v in c)
     tx, ty, tz = (y, -x, 0.0) if abs(z) < 0.9 else (0.0, z, -y)  # c × e_z or c × e_x
     nt = math.sqrt(tx * tx + ty * ty + tz * tz)
-    t1 = np.array([tx / nt, ty / nt, tz / nt])
-    t2 = np.cross(c, t1)
-    cand = np.cos(r) * c + np.sin(r) * (np.cos(phi) * t1 + np.sin(phi) * t2)  # (P, 3)
+    tx, ty, tz = tx / nt, ty / nt, tz / nt
+    frame = np.array([[x, y, z], [tx, ty, tz], [y * tz - z * ty, z * tx - x * tz, x * ty - y * tx]])  # c, t1, c × t1
+    sr = np.sin(r)
+    cand = np.concatenate([np.cos(r), sr * np.cos(phi), sr * np.sin(phi)], axis=1) @ frame  # (P, 3)
     inside = cand.astype(np.float32) @ bandT  # (P, m)
     vals = np.greater_equal(inside, cos_a, out=inside) @ wb  # 1.0 inside the cone
     k = int(np.argmax(vals))
