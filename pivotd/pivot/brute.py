@@ -37,8 +37,11 @@ def brute_force_view(
     resolution_deg: float = 2.0,
     *,
     chunk: int = 1024,
+    grid: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float]:
     """Best grid direction (3,) and its hard visible weight (count when ``weights`` is None).
+
+    ``grid`` (G, 3): ``sphere_grid(resolution_deg)`` computed once by callers scoring many poses (None: here).
 
     Evaluates Σ_j s_j [θ_j ≤ α] for every direction of :func:`sphere_grid` with float32 matrix
     products over ``chunk`` directions at a time: (chunk, 3) @ (3, n) cosines, compared with cos α in
@@ -48,7 +51,7 @@ def brute_force_view(
     alpha = half_angle(alpha)
     B = finite_array("bearings", bearings)
     w = feature_weights(weights, B.shape[0])
-    grid = sphere_grid(resolution_deg)
+    grid = sphere_grid(resolution_deg) if grid is None else grid
     if B.shape[0] == 0:
         return grid[0].copy(), 0.0
     BT = np.ascontiguousarray(B.T, dtype=np.float32)

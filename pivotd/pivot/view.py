@@ -57,10 +57,12 @@ class ViewOptions:
     active_cap: int = 1024
     final_cap: int = 8192
     drift_deg: float = 5.0
-    polish_deg: float = 1.0  # final pattern search on the hard count starting at this radius (0: off) ...
-    polish_tol_deg: float = 0.1  # ... down to this radius (at most 0.05 α)
-    cap_ratio: float = 0.5  # before it, the hard count on a spiral of directions within ratio · α of the best ...
-    cap_points: int = 64  # ... with this many directions (flat landscapes: the best peak nearby; 0: off)
+    cap_ratio: float = 0.5  # hard-count search (local_search): first a spiral of directions within ratio · α ...
+    cap_points: int = 64  # ... of the best with this many directions (flat landscapes: the best peak nearby; 0: off)
+    polish_deg: float = 1.0  # then spirals of polish_points directions of radius polish_deg (0: off) ...
+    polish_ratio: float = 1.0 / 3.0  # ... shrinking by this factor ...
+    polish_tol_deg: float = 0.1  # ... while the radius stays ≥ this (at most 0.05 α)
+    polish_points: int = 24
 
 
 @dataclass
@@ -317,14 +319,20 @@ def optimize_view(
         for c, cs, sc in ((R[0], cos_r, s_r), (C[k], cos_c[k], float(score[k]))):
             if sc > best_s:
                 best_s, c_best, cos_best = sc, c, cs
+    radii, points = [], []
     if opts.cap_points > 0 and opts.cap_ratio > 0:
-        c_next = cap_search(c_best, BT, w32, alpha, opts.cap_ratio * alpha, opts.cap_points, cos_best, uniform)
-        if c_next is not c_best:
-            c_best = c_next
-            cos_best = c_best.astype(np.float32) @ BT
+        radii.append(opts.cap_ratio * alpha)
+        points.append(opts.cap_points)
     if opts.polish_deg > 0:
-        tol = min(rad(opts.polish_tol_deg), 0.05 * alpha)
-        c_best = polish_hard(c_best, BT, w32, alpha, min(rad(opts.polish_deg), 0.5 * alpha), tol, cos_best, uniform)
+        r, tol = min(rad(opts.polish_deg), 0.5 * alpha), min(rad(opts.polish_tol_deg), 0.05 * alpha)
+        while True:
+            radii.append(r)
+            points.append(opts.polish_points)
+            if r * opts.polish_ratio < tol:
+                break
+            r *= opts.polish_ratio
+    if radii:
+        c_best = local_search(c_best, BT, w32, alpha, cos_best, radii, points)
     c_best = c_best / np.sqrt(c_best @ c_best)
     ca = np.cos(alpha)
     cos_f = c_best.astype(np.float32) @ BT
@@ -362,27 +370,20 @@ def _full_shift(
     cos_b = np.float32(np.cos(min(np.pi, alpha * (1.0 + opts.reach_ratio))))
     C = C.astype(float)
     cos_c = C.astype(np.float32) @ BT  # (K, n)
-    inside = cos_c >= cos_a
-    axes, cos_rows, scores = [C], [cos_c], [_row_weights(inside, w32, uniform)]  # per position
+    ins = np.greater_equal(cos_c, cos_a, out=np.empty_like(cos_c))  # 1.0 inside each cone
+    score = ins @ w32
     for _ in range(opts.full_shift):
-        moved = (inside.astype(np.float32) if uniform else inside * w32) @ BT.T  # (K, 3) sums inside each cone
+        moved = (ins if uniform else ins * w32) @ BT.T  # (K, 3) weighted sums inside each cone
         nrm = np.sqrt(np.einsum("ij,ij->i", moved, moved))
         ok = nrm > 1e-12
-        C = np.where(ok[:, None], moved / np.where(ok, nrm, 1.0)[:, None], C).astype(float)
-        cos_c = C.astype(np.float32) @ BT
-        inside = cos_c >= cos_a
-        axes.append(C)
-        cos_rows.append(cos_c)
-        scores.append(_row_weights(inside, w32, uniform))
-    pick = np.argmax(np.array(scores), axis=0)  # (K,): the first position with the highest weight
-    rows = np.arange(C.shape[0])
-    best_C, best_score = np.array(axes)[pick, rows], np.array(scores)[pick, rows]
-    best_cos = cos_rows[0]
-    for p in range(1, len(cos_rows)):
-        moved_rows = pick == p
-        if moved_rows.any():
-            best_cos[moved_rows] = cos_rows[p][moved_rows]
-    return best_C, best_cos, best_score, _row_weights(best_cos >= cos_b, w32, uniform)
+        C1 = np.where(ok[:, None], moved / np.where(ok, nrm, 1.0)[:, None], C)
+        cos1 = C1.astype(np.float32) @ BT
+        ins = np.greater_equal(cos1, cos_a, out=np.empty_like(cos1))
+        s1 = ins @ w32
+        better = s1 > score  # each keeps the first position with the highest weight
+        if better.any():
+            C[better], cos_c[better], score[better] = C1[better], cos1[better], s1[better]
+    return C, cos_c, score, np.greater_equal(cos_c, cos_b, out=ins) @ w32
 
 
 def _row_weights(mask: np.ndarray, w32: np.ndarray, uniform: bool) -> np.ndarray:
@@ -579,45 +580,61 @@ def _refine(
     return np.array(xyz), it
 
 
-def cap_search(
-    c: np.ndarray,
-    BT: np.ndarray,
-    w: np.ndarray,
-    alpha: float,
-    radius: float,
-    points: int,
-    cos_c: np.ndarray,
-    uniform: bool = False,
-) -> np.ndarray:
-    """The direction with the highest hard visible weight among ``c`` (3,) and ``points`` directions spread
-    evenly (a sunflower spiral) over the cap of angular ``radius`` [rad] around it; ``c`` itself unless one
-    is strictly better.
-
-    BT (3, n) float32 unit bearings, w (n,) weights, ``cos_c`` (n,) = c · k_j. Only landmarks within
-    α ± radius of ``c`` can change the count; the others are counted once. On a flat landscape (the
-    sensor inside a dense cloud) the nearby maxima are shallow and many, too far apart for a local
-    search from one of them; the spiral's spacing ≈ radius · √(π/points) puts a direction near each.
-    """
-    band = _edge_band(BT, w, cos_c, alpha, radius)
-    if band is None:
-        return c
-    bandT, wb = band
-    cos_a = np.float32(np.cos(alpha) - 1e-7)
+def _spiral(c: np.ndarray, radius: float, points: int) -> np.ndarray:
+    """``points`` unit directions (P, 3) spread evenly (a sunflower spiral, equal area per direction) over the
+    cap of angular ``radius`` [rad] around the unit axis ``c`` (3,); spacing ≈ radius · √(π / points)."""
     i = np.arange(points) + 0.5
-    r = radius * np.sqrt(i / points)[:, None]  # (P, 1) polar radius: equal area per direction
-    phi = (i * (math.pi * (3.0 - math.sqrt(5.0))))[:, None]
+    r = radius * np.sqrt(i / points)  # polar radius
+    phi = i * (math.pi * (3.0 - math.sqrt(5.0)))
     x, y, z = (float(v) for v in c)
     tx, ty, tz = (y, -x, 0.0) if abs(z) < 0.9 else (0.0, z, -y)  # c × e_z or c × e_x
     nt = math.sqrt(tx * tx + ty * ty + tz * tz)
     tx, ty, tz = tx / nt, ty / nt, tz / nt
     frame = np.array([[x, y, z], [tx, ty, tz], [y * tz - z * ty, z * tx - x * tz, x * ty - y * tx]])  # c, t1, c × t1
     sr = np.sin(r)
-    cand = np.concatenate([np.cos(r), sr * np.cos(phi), sr * np.sin(phi)], axis=1) @ frame  # (P, 3)
-    inside = cand.astype(np.float32) @ bandT  # (P, m)
-    vals = np.greater_equal(inside, cos_a, out=inside) @ wb  # 1.0 inside the cone
-    k = int(np.argmax(vals))
-    base = float(_row_weights(c.astype(np.float32)[None] @ bandT >= cos_a, wb, uniform)[0])
-    return cand[k] / np.sqrt(cand[k] @ cand[k]) if vals[k] > base else c
+    local = np.stack([np.cos(r), sr * np.cos(phi), sr * np.sin(phi)], axis=1)
+    return local @ frame
+
+
+def local_search(
+    c: np.ndarray,
+    BT: np.ndarray,
+    w: np.ndarray,
+    alpha: float,
+    cos_c: np.ndarray,
+    radii: list[float],
+    points: list[int],
+) -> np.ndarray:
+    """Coarse-to-fine search of the hard visible weight around ``c`` (3,): for each radius r_k [rad] of
+    ``radii`` (decreasing), ``points[k]`` directions on a spiral over the cap of radius r_k around the current
+    best (:func:`_spiral`); the best one replaces it when it sees strictly more. Returns the final axis.
+
+    BT (3, n) float32 unit bearings, w (n,) float32 weights, ``cos_c`` (n,) = c · k_j. The axis moves at
+    most Σ r_k, so only landmarks within α ± Σ r_k of ``c`` can change state: that band is taken once, and
+    each level counts only the part of it within α ± r_k of its centre. On a flat landscape (the sensor
+    inside a dense cloud) the maxima are shallow and many: the first, wide cap (a spacing of ≈ 1.7° at
+    64 directions over α/2 = 7.5°) puts a direction near each nearby one; the next levels only have to
+    close the gap between spiral directions (each radius above the previous level's spacing).
+    """
+    band = _edge_band(BT, w, cos_c, alpha, float(sum(radii)))
+    if band is None:
+        return c
+    bT, wb = band
+    cos_a = np.float32(np.cos(alpha) - 1e-7)
+    for r, p in zip(radii, points, strict=True):
+        cb = c.astype(np.float32) @ bT  # (m,)
+        lo, hi = np.float32(np.cos(min(np.pi, alpha + r))), np.float32(np.cos(max(0.0, alpha - r)))
+        sel = np.flatnonzero((cb >= lo) & (cb <= hi))
+        if sel.size == 0:
+            continue
+        lT, lw = bT.take(sel, axis=1), wb.take(sel)
+        cand = _spiral(c, r, p)
+        inside = cand.astype(np.float32) @ lT  # (P, m')
+        vals = np.greater_equal(inside, cos_a, out=inside) @ lw  # 1.0 inside the cone
+        k = int(np.argmax(vals))
+        if vals[k] > float((cb.take(sel) >= cos_a) @ lw):
+            c = cand[k] / math.sqrt(float(cand[k] @ cand[k]))
+    return c
 
 
 def _edge_band(
@@ -631,50 +648,6 @@ def _edge_band(
     if sel.size == 0:
         return None
     return BT.take(sel, axis=1), w.take(sel).astype(np.float32)
-
-
-def polish_hard(
-    c: np.ndarray,
-    BT: np.ndarray,
-    w: np.ndarray,
-    alpha: float,
-    radius: float,
-    tol: float,
-    cos_c: np.ndarray,
-    uniform: bool = False,
-) -> np.ndarray:
-    """Pattern search on the hard visible weight around ``c``: evaluate 8 directions on each of the rings
-    radius, radius/2, …, ≥ tol [rad] at once, move to the best strict improvement, repeat (at most 4 moves).
-
-    BT (3, n) float32 unit bearings, w (n,) weights. The axis moves at most 4·radius, so only landmarks
-    within α ± 4.5·radius of ``c`` (``cos_c`` = c · k_j) can change the count: the others are counted
-    once. Float32 inside; the caller recounts exactly. ``uniform``: all weights equal (counts instead of sums).
-    """
-    band = _edge_band(BT, w, cos_c, alpha, 4.5 * radius)
-    if band is None:
-        return c
-    bandT, wb = band
-    cos_a = np.float32(np.cos(alpha) - 1e-7)
-    radii = [radius]
-    while radii[-1] * 0.5 >= tol:
-        radii.append(radii[-1] * 0.5)
-    r = np.repeat(radii, 8)[:, None]  # (8·rings, 1)
-    phi = np.tile(np.arange(8) * (math.pi / 4), len(radii))[:, None]
-    cos_r, sin_r, ca, sa = np.cos(r), np.sin(r), np.cos(phi), np.sin(phi)
-    best = float(_row_weights(c.astype(np.float32)[None] @ bandT >= cos_a, wb, uniform)[0])
-    for _ in range(4):
-        x, y, z = (float(v) for v in c)
-        tx, ty, tz = (y, -x, 0.0) if abs(z) < 0.9 else (0.0, z, -y)  # c × e_z or c × e_x
-        nt = math.sqrt(tx * tx + ty * ty + tz * tz)
-        t1 = np.array([tx / nt, ty / nt, tz / nt])
-        t2 = np.array([y * t1[2] - z * t1[1], z * t1[0] - x * t1[2], x * t1[1] - y * t1[0]])
-        cand = cos_r * c + sin_r * (ca * t1 + sa * t2)
-        vals = _row_weights(cand.astype(np.float32) @ bandT >= cos_a, wb, uniform)
-        k = int(np.argmax(vals))
-        if vals[k] <= best:
-            break
-        best, c = float(vals[k]), cand[k] / np.sqrt(cand[k] @ cand[k])
-    return c
 
 
 def schedule(alpha: float, start: float, stages: int) -> list[float]:
