@@ -1,15 +1,17 @@
 """Single-pose PIVOT: the viewing direction that keeps the most (weighted) landmarks in a conical FoV.
 
-Practical enhancements of the paper (§IV-C): multi-start initialisation (centroid, orthogonal and
-tangent directions, landmark-seeded directions and the best directions of a coarse lattice, all scored
-on a cube-map summary of every landmark — per-cell weight and mean bearing, independent of the order
-of the landmarks — each moved by two mean-shift steps, ranked on the summary, near-duplicates pruned),
-ranking of the survivors by their hard visible weight on all landmarks after one more mean-shift step,
-refinement of the best one and of those whose widened-cone bound could still beat it, a hard-count
-search over a cap of directions around the best (flat landscapes have many shallow maxima close
-together), a hard-count polish, an optional FoV schedule that starts wide and narrows to α with k_s
-recomputed from a target transition width, and normalised, clipped, adaptively scaled steps (see
-:func:`pivotd.pivot._ascent.ascend`).
+Practical enhancements of the paper (§IV-C). Global stage, O(n + cells): the bearings are binned on a
+cube map with one ``bincount`` (exact integer counts, independent of the landmarks' order) and one
+sparse product with a precomputed cone-overlap matrix (:mod:`pivotd.pivot.cone_kernel`, built once per
+half-angle) gives the approximate visible weight of a cone on every cell; its best distinct peaks (plus
+the weighted centroid) take a mean-shift step on the histogram. (Up to ``sample`` landmarks the seeds are
+axes, the centroid, landmarks and a coarse lattice, shifted on the landmarks themselves.) The survivors
+are ranked by their hard visible weight on all landmarks; the best one and the rivals whose widened-cone
+bound could still beat it are refined by gradient ascent on the smooth objective; a coarse-to-fine
+hard-count search on spirals of directions (:func:`local_search`: a wide cap for flat landscapes with
+many shallow maxima close together, then finer ones) finishes. An optional FoV schedule starts wide and
+narrows to α with k_s recomputed from a target transition width; steps are normalised, clipped and
+adaptively scaled (see :func:`pivotd.pivot._ascent.ascend`).
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ class ViewOptions:
     tol_deg: float = 0.5  # refinement stops below this step (the hard-count searches go finer)
     sample: int = 1024  # above this many landmarks the candidates come from a histogram of the bearings ...
     cells: int | None = None  # ... on a cube map with cells × cells per face (None: from α, cone_kernel.cells_per_face)
-    hist_shift: int = 0  # mean-shift steps of the peaks (and the weighted centroid) on the histogram
+    hist_shift: int = 1  # mean-shift steps of the peaks (and the weighted centroid) on the histogram
     peaks: int = 12  # distinct histogram peaks (cones centred on cells, by approximate weight) seeding the candidates
     seeds: int = 32  # landmark-seeded candidates
     mean_shift: int = 2  # mean-shift steps applied to every candidate before ranking
@@ -50,7 +52,7 @@ class ViewOptions:
     coarse_peaks: int = 4  # its best directions (non-maximum suppressed) join the multi-start set (0: off)
     refine: int = 6  # distinct candidates kept after the subsample ranking
     distinct_ratio: float = 0.5  # candidates closer than ratio · α count as duplicates
-    full_shift: int = 1  # mean-shift steps of those candidates on all landmarks, each scored by full hard count
+    full_shift: int = 1  # ≤ sample landmarks: mean-shift steps on all of them, each scored by full hard count
     reach_ratio: float = 0.25  # a candidate is refined when its weight within α(1 + ratio) can beat the best
     final_candidates: int = 2  # at most this many go on to the refinement at α
     keep_ratio: float = 0.5  # drop candidates whose subsample score is < ratio · best
@@ -290,7 +292,8 @@ def optimize_view(
     iters = 0
     if len(stages) > 1:  # widened stages on a strided subsample with weights scaled to the same total
         C, iters = _widened(BT.T, w, C, stages, alpha, opts)
-    C, cos_c, score, bound = _full_shift(C, BT, w32, alpha, opts, uniform)
+    shifts = opts.full_shift if B.shape[0] <= opts.sample else 0  # above: shifted on the histogram instead
+    C, cos_c, score, bound = _full_shift(C, BT, w32, alpha, shifts, opts.reach_ratio, uniform)
     cos_a32 = np.float32(np.cos(alpha))
     # refine the candidates that could still win: those whose bound (the weight within α(1 + reach_ratio),
     # more than any direction that close to them can see) reaches the best full hard weight: the best one
@@ -335,30 +338,21 @@ def optimize_view(
         c_best = local_search(c_best, BT, w32, alpha, cos_best, radii, points)
     c_best = c_best / np.sqrt(c_best @ c_best)
     ca = np.cos(alpha)
-    cos_f = c_best.astype(np.float32) @ BT
+    x = c_best.astype(np.float32) @ BT
+    x -= np.float32(ca)  # cos θ − cos α
     # hard count in float32, pairs within 2e-6 of cos α (float32 rounding) settled in float64
-    edge = np.flatnonzero(np.abs(cos_f - np.float32(ca)) <= np.float32(2e-6))
-    visible = int(np.count_nonzero(cos_f > np.float32(ca + 2e-6)))
+    edge = np.flatnonzero(np.abs(x) <= np.float32(2e-6))
+    visible = int(np.count_nonzero(x > np.float32(2e-6)))
     visible += int(np.count_nonzero(B.take(edge, axis=0) @ c_best >= ca - 1e-12))
-    ks = ks_from_width(alpha, _width(alpha, opts))
-    # v(θ) is within e⁻¹⁰ of 0 or 1 further than 10/(k_s sin α) (in cos θ) from cos α: only the band between
-    # needs tanh, the landmarks above it count with their full weight
-    reach = 10.0 / (ks * max(np.sin(alpha), 1e-9))
-    lo = np.float32(np.cos(min(np.pi, alpha + reach)))
-    hi = np.float32(np.cos(alpha - reach) if alpha > reach else 2.0)
-    band = np.flatnonzero((cos_f >= lo) & (cos_f < hi))
-    x = cos_f.take(band)
-    x -= np.float32(ca)
-    x *= np.float32(0.5 * ks)
-    np.tanh(x, out=x)  # v = (1 + tanh) / 2, in float32 like the ascent
-    wb = w32.take(band)
-    above = np.count_nonzero(cos_f >= hi) * float(w32[0]) if uniform else float(w32 @ (cos_f >= hi))
-    f = 0.5 * float(wb.sum(dtype=np.float64) + x @ wb) + above
+    # F at α: v = (1 + tanh((k_s/2)(cos θ − cos α))) / 2, in float32 like the ascent
+    x *= np.float32(0.5 * ks_from_width(alpha, _width(alpha, opts)))
+    np.tanh(x, out=x)
+    f = 0.5 * float(w32.sum(dtype=np.float64) + x @ w32)
     return ViewResult(c_best, _frame(c_best), visible, f, iters)
 
 
 def _full_shift(
-    C: np.ndarray, BT: np.ndarray, w32: np.ndarray, alpha: float, opts: ViewOptions, uniform: bool
+    C: np.ndarray, BT: np.ndarray, w32: np.ndarray, alpha: float, shifts: int, reach_ratio: float, uniform: bool
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Mean-shift steps of the candidate axes C (K, 3) on all landmarks (float32 BT (3, n), weights w32 (n,)).
 
@@ -367,12 +361,12 @@ def _full_shift(
     bounds (K,): the weight within α(1 + reach_ratio) of each kept axis. ``uniform``: all weights equal.
     """
     cos_a = np.float32(np.cos(alpha))
-    cos_b = np.float32(np.cos(min(np.pi, alpha * (1.0 + opts.reach_ratio))))
+    cos_b = np.float32(np.cos(min(np.pi, alpha * (1.0 + reach_ratio))))
     C = C.astype(float)
     cos_c = C.astype(np.float32) @ BT  # (K, n)
     ins = np.greater_equal(cos_c, cos_a, out=np.empty_like(cos_c))  # 1.0 inside each cone
     score = ins @ w32
-    for _ in range(opts.full_shift):
+    for _ in range(shifts):
         moved = (ins if uniform else ins * w32) @ BT.T  # (K, 3) weighted sums inside each cone
         nrm = np.sqrt(np.einsum("ij,ij->i", moved, moved))
         ok = nrm > 1e-12
