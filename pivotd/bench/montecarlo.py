@@ -62,8 +62,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--compare-with", metavar="PKG",
-        help="hard scenes: also time optimize_view of PKG (a renamed copy of another pivotd version on "
-             "PYTHONPATH) in the same rounds and report its speedup and quality",
+        help="also time optimize_view of PKG (a renamed copy of another pivotd version on PYTHONPATH) "
+             "next to this tree's on the same poses (Monte Carlo levels and hard scenes) and report both",
     )
     parser.add_argument(
         "--replan", action="store_true",
@@ -71,28 +71,47 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _level_rows(levels: list[int], pose_idx: np.ndarray, alpha: float, res: float) -> tuple[list[dict], dict]:
+def _other_view(compare_with: str | None) -> Callable[..., Any] | None:
+    """optimize_view of ``compare_with`` (a renamed copy of another pivotd version on the path), or None."""
+    if not compare_with:
+        return None
+    from pivotd.bench.horizon import _module
+
+    return _module(compare_with, "pivot.view").optimize_view
+
+
+def _level_rows(
+    levels: list[int], pose_idx: np.ndarray, alpha: float, res: float, compare_with: str | None = None
+) -> tuple[list[dict], dict]:
     from pivotd.pivot.brute import sphere_grid
     from pivotd.pivot.scenes import monte_carlo_levels, monte_carlo_map, monte_carlo_poses
 
     optimize_view, brute_force_view = _solvers(alpha, sphere_grid(res))
+    other_view = _other_view(compare_with)
     poses = monte_carlo_poses()[pose_idx]
     counts = monte_carlo_levels()
     rows, detail = [], {}
     for level in with_progress(levels, "Monte Carlo map sizes"):
         pts = monte_carlo_map(level)
-        t_piv, t_bf, ratio, d_piv, d_bf = [], [], [], [], []
+        t_piv, t_bf, ratio, d_piv, d_bf, t_other, other_ratio = [], [], [], [], [], [], []
         for t in poses:
             diff = pts - t
             bearings = diff / np.linalg.norm(diff, axis=1, keepdims=True)
             if len(t_piv) % 2 == 0:  # alternate which side runs first
                 r, dt = timed(optimize_view, bearings, None, alpha)
                 (d, best), db = timed(brute_force_view, bearings, None, alpha, res)
+                if other_view is not None:
+                    ro, do = timed(other_view, bearings, None, alpha)
             else:
+                if other_view is not None:
+                    ro, do = timed(other_view, bearings, None, alpha)
                 (d, best), db = timed(brute_force_view, bearings, None, alpha, res)
                 r, dt = timed(optimize_view, bearings, None, alpha)
             t_piv.append(dt)
             t_bf.append(db)
+            if other_view is not None:
+                t_other.append(do)
+                other_ratio.append(100.0 * ro.visible / best if best > 0 else 100.0)
             ratio.append(100.0 * r.visible / best if best > 0 else 100.0)
             d_piv.append(r.direction)
             d_bf.append(d)
@@ -107,10 +126,18 @@ def _level_rows(levels: list[int], pose_idx: np.ndarray, alpha: float, res: floa
             "retained_p5_pct": percentile(ratio, 5),
             "retained_min_pct": float(np.min(ratio)),
         }
+        if other_view is not None:
+            row.update({"other_ms": 1e3 * median(t_other), "other_speedup": median(t_bf) / median(t_other),
+                        "other_retained_mean_pct": float(np.mean(other_ratio)),
+                        "other_retained_min_pct": float(np.min(other_ratio))})
         rows.append(row)
         detail[level] = {"ratio": np.array(ratio), "pivot": np.array(d_piv), "brute": np.array(d_bf)}
         log.info("level %d (%d features) done", level, counts[level])
         _print_row(row)
+        if other_view is not None:
+            print(f"{'':>8} {compare_with}: {row['other_ms']:.3f} ms, {row['other_speedup']:.0f}x the brute force; "
+                  f"retained mean {row['other_retained_mean_pct']:.2f} %, min {row['other_retained_min_pct']:.2f} %",
+                  flush=True)
     return rows, detail
 
 
@@ -141,11 +168,7 @@ def hard_rows(
     from pivotd.pivot.scenes import HARD_FAMILIES, hard_scene
 
     optimize_view, brute_force_view = _solvers(alpha, sphere_grid(res))
-    other_view = None
-    if compare_with:
-        from pivotd.bench.horizon import _module
-
-        other_view = _module(compare_with, "pivot.view").optimize_view
+    other_view = _other_view(compare_with)
     rows = []
     for family in with_progress(HARD_FAMILIES, "hard scene families"):
         t_piv, t_grid, ratio, grid_ratio, gap, exact, sizes = [], [], [], [], [], 0, []
@@ -488,7 +511,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"Monte Carlo: 9 clusters, FoV {args.fov_deg:g} deg, brute force at {args.resolution_deg:g} deg, "
           f"{len(pose_idx)} poses per level, single thread")
     _print_header()
-    rows, detail = _level_rows(levels, pose_idx, alpha, args.resolution_deg)
+    rows, detail = _level_rows(levels, pose_idx, alpha, args.resolution_deg, args.compare_with)
     p = PAPER
     print(
         f"paper (C++, i9-14900K): PIVOT {p['pivot_ms'][0]}–{p['pivot_ms'][1]} ms, brute {p['brute_ms'][0]}–"
