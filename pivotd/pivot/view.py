@@ -60,8 +60,9 @@ class ViewOptions:
     final_cap: int = 8192
     drift_deg: float = 5.0
     cap_ratio: float = 0.5  # hard-count search (local_search): first a spiral of directions within ratio · α ...
-    cap_points: int = 64  # ... of the best with this many directions (flat landscapes: the best peak nearby; 0: off)
-    polish_deg: float = 1.0  # then spirals of polish_points directions of radius polish_deg (0: off) ...
+    cap_points: int = 32  # ... of the best with this many directions (flat landscapes: the best peak nearby; 0: off)
+    polish_deg: float = 1.5  # then spirals of polish_points directions of radius polish_deg (0: off; ≥ the cap's
+    # spacing ratio · α · √(π / cap_points) · 0.6, so that every point of the cap is within reach) ...
     polish_ratio: float = 1.0 / 3.0  # ... shrinking by this factor ...
     polish_tol_deg: float = 0.1  # ... while the radius stays ≥ this (at most 0.05 α)
     polish_points: int = 24
@@ -574,15 +575,22 @@ def _refine(
     return np.array(xyz), it
 
 
-def _spiral(c: np.ndarray, radius: float, points: int) -> np.ndarray:
+def _spiral(c: np.ndarray, radius: float, points: int, toward: np.ndarray) -> np.ndarray:
     """``points`` unit directions (P, 3) spread evenly (a sunflower spiral, equal area per direction) over the
-    cap of angular ``radius`` [rad] around the unit axis ``c`` (3,); spacing ≈ radius · √(π / points)."""
+    cap of angular ``radius`` [rad] around the unit axis ``c`` (3,); spacing ≈ radius · √(π / points). The
+    spiral's zero azimuth points along the tangent part of ``toward`` (3,) (a direction taken from the data,
+    so that a rotated scene gives the rotated spiral), or along c × e_z when that part vanishes."""
     i = np.arange(points) + 0.5
     r = radius * np.sqrt(i / points)  # polar radius
     phi = i * (math.pi * (3.0 - math.sqrt(5.0)))
     x, y, z = (float(v) for v in c)
-    tx, ty, tz = (y, -x, 0.0) if abs(z) < 0.9 else (0.0, z, -y)  # c × e_z or c × e_x
+    gx, gy, gz = (float(v) for v in toward)
+    d = gx * x + gy * y + gz * z
+    tx, ty, tz = gx - d * x, gy - d * y, gz - d * z
     nt = math.sqrt(tx * tx + ty * ty + tz * tz)
+    if nt <= 1e-6 * math.sqrt(gx * gx + gy * gy + gz * gz) or nt == 0.0:
+        tx, ty, tz = (y, -x, 0.0) if abs(z) < 0.9 else (0.0, z, -y)  # c × e_z or c × e_x
+        nt = math.sqrt(tx * tx + ty * ty + tz * tz)
     tx, ty, tz = tx / nt, ty / nt, tz / nt
     frame = np.array([[x, y, z], [tx, ty, tz], [y * tz - z * ty, z * tx - x * tz, x * ty - y * tx]])  # c, t1, c × t1
     sr = np.sin(r)
@@ -606,14 +614,16 @@ def local_search(
     BT (3, n) float32 unit bearings, w (n,) float32 weights, ``cos_c`` (n,) = c · k_j. The axis moves at
     most Σ r_k, so only landmarks within α ± Σ r_k of ``c`` can change state: that band is taken once, and
     each level counts only the part of it within α ± r_k of its centre. On a flat landscape (the sensor
-    inside a dense cloud) the maxima are shallow and many: the first, wide cap (a spacing of ≈ 1.7° at
-    64 directions over α/2 = 7.5°) puts a direction near each nearby one; the next levels only have to
-    close the gap between spiral directions (each radius above the previous level's spacing).
+    inside a dense cloud) the maxima are shallow and many: the first, wide cap (a spacing of ≈ 2.35° with
+    32 directions over α/2 = 7.5°) puts a direction near each nearby one; the next levels only have to
+    close the gap between spiral directions (each radius above 0.6 × the previous level's spacing, the
+    farthest any point of a cap is from its nearest spiral direction).
     """
     band = _edge_band(BT, w, cos_c, alpha, float(sum(radii)))
     if band is None:
         return c
     bT, wb = band
+    toward = (bT @ wb).astype(float)  # the band's weighted mean bearing orients every spiral
     cos_a = np.float32(np.cos(alpha) - 1e-7)
     for r, p in zip(radii, points, strict=True):
         cb = c.astype(np.float32) @ bT  # (m,)
@@ -622,7 +632,7 @@ def local_search(
         if sel.size == 0:
             continue
         lT, lw = bT.take(sel, axis=1), wb.take(sel)
-        cand = _spiral(c, r, p)
+        cand = _spiral(c, r, p, toward)
         inside = cand.astype(np.float32) @ lT  # (P, m')
         vals = np.greater_equal(inside, cos_a, out=inside) @ lw  # 1.0 inside the cone
         k = int(np.argmax(vals))
