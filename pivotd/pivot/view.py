@@ -61,8 +61,8 @@ class ViewOptions:
     drift_deg: float = 5.0
     cap_ratio: float = 0.5  # hard-count search (local_search): first a spiral of directions within ratio · α ...
     cap_points: int = 32  # ... of the best with this many directions (flat landscapes: the best peak nearby; 0: off)
-    polish_deg: float = 1.5  # then spirals of polish_points directions of radius polish_deg (0: off; ≥ the cap's
-    # spacing ratio · α · √(π / cap_points) · 0.6, so that every point of the cap is within reach) ...
+    polish_deg: float = 1.5  # then spirals of polish_points directions of radius polish_deg (0: off), at least
+    # 0.6 × the cap's spacing cap_ratio · α · √(π / cap_points) so that every point of the cap is within reach ...
     polish_ratio: float = 1.0 / 3.0  # ... shrinking by this factor ...
     polish_tol_deg: float = 0.1  # ... while the radius stays ≥ this (at most 0.05 α)
     polish_points: int = 24
@@ -329,6 +329,8 @@ def optimize_view(
         points.append(opts.cap_points)
     if opts.polish_deg > 0:
         r, tol = min(rad(opts.polish_deg), 0.5 * alpha), min(rad(opts.polish_tol_deg), 0.05 * alpha)
+        if radii:  # cover the gaps between the cap's directions
+            r = max(r, 0.6 * radii[0] * math.sqrt(math.pi / opts.cap_points))
         while True:
             radii.append(r)
             points.append(opts.polish_points)
