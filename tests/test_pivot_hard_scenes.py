@@ -70,10 +70,12 @@ def test_unknown_family_is_rejected():
 def test_bench_hard_rows_judge_both_methods_against_the_reference(capsys):
     from pivotd.bench.montecarlo import hard_rows
 
-    rows = hard_rows(seeds=1, poses=1, alpha=np.radians(15.0), res=2.0)
+    # compared with itself (the same package timed twice): the same answers, both judged
+    rows = hard_rows(seeds=1, poses=1, alpha=np.radians(15.0), res=2.0, compare_with="pivotd")
     assert [r["family"] for r in rows] == list(HARD_FAMILIES)
     for r in rows:
         assert r["poses"] == 1 and r["ref_exact"] == 1
+        assert r["other_mean_pct"] == r["ref_mean_pct"] and r["other_speedup"] > 0
         assert 95.0 <= r["ref_min_pct"] <= 100.0 + r["ref_bound_gap_max_pct"]  # the bound holds for PIVOT too
         assert r["grid_min_pct"] <= 100.0  # the 2° grid is where the reference's search starts
         assert r["ref_bound_gap_max_pct"] >= 0.0 and r["speedup"] > 0

@@ -61,33 +61,57 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--scene-poses", type=int, default=None, help="hard scenes: sensor poses per instance (default 20, quick 6)"
     )
     parser.add_argument(
+        "--compare-with", metavar="PKG",
+        help="also time optimize_view of PKG (a renamed copy of another pivotd version on PYTHONPATH) "
+             "next to this tree's on the same poses (Monte Carlo levels and hard scenes) and report both",
+    )
+    parser.add_argument(
         "--replan", action="store_true",
         help="only the warm-started replanning regime: 40 waypoints, 20k landmarks, anchor + pan/tilt limits",
     )
 
 
-def _level_rows(levels: list[int], pose_idx: np.ndarray, alpha: float, res: float) -> tuple[list[dict], dict]:
-    from pivotd.pivot.brute import brute_force_view
-    from pivotd.pivot.scenes import monte_carlo_levels, monte_carlo_map, monte_carlo_poses
-    from pivotd.pivot.view import optimize_view
+def _other_view(compare_with: str | None) -> Callable[..., Any] | None:
+    """optimize_view of ``compare_with`` (a renamed copy of another pivotd version on the path), or None."""
+    if not compare_with:
+        return None
+    from pivotd.bench.horizon import _module
 
+    return _module(compare_with, "pivot.view").optimize_view
+
+
+def _level_rows(
+    levels: list[int], pose_idx: np.ndarray, alpha: float, res: float, compare_with: str | None = None
+) -> tuple[list[dict], dict]:
+    from pivotd.pivot.brute import sphere_grid
+    from pivotd.pivot.scenes import monte_carlo_levels, monte_carlo_map, monte_carlo_poses
+
+    optimize_view, brute_force_view = _solvers(alpha, sphere_grid(res))
+    other_view = _other_view(compare_with)
     poses = monte_carlo_poses()[pose_idx]
     counts = monte_carlo_levels()
     rows, detail = [], {}
     for level in with_progress(levels, "Monte Carlo map sizes"):
         pts = monte_carlo_map(level)
-        t_piv, t_bf, ratio, d_piv, d_bf = [], [], [], [], []
+        t_piv, t_bf, ratio, d_piv, d_bf, t_other, other_ratio = [], [], [], [], [], [], []
         for t in poses:
             diff = pts - t
             bearings = diff / np.linalg.norm(diff, axis=1, keepdims=True)
             if len(t_piv) % 2 == 0:  # alternate which side runs first
                 r, dt = timed(optimize_view, bearings, None, alpha)
                 (d, best), db = timed(brute_force_view, bearings, None, alpha, res)
+                if other_view is not None:
+                    ro, do = timed(other_view, bearings, None, alpha)
             else:
+                if other_view is not None:
+                    ro, do = timed(other_view, bearings, None, alpha)
                 (d, best), db = timed(brute_force_view, bearings, None, alpha, res)
                 r, dt = timed(optimize_view, bearings, None, alpha)
             t_piv.append(dt)
             t_bf.append(db)
+            if other_view is not None:
+                t_other.append(do)
+                other_ratio.append(100.0 * ro.visible / best if best > 0 else 100.0)
             ratio.append(100.0 * r.visible / best if best > 0 else 100.0)
             d_piv.append(r.direction)
             d_bf.append(d)
@@ -102,28 +126,53 @@ def _level_rows(levels: list[int], pose_idx: np.ndarray, alpha: float, res: floa
             "retained_p5_pct": percentile(ratio, 5),
             "retained_min_pct": float(np.min(ratio)),
         }
+        if other_view is not None:
+            row.update({"other_ms": 1e3 * median(t_other), "other_speedup": median(t_bf) / median(t_other),
+                        "other_retained_mean_pct": float(np.mean(other_ratio)),
+                        "other_retained_min_pct": float(np.min(other_ratio))})
         rows.append(row)
         detail[level] = {"ratio": np.array(ratio), "pivot": np.array(d_piv), "brute": np.array(d_bf)}
         log.info("level %d (%d features) done", level, counts[level])
         _print_row(row)
+        if other_view is not None:
+            print(f"{'':>8} {compare_with}: {row['other_ms']:.3f} ms, {row['other_speedup']:.0f}x the brute force; "
+                  f"retained mean {row['other_retained_mean_pct']:.2f} %, min {row['other_retained_min_pct']:.2f} %",
+                  flush=True)
     return rows, detail
 
 
-def hard_rows(seeds: int, poses: int, alpha: float, res: float, repeats: int = 3) -> list[dict]:
+def _solvers(alpha: float, grid: np.ndarray) -> tuple[Callable[..., Any], Callable[..., Any]]:
+    """optimize_view with the cone kernel of α and brute_force_view with ``grid``, both built once (each is
+    data-independent set-up per half-angle / resolution, kept out of the timed calls alike)."""
+    from functools import partial
+
+    from pivotd.pivot.brute import brute_force_view
+    from pivotd.pivot.cone_kernel import cone_kernel
+    from pivotd.pivot.view import optimize_view
+
+    return partial(optimize_view, kernel=cone_kernel(alpha)), partial(brute_force_view, grid=grid)
+
+
+def hard_rows(
+    seeds: int, poses: int, alpha: float, res: float, repeats: int = 3, compare_with: str | None = None
+) -> list[dict]:
     """Single pose on every hard scene family (pivotd.pivot.scenes.HARD_FAMILIES): ``seeds`` instances of
     ``poses`` random sensor positions each. Per pose: the refined reference (pivotd.pivot.brute.refined_view,
     not timed) first, then ``repeats`` rounds of PIVOT and the ``res`` grid timed back to back on the same
     bearings, in alternating order (neither side always runs right after the reference or after the other);
     each side's time for the pose is the median of its rounds. Both answers are scored against the
     reference. Speedup: the ratio of the median times, and the median of the per-pose ratios (less exposed
-    to the host's load drifting during the run)."""
-    from pivotd.pivot.brute import brute_force_view, refined_view
+    to the host's load drifting during the run). ``compare_with``: a renamed copy of another pivotd version
+    on the path whose optimize_view is timed in the same rounds (its speedup and quality are reported too)."""
+    from pivotd.pivot.brute import refined_view, sphere_grid
     from pivotd.pivot.scenes import HARD_FAMILIES, hard_scene
-    from pivotd.pivot.view import optimize_view
 
+    optimize_view, brute_force_view = _solvers(alpha, sphere_grid(res))
+    other_view = _other_view(compare_with)
     rows = []
     for family in with_progress(HARD_FAMILIES, "hard scene families"):
         t_piv, t_grid, ratio, grid_ratio, gap, exact, sizes = [], [], [], [], [], 0, []
+        t_other, other_ratio = [], []
         for seed in range(seeds):
             scene = hard_scene(family, seed, poses)
             sizes.append(scene.points.shape[0])
@@ -131,18 +180,27 @@ def hard_rows(seeds: int, poses: int, alpha: float, res: float, repeats: int = 3
                 diff = scene.points - t
                 bearings = diff / np.linalg.norm(diff, axis=1, keepdims=True)
                 ref = refined_view(bearings, None, alpha, res)
-                dts, dgs = [], []
+                dts, dgs, dos = [], [], []
                 for k in range(max(1, repeats)):
                     if (len(t_piv) + k) % 2 == 0:
                         r, dt = timed(optimize_view, bearings, None, alpha)
                         (_, grid_best), dg = timed(brute_force_view, bearings, None, alpha, res)
+                        if other_view is not None:
+                            ro, do = timed(other_view, bearings, None, alpha)
                     else:
+                        if other_view is not None:
+                            ro, do = timed(other_view, bearings, None, alpha)
                         (_, grid_best), dg = timed(brute_force_view, bearings, None, alpha, res)
                         r, dt = timed(optimize_view, bearings, None, alpha)
                     dts.append(dt)
                     dgs.append(dg)
+                    if other_view is not None:
+                        dos.append(do)
                 t_piv.append(median(dts))
                 t_grid.append(median(dgs))
+                if other_view is not None:
+                    t_other.append(median(dos))
+                    other_ratio.append(100.0 * ro.visible / ref.value if ref.value > 0 else 100.0)
                 ratio.append(100.0 * r.visible / ref.value if ref.value > 0 else 100.0)
                 grid_ratio.append(100.0 * grid_best / ref.value if ref.value > 0 else 100.0)
                 gap.append(100.0 * (ref.bound - ref.value) / ref.value if ref.value > 0 else 0.0)
@@ -163,8 +221,22 @@ def hard_rows(seeds: int, poses: int, alpha: float, res: float, repeats: int = 3
             "ref_bound_gap_max_pct": float(np.max(gap)),
             "ref_exact": exact,
         }
+        if other_view is not None:
+            row.update({
+                "other_ms": 1e3 * median(t_other),
+                "other_speedup": median(t_grid) / median(t_other),
+                "other_over_pivot": median(list(np.array(t_other) / np.array(t_piv))),
+                "other_mean_pct": float(np.mean(other_ratio)),
+                "other_p5_pct": percentile(other_ratio, 5),
+                "other_min_pct": float(np.min(other_ratio)),
+            })
         rows.append(row)
         _print_hard_row(row)
+        if other_view is not None:
+            print(f"{'':>9} {compare_with}: {row['other_ms']:.3f} ms, {row['other_speedup']:.0f}x the grid, "
+                  f"{row['other_over_pivot']:.2f}x this tree's time (per pose median); % of ref mean "
+                  f"{row['other_mean_pct']:.2f}, p5 {row['other_p5_pct']:.2f}, min {row['other_min_pct']:.2f}",
+                  flush=True)
     return rows
 
 
@@ -439,7 +511,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"Monte Carlo: 9 clusters, FoV {args.fov_deg:g} deg, brute force at {args.resolution_deg:g} deg, "
           f"{len(pose_idx)} poses per level, single thread")
     _print_header()
-    rows, detail = _level_rows(levels, pose_idx, alpha, args.resolution_deg)
+    rows, detail = _level_rows(levels, pose_idx, alpha, args.resolution_deg, args.compare_with)
     p = PAPER
     print(
         f"paper (C++, i9-14900K): PIVOT {p['pivot_ms'][0]}–{p['pivot_ms'][1]} ms, brute {p['brute_ms'][0]}–"
@@ -482,7 +554,7 @@ def _hard_section(args: argparse.Namespace, alpha: float) -> list[dict]:
           f"reference ({args.resolution_deg:g} deg grid + branch and bound to 0.25 deg), speedup vs scoring the "
           f"{args.resolution_deg:g} deg grid, single thread")
     _print_hard_header()
-    return hard_rows(seeds, poses, alpha, args.resolution_deg)
+    return hard_rows(seeds, poses, alpha, args.resolution_deg, compare_with=args.compare_with)
 
 
 def _plot(out: Path, rows: list[dict], detail: dict, pose_idx: np.ndarray) -> None:

@@ -37,27 +37,34 @@ def brute_force_view(
     resolution_deg: float = 2.0,
     *,
     chunk: int = 1024,
+    grid: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float]:
     """Best grid direction (3,) and its hard visible weight (count when ``weights`` is None).
 
+    ``grid`` (G, 3): ``sphere_grid(resolution_deg)`` computed once by callers scoring many poses (None: here).
+
     Evaluates Σ_j s_j [θ_j ≤ α] for every direction of :func:`sphere_grid` with float32 matrix
-    products over ``chunk`` directions at a time; ties go to the first grid direction.
+    products over ``chunk`` directions at a time: (chunk, 3) @ (3, n) cosines, compared with cos α in
+    place (1.0 inside) and summed by one matrix-vector product with the weights; ties go to the first
+    grid direction.
     """
     alpha = half_angle(alpha)
     B = finite_array("bearings", bearings)
     w = feature_weights(weights, B.shape[0])
-    grid = sphere_grid(resolution_deg)
+    grid = sphere_grid(resolution_deg) if grid is None else grid
     if B.shape[0] == 0:
         return grid[0].copy(), 0.0
-    B32 = B.astype(np.float32)
+    BT = np.ascontiguousarray(B.T, dtype=np.float32)
     w32 = w.astype(np.float32)
-    uniform = weights is None
     cos_a = np.float32(np.cos(alpha))
+    g32 = grid.astype(np.float32)
+    buf = np.empty((min(chunk, grid.shape[0]), B.shape[0]), np.float32)
     best_val, best_dir = -1.0, grid[0]
     for s in range(0, grid.shape[0], chunk):
-        D = grid[s : s + chunk].astype(np.float32)
-        inside = cos_a <= (B32 @ D.T)
-        vals = np.count_nonzero(inside, axis=0) if uniform else w32 @ inside
+        D = g32[s : s + chunk]
+        inside = np.matmul(D, BT, out=buf[: D.shape[0]])
+        np.greater_equal(inside, cos_a, out=inside)
+        vals = inside @ w32
         i = int(np.argmax(vals))
         if vals[i] > best_val:
             best_val, best_dir = float(vals[i]), grid[s + i]
@@ -98,7 +105,8 @@ def grid_visibility(
         n = np.linalg.norm(d, axis=1)
         ok = n > 1e-12
         b = (d[ok] / n[ok, None]).astype(np.float32)
-        V[i] = w32[ok] @ ((b @ gT) >= cos_a)
+        inside = b @ gT  # (m, G) cosines, compared in place (1.0 inside)
+        V[i] = w32[ok] @ np.greater_equal(inside, cos_a, out=inside)
     return V
 
 

@@ -17,10 +17,11 @@ import numpy as np
 from pivotd.geometry import optical_frame_from_direction
 from pivotd.pivot import _ascent, chain, polish
 from pivotd.pivot._checks import feature_weights, finite_array, half_angle, unit_vector
+from pivotd.pivot.cone_kernel import cone_kernel
 from pivotd.pivot.constraints import PanTiltConstraint
 from pivotd.pivot.morton import morton_keys
 from pivotd.pivot.steps import limit_steps, step_angles
-from pivotd.pivot.view import optimize_view, schedule
+from pivotd.pivot.view import ViewOptions, optimize_view, schedule
 
 
 @dataclass
@@ -311,6 +312,7 @@ def _independent_views(
     N = T.shape[0]
     dirs, rots, visible = np.empty((N, 3)), np.empty((N, 3, 3)), np.zeros(N, dtype=int)
     obj, iters = 0.0, 0
+    kernel = None  # the cone kernel of α, built once when a waypoint first needs it
     for i in range(N):
         Pi, wi = landmarks(i)
         d = Pi - T[i]
@@ -321,7 +323,9 @@ def _independent_views(
         if dist_w and n.size:
             w = np.maximum(_weights(n[None].astype(np.float32), None, w[None], True)[0].astype(float), 0.0)
         uniform = w.size == 0 or bool(np.all(w == w[0]))
-        r = optimize_view(B, None if uniform else w, alpha, init=None if init is None else init[i])
+        if kernel is None and B.shape[0] > ViewOptions.sample:
+            kernel = cone_kernel(alpha)
+        r = optimize_view(B, None if uniform else w, alpha, init=None if init is None else init[i], kernel=kernel)
         dirs[i], rots[i], visible[i] = r.direction, r.rotation, r.visible
         # F_i / W_i: with uniform weights optimize_view counted each landmark as 1
         obj += r.objective / max(float(w.size) if uniform else float(w.sum()), 1e-12)

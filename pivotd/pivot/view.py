@@ -1,15 +1,17 @@
 """Single-pose PIVOT: the viewing direction that keeps the most (weighted) landmarks in a conical FoV.
 
-Practical enhancements of the paper (§IV-C): multi-start initialisation (centroid, orthogonal and
-tangent directions, landmark-seeded directions and the best directions of a coarse lattice, all scored
-on a cube-map summary of every landmark — per-cell weight and mean bearing, independent of the order
-of the landmarks — each moved by two mean-shift steps, ranked on the summary, near-duplicates pruned),
-ranking of the survivors by their hard visible weight on all landmarks after one more mean-shift step,
-refinement of the best one and of those whose widened-cone bound could still beat it, a hard-count
-search over a cap of directions around the best (flat landscapes have many shallow maxima close
-together), a hard-count polish, an optional FoV schedule that starts wide and narrows to α with k_s
-recomputed from a target transition width, and normalised, clipped, adaptively scaled steps (see
-:func:`pivotd.pivot._ascent.ascend`).
+Practical enhancements of the paper (§IV-C). Global stage, O(n + cells): the bearings are binned on a
+cube map with one ``bincount`` (exact integer counts, independent of the landmarks' order) and one
+sparse product with a precomputed cone-overlap matrix (:mod:`pivotd.pivot.cone_kernel`, built once per
+half-angle) gives the approximate visible weight of a cone on every cell; its best distinct peaks (plus
+the weighted centroid) take a mean-shift step on the histogram. (Up to ``sample`` landmarks the seeds are
+axes, the centroid, landmarks and a coarse lattice, shifted on the landmarks themselves.) The survivors
+are ranked by their hard visible weight on all landmarks; the best one and the rivals whose widened-cone
+bound could still beat it are refined by gradient ascent on the smooth objective; a coarse-to-fine
+hard-count search on spirals of directions (:func:`local_search`: a wide cap for flat landscapes with
+many shallow maxima close together, then finer ones) finishes. An optional FoV schedule starts wide and
+narrows to α with k_s recomputed from a target transition width; steps are normalised, clipped and
+adaptively scaled (see :func:`pivotd.pivot._ascent.ascend`).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import numpy as np
 from pivotd.geometry import optical_frame_from_direction
 from pivotd.pivot import _ascent
 from pivotd.pivot._checks import feature_weights, finite_array, half_angle, unit_vector
+from pivotd.pivot.cone_kernel import ConeKernel, cell_keys, cone_kernel
 from pivotd.pivot.visibility import ks_from_width
 
 
@@ -38,26 +41,31 @@ class ViewOptions:
     max_iterations: int = 40  # iteration budget at α
     step_init_deg: float = 4.0
     step_max_deg: float = 15.0
-    tol_deg: float = 0.25
-    sample: int = 1024  # above this many landmarks the multi-start candidates are ranked on direction cells ...
-    cells: int = 16  # ... of a cube map with cells × cells per face (each cell: its weight and mean bearing)
+    tol_deg: float = 0.5  # refinement stops below this step (the hard-count searches go finer)
+    sample: int = 1024  # above this many landmarks the candidates come from a histogram of the bearings ...
+    cells: int | None = None  # ... on a cube map with cells × cells per face (None: from α, cone_kernel.cells_per_face)
+    hist_shift: int = 1  # mean-shift steps of the peaks (and the weighted centroid) on the histogram
+    peaks: int = 12  # distinct histogram peaks (cones centred on cells, by approximate weight) seeding the candidates
     seeds: int = 32  # landmark-seeded candidates
     mean_shift: int = 2  # mean-shift steps applied to every candidate before ranking
     coarse_ratio: float = 1.0  # global seed: a direction lattice spaced ≈ ratio · α scored on the subsample
     coarse_peaks: int = 4  # its best directions (non-maximum suppressed) join the multi-start set (0: off)
     refine: int = 6  # distinct candidates kept after the subsample ranking
     distinct_ratio: float = 0.5  # candidates closer than ratio · α count as duplicates
-    full_shift: int = 1  # mean-shift steps of those candidates on all landmarks, each scored by full hard count
+    full_shift: int = 1  # ≤ sample landmarks: mean-shift steps on all of them, each scored by full hard count
     reach_ratio: float = 0.25  # a candidate is refined when its weight within α(1 + ratio) can beat the best
     final_candidates: int = 2  # at most this many go on to the refinement at α
     keep_ratio: float = 0.5  # drop candidates whose subsample score is < ratio · best
     active_cap: int = 1024
     final_cap: int = 8192
     drift_deg: float = 5.0
-    polish_deg: float = 1.0  # final pattern search on the hard count starting at this radius (0: off) ...
-    polish_tol_deg: float = 0.1  # ... down to this radius (at most 0.05 α)
-    cap_ratio: float = 0.5  # before it, the hard count on a spiral of directions within ratio · α of the best ...
-    cap_points: int = 96  # ... with this many directions (flat landscapes: the best peak nearby; 0: off)
+    cap_ratio: float = 0.5  # hard-count search (local_search): first a spiral of directions within ratio · α ...
+    cap_points: int = 32  # ... of the best with this many directions (flat landscapes: the best peak nearby; 0: off)
+    polish_deg: float = 1.5  # then spirals of polish_points directions of radius polish_deg (0: off), at least
+    # 0.6 × the cap's spacing cap_ratio · α · √(π / cap_points) so that every point of the cap is within reach ...
+    polish_ratio: float = 1.0 / 3.0  # ... shrinking by this factor ...
+    polish_tol_deg: float = 0.1  # ... while the radius stays ≥ this (at most 0.05 α)
+    polish_points: int = 24
 
 
 @dataclass
@@ -91,18 +99,12 @@ def _candidates(
     init: np.ndarray | None,
     uniform: bool,
 ) -> np.ndarray:
-    """Multi-start directions (K ≤ refine, 3), best summary score first, none closer than distinct_ratio · α.
-
-    B (n, 3) unit bearings and BT (3, n) their float32 transpose; above ``sample`` landmarks the candidates
-    are seeded, shifted and scored on the cube-map summary of all of them (:func:`_cell_summary`).
+    """Multi-start directions (K ≤ refine, 3) for few landmarks (≤ ``sample``), best score first, none closer
+    than distinct_ratio · α: seeds (axes, centroid, landmarks, a coarse lattice) moved by mean shift and
+    scored on the landmarks themselves. B (n, 3) unit bearings and BT (3, n) their float32 transpose.
     ``uniform``: all weights ``w`` are equal (saves a weighted product per mean-shift step).
     """
-    n = B.shape[0]
-    if n > opts.sample:  # every landmark counts, in an order-independent summary
-        Bs, ws = _cell_summary(BT, None if uniform else w, opts.cells)
-        uniform = False
-    else:
-        Bs, ws = B.astype(np.float32), w.astype(np.float32)
+    Bs, ws = B.astype(np.float32), w.astype(np.float32)
     seeds = list(_AXES)
     centroid = ws @ Bs
     x, y, z = (float(v) for v in centroid)
@@ -156,31 +158,56 @@ def _candidates(
     return Co[kept].astype(float)
 
 
-def _cell_summary(BT: np.ndarray, w: np.ndarray | None, m: int) -> tuple[np.ndarray, np.ndarray]:
-    """Unit bearings BT (3, n) float32 with weights w (n,) (None: all 1) binned on a cube map of m × m cells
-    per face: each non-empty cell's unit mean bearing (k, 3) float32 and its total weight (k,) float32, in
-    cell order (independent of the order of the landmarks up to float rounding; k ≤ 6 m²)."""
-    x, y, z = BT
-    ax, ay, az = np.abs(x), np.abs(y), np.abs(z)
-    fx = (ax >= ay) & (ax >= az)
-    fz = ~fx & (az > ay)
-    fy = ~fx & ~fz
-    big = np.maximum(np.maximum(ax, ay), az)
-    big = np.maximum(big, np.float32(1e-12), out=big)
-    half = np.float32(0.5 * m)
-    major = np.where(fx, x, np.where(fy, y, z))
-    face = fy.astype(np.intp) + 2 * fz + 3 * (major < 0)
-    iu = np.where(fx, y, x) / big  # the two minor coordinates on the face, in [−1, 1]
-    iv = np.where(fz, y, z) / big
-    iu = np.clip((iu * half + half).astype(np.intp), 0, m - 1)
-    iv = np.clip((iv * half + half).astype(np.intp), 0, m - 1)
-    cell = (face * m + iu) * m + iv
-    size = 6 * m * m
-    wc = np.bincount(cell, weights=w, minlength=size)
-    S = np.stack([np.bincount(cell, weights=c if w is None else w * c, minlength=size) for c in (x, y, z)], axis=1)
-    nrm = np.sqrt(np.einsum("ij,ij->i", S, S))
-    keep = np.flatnonzero((wc > 0) & (nrm > 1e-12))
-    return (S[keep] / nrm[keep, None]).astype(np.float32), wc[keep].astype(np.float32)
+def _histogram_candidates(
+    BT: np.ndarray, w: np.ndarray, alpha: float, opts: ViewOptions, init: np.ndarray | None, uniform: bool,
+    kernel: ConeKernel,
+) -> np.ndarray:
+    """Multi-start directions (K ≤ refine, 3) for many landmarks, best approximate weight first, none closer
+    than distinct_ratio · α.
+
+    The bearings BT (3, n) float32 (weights w (n,), ``uniform``: all equal) are binned on the kernel's cube
+    map with one ``bincount`` (exact integer counts for equal weights: independent of the landmarks' order);
+    one sparse product gives the approximate weight of the cone centred on every cell; its ``peaks`` best
+    distinct cells (plus the weighted centroid and ``init``) take one mean-shift step on the histogram
+    (cells weighted by their estimated fraction inside the cone), and each keeps the better of its start and
+    its shifted position by the same estimate. Cost O(n + cells).
+    """
+    h = np.bincount(cell_keys(BT, kernel.m), weights=None if uniform else w, minlength=kernel.size).astype(np.float32)
+    A = kernel.counts(h)  # (C,) approximate weight of the cone on every cell centre
+    k = min(8 * max(1, opts.peaks), A.size)
+    top = np.argpartition(A, A.size - k)[A.size - k :]
+    top = top[np.argsort(-A.take(top), kind="stable")]
+    cos_d = np.cos(opts.distinct_ratio * alpha)
+    D = kernel.centres[top]
+    picks = _greedy_distinct(D, cos_d, max(1, opts.peaks))
+    seeds, score = [D[picks]], [A.take(top.take(picks))]
+    extra = []
+    if opts.hist_shift or init is not None:
+        hs = h.take(kernel.keys)  # (C,) weight per cell
+        if opts.hist_shift:
+            centroid = hs @ kernel.centres
+            nc = float(np.sqrt(centroid @ centroid))
+            if nc > 1e-6 * max(float(hs.sum()), 1e-12):
+                extra.append(centroid / nc)
+        if init is not None:
+            extra.append(init.astype(np.float32))
+    if extra:  # their approximate weights: each cell counted by its estimated fraction inside the cone
+        E = np.array(extra, np.float32)
+        seeds.append(E)
+        score.append(kernel.soft_weights(E @ kernel.centres.T) @ hs)
+    C, score = np.concatenate(seeds), np.concatenate(score)
+    for _ in range(opts.hist_shift):  # mean shift on the histogram, keeping the better of start and end
+        Wt = kernel.soft_weights(C @ kernel.centres.T)
+        Wt *= hs
+        moved = Wt @ kernel.centres
+        nrm = np.sqrt(np.einsum("ij,ij->i", moved, moved))
+        ok = nrm > 1e-12
+        M = np.where(ok[:, None], moved / np.where(ok, nrm, 1.0)[:, None], C)
+        C, score = np.concatenate([M, C]), np.concatenate([kernel.soft_weights(M @ kernel.centres.T) @ hs, score])
+    order = np.argsort(-score, kind="stable")
+    order = order[score[order] >= opts.keep_ratio * score[order[0]]]
+    Co = C[order]
+    return Co[_greedy_distinct(Co, cos_d, max(1, opts.refine))].astype(float)
 
 
 def _greedy_distinct(D: np.ndarray, cos_min: float, k: int) -> list[int]:
@@ -233,12 +260,15 @@ def optimize_view(
     *,
     init: np.ndarray | None = None,
     options: ViewOptions | None = None,
+    kernel: ConeKernel | None = None,
 ) -> ViewResult:
     """Maximise F(R) = Σ_j s_j v(θ_j) (eq. 6) over R ∈ SO(3) for unit ``bearings`` (n, 3), half-angle α [rad].
 
     ``weights`` (n,) are the feature weights s_j (None: uniform); zero-length bearings (a landmark at
-    the sensor) are ignored. ``init`` (3,) adds a starting direction to the multi-start set. Raises
-    ValueError on NaN/inf input or α outside (0, π).
+    the sensor) are ignored. ``init`` (3,) adds a starting direction to the multi-start set. ``kernel``:
+    the :func:`pivotd.pivot.cone_kernel.cone_kernel` of α (and ``options.cells``), built once by callers that
+    solve many poses with the same half-angle (None: built here when needed). Raises ValueError on NaN/inf
+    input, α outside (0, π) or a kernel of another half-angle.
     """
     opts = options or ViewOptions()
     alpha = half_angle(alpha)
@@ -249,14 +279,22 @@ def optimize_view(
         return ViewResult(d, optical_frame_from_direction(d), 0, 0.0, 0)
     w32 = w.astype(np.float32)
     uniform = weights is None or float(w.min()) == float(w.max())
-    C = _candidates(B, BT, w, alpha, opts, init_v, weights is None)
+    if B.shape[0] > opts.sample:
+        if kernel is None:
+            kernel = cone_kernel(alpha, opts.cells)
+        elif abs(kernel.alpha - alpha) > 1e-9 * alpha or (opts.cells is not None and kernel.m != opts.cells):
+            raise ValueError(f"kernel was built for alpha={kernel.alpha} with {kernel.m} cells per face, not {alpha}")
+        C = _histogram_candidates(BT, w, alpha, opts, init_v, uniform, kernel)
+    else:
+        C = _candidates(B, BT, w, alpha, opts, init_v, weights is None)
     rad = np.radians
     start = rad(opts.fov_start_deg) if opts.fov_start_deg is not None else min(np.pi / 2, alpha + rad(10.0))
     stages = schedule(alpha, start, opts.stages)
     iters = 0
     if len(stages) > 1:  # widened stages on a strided subsample with weights scaled to the same total
         C, iters = _widened(BT.T, w, C, stages, alpha, opts)
-    C, cos_c, score, bound = _full_shift(C, BT, w32, alpha, opts, uniform)
+    shifts = opts.full_shift if B.shape[0] <= opts.sample else 0  # above: shifted on the histogram instead
+    C, cos_c, score, bound = _full_shift(C, BT, w32, alpha, shifts, opts.reach_ratio, uniform)
     cos_a32 = np.float32(np.cos(alpha))
     # refine the candidates that could still win: those whose bound (the weight within α(1 + reach_ratio),
     # more than any direction that close to them can see) reaches the best full hard weight: the best one
@@ -272,49 +310,52 @@ def optimize_view(
             break
         if all(float(C[k] @ C[j]) < cos_d for j in keep):
             keep.append(int(k))
-    # the chosen candidates are refined together (one band, a few numpy calls per step for all of them);
-    # each keeps the better of its start and its refined axis by full hard weight
-    R, steps = _refine(BT, w32, C[keep], cos_c[keep], alpha, opts, uniform)
-    iters += steps
-    s_r = _row_weights(R.astype(np.float32) @ BT >= cos_a32, w32, uniform)
-    dirs = [*R, *C[keep]]
-    scores = [*s_r.tolist(), *score[keep].tolist()]
-    best = int(np.argmax(scores))
-    c_best = dirs[best]
-    cos_best = c_best.astype(np.float32) @ BT if best < len(keep) else cos_c[keep[best - len(keep)]]
+    # the chosen candidates are refined one at a time, best first (each on its own band); a rival is refined only
+    # while its bound still exceeds the best hard weight found so far. Each refined axis competes with its start.
+    best_s, c_best, cos_best = -1.0, C[keep[0]], cos_c[keep[0]]
+    for j, k in enumerate(keep):
+        if j and bound[k] <= best_s:
+            continue
+        R, steps = _refine(BT, w32, C[k : k + 1], cos_c[k : k + 1], alpha, opts, uniform, c_best if j else None)
+        iters += steps
+        cos_r = R[0].astype(np.float32) @ BT
+        s_r = float(_row_weights((cos_r >= cos_a32)[None], w32, uniform)[0])
+        for c, cs, sc in ((R[0], cos_r, s_r), (C[k], cos_c[k], float(score[k]))):
+            if sc > best_s:
+                best_s, c_best, cos_best = sc, c, cs
+    radii, points = [], []
     if opts.cap_points > 0 and opts.cap_ratio > 0:
-        c_next = cap_search(c_best, BT, w32, alpha, opts.cap_ratio * alpha, opts.cap_points, cos_best, uniform)
-        if c_next is not c_best:
-            c_best = c_next
-            cos_best = c_best.astype(np.float32) @ BT
+        radii.append(opts.cap_ratio * alpha)
+        points.append(opts.cap_points)
     if opts.polish_deg > 0:
-        tol = min(rad(opts.polish_tol_deg), 0.05 * alpha)
-        c_best = polish_hard(c_best, BT, w32, alpha, min(rad(opts.polish_deg), 0.5 * alpha), tol, cos_best, uniform)
+        r, tol = min(rad(opts.polish_deg), 0.5 * alpha), min(rad(opts.polish_tol_deg), 0.05 * alpha)
+        if radii:  # cover the gaps between the cap's directions
+            r = max(r, 0.6 * radii[0] * math.sqrt(math.pi / opts.cap_points))
+        while True:
+            radii.append(r)
+            points.append(opts.polish_points)
+            if r * opts.polish_ratio < tol:
+                break
+            r *= opts.polish_ratio
+    if radii:
+        c_best = local_search(c_best, BT, w32, alpha, cos_best, radii, points)
     c_best = c_best / np.sqrt(c_best @ c_best)
     ca = np.cos(alpha)
-    cos_f = c_best.astype(np.float32) @ BT
+    x = c_best.astype(np.float32) @ BT
+    x -= np.float32(ca)  # cos θ − cos α
     # hard count in float32, pairs within 2e-6 of cos α (float32 rounding) settled in float64
-    edge = np.flatnonzero(np.abs(cos_f - np.float32(ca)) <= np.float32(2e-6))
-    visible = int(np.count_nonzero(cos_f > np.float32(ca + 2e-6)))
+    edge = np.flatnonzero(np.abs(x) <= np.float32(2e-6))
+    visible = int(np.count_nonzero(x > np.float32(2e-6)))
     visible += int(np.count_nonzero(B.take(edge, axis=0) @ c_best >= ca - 1e-12))
-    ks = ks_from_width(alpha, _width(alpha, opts))
-    # v(θ) is within e⁻¹⁰ of 0 or 1 further than 10/(k_s sin α) (in cos θ) from cos α: only the band between
-    # needs tanh, the landmarks above it count with their full weight
-    reach = 10.0 / (ks * max(np.sin(alpha), 1e-9))
-    lo = np.float32(np.cos(min(np.pi, alpha + reach)))
-    hi = np.float32(np.cos(alpha - reach) if alpha > reach else 2.0)
-    band = np.flatnonzero((cos_f >= lo) & (cos_f < hi))
-    x = cos_f.take(band)
-    x -= np.float32(ca)
-    x *= np.float32(0.5 * ks)
-    np.tanh(x, out=x)  # v = (1 + tanh) / 2, in float32 like the ascent
-    wb = w32.take(band)
-    f = 0.5 * float(wb.sum(dtype=np.float64) + x @ wb) + float(w32 @ (cos_f >= hi))
+    # F at α: v = (1 + tanh((k_s/2)(cos θ − cos α))) / 2, in float32 like the ascent
+    x *= np.float32(0.5 * ks_from_width(alpha, _width(alpha, opts)))
+    np.tanh(x, out=x)
+    f = 0.5 * float(w32.sum(dtype=np.float64) + x @ w32)
     return ViewResult(c_best, _frame(c_best), visible, f, iters)
 
 
 def _full_shift(
-    C: np.ndarray, BT: np.ndarray, w32: np.ndarray, alpha: float, opts: ViewOptions, uniform: bool
+    C: np.ndarray, BT: np.ndarray, w32: np.ndarray, alpha: float, shifts: int, reach_ratio: float, uniform: bool
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Mean-shift steps of the candidate axes C (K, 3) on all landmarks (float32 BT (3, n), weights w32 (n,)).
 
@@ -323,30 +364,23 @@ def _full_shift(
     bounds (K,): the weight within α(1 + reach_ratio) of each kept axis. ``uniform``: all weights equal.
     """
     cos_a = np.float32(np.cos(alpha))
-    cos_b = np.float32(np.cos(min(np.pi, alpha * (1.0 + opts.reach_ratio))))
+    cos_b = np.float32(np.cos(min(np.pi, alpha * (1.0 + reach_ratio))))
     C = C.astype(float)
     cos_c = C.astype(np.float32) @ BT  # (K, n)
-    inside = cos_c >= cos_a
-    axes, cos_rows, scores = [C], [cos_c], [_row_weights(inside, w32, uniform)]  # per position
-    for _ in range(opts.full_shift):
-        moved = (inside.astype(np.float32) if uniform else inside * w32) @ BT.T  # (K, 3) sums inside each cone
+    ins = np.greater_equal(cos_c, cos_a, out=np.empty_like(cos_c))  # 1.0 inside each cone
+    score = ins @ w32
+    for _ in range(shifts):
+        moved = (ins if uniform else ins * w32) @ BT.T  # (K, 3) weighted sums inside each cone
         nrm = np.sqrt(np.einsum("ij,ij->i", moved, moved))
         ok = nrm > 1e-12
-        C = np.where(ok[:, None], moved / np.where(ok, nrm, 1.0)[:, None], C).astype(float)
-        cos_c = C.astype(np.float32) @ BT
-        inside = cos_c >= cos_a
-        axes.append(C)
-        cos_rows.append(cos_c)
-        scores.append(_row_weights(inside, w32, uniform))
-    pick = np.argmax(np.array(scores), axis=0)  # (K,): the first position with the highest weight
-    rows = np.arange(C.shape[0])
-    best_C, best_score = np.array(axes)[pick, rows], np.array(scores)[pick, rows]
-    best_cos = cos_rows[0]
-    for p in range(1, len(cos_rows)):
-        moved_rows = pick == p
-        if moved_rows.any():
-            best_cos[moved_rows] = cos_rows[p][moved_rows]
-    return best_C, best_cos, best_score, _row_weights(best_cos >= cos_b, w32, uniform)
+        C1 = np.where(ok[:, None], moved / np.where(ok, nrm, 1.0)[:, None], C)
+        cos1 = C1.astype(np.float32) @ BT
+        ins = np.greater_equal(cos1, cos_a, out=np.empty_like(cos1))
+        s1 = ins @ w32
+        better = s1 > score  # each keeps the first position with the highest weight
+        if better.any():
+            C[better], cos_c[better], score[better] = C1[better], cos1[better], s1[better]
+    return C, cos_c, score, np.greater_equal(cos_c, cos_b, out=ins) @ w32
 
 
 def _row_weights(mask: np.ndarray, w32: np.ndarray, uniform: bool) -> np.ndarray:
@@ -354,7 +388,10 @@ def _row_weights(mask: np.ndarray, w32: np.ndarray, uniform: bool) -> np.ndarray
     the count times that weight: one count_nonzero per long row beats a (K, n) cast and product."""
     if not uniform or mask.shape[0] > 8:
         return mask @ w32
-    return np.array([np.count_nonzero(r) for r in mask], np.float32) * (w32[0] if w32.size else np.float32(1.0))
+    unit = w32[0] if w32.size else np.float32(1.0)
+    if mask.shape[0] == 1:
+        return np.array([np.count_nonzero(mask)], np.float32) * unit
+    return np.array([np.count_nonzero(r) for r in mask], np.float32) * unit
 
 
 def _widened(
@@ -409,7 +446,7 @@ def _unit_bearings(bearings: np.ndarray, weights: np.ndarray | None) -> tuple[np
         sq += BT[1] * BT[1]
         sq += BT[2] * BT[2]
     # one reduction decides the common case: every row unit (to float32 rounding) and finite
-    dev = float(np.max(np.abs(sq - np.float32(1.0)), initial=0.0))
+    dev = max(1.0 - float(sq.min()), float(sq.max()) - 1.0) if sq.size else 0.0  # NaN stays NaN
     if dev <= 1e-6:
         return B, BT, w
     if not math.isfinite(dev):  # NaN/inf (raises) or beyond float32's range: rescale in float64
@@ -445,7 +482,14 @@ def _width(alpha: float, opts: ViewOptions) -> float:
 
 
 def _refine(
-    BT: np.ndarray, w: np.ndarray, C: np.ndarray, cos_c: np.ndarray, alpha: float, opts: ViewOptions, uniform: bool
+    BT: np.ndarray,
+    w: np.ndarray,
+    C: np.ndarray,
+    cos_c: np.ndarray,
+    alpha: float,
+    opts: ViewOptions,
+    uniform: bool,
+    avoid: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int]:
     """Gradient ascent at α from each unit axis of C (K, 3) over float32 bearings BT (3, n) / weights w (n,),
     all K at once; ``cos_c`` (K, n) = C · k_j; ``uniform``: all weights equal. Returns the final axes (K, 3)
@@ -456,6 +500,8 @@ def _refine(
     any axis; the band is re-selected when an axis drifts further than ``drift_deg`` from where it was
     selected. The step exp((h Ĵ)^) R turns the axis about the unit tangent Ĵ ⟂ c:
     c ← cos h · c + sin h · (Ĵ × c), so only the axes are tracked (the roll does not change the objective).
+    An axis that comes within distinct_ratio · α of ``avoid`` (3,) (an axis already refined) stops there: it
+    is climbing a basin that was already explored.
     One iteration is a handful of numpy calls whatever K: (K, 4) @ (4, m) gives (k_s/2)(c · k_j − cos α)
     for every axis (the band carries a row of ones), then tanh, and v(1 − v) @ band for the ascent directions.
     """
@@ -489,6 +535,8 @@ def _refine(
     h = [h0] * K
     active = list(range(K))
     A, AwT = band(cos_c)
+    ax, ay, az = (0.0, 0.0, 0.0) if avoid is None else (float(v) for v in avoid)
+    cos_avoid = 2.0 if avoid is None else math.cos(opts.distinct_ratio * alpha)
     it = 0
     for it in range(1, opts.max_iterations + 1):  # noqa: B007
         if not active or A.shape[1] == 0:
@@ -516,8 +564,10 @@ def _refine(
             ch, sh = math.cos(hk), math.sin(hk)
             x, y, z = ch * x + sh * (uy * z - uz * y), ch * y + sh * (uz * x - ux * z), ch * z + sh * (ux * y - uy * x)
             nrm = math.sqrt(x * x + y * y + z * z)
-            xyz[k] = [x / nrm, y / nrm, z / nrm]
-            still.append(k)
+            x, y, z = x / nrm, y / nrm, z / nrm
+            xyz[k] = [x, y, z]
+            if x * ax + y * ay + z * az < cos_avoid:
+                still.append(k)
             r = ref[k]
             moved |= xyz[k][0] * r[0] + xyz[k][1] * r[1] + xyz[k][2] * r[2] < cos_drift
         active = still
@@ -527,44 +577,70 @@ def _refine(
     return np.array(xyz), it
 
 
-def cap_search(
+def _spiral(c: np.ndarray, radius: float, points: int, toward: np.ndarray) -> np.ndarray:
+    """``points`` unit directions (P, 3) spread evenly (a sunflower spiral, equal area per direction) over the
+    cap of angular ``radius`` [rad] around the unit axis ``c`` (3,); spacing ≈ radius · √(π / points). The
+    spiral's zero azimuth points along the tangent part of ``toward`` (3,) (a direction taken from the data,
+    so that a rotated scene gives the rotated spiral), or along c × e_z when that part vanishes."""
+    i = np.arange(points) + 0.5
+    r = radius * np.sqrt(i / points)  # polar radius
+    phi = i * (math.pi * (3.0 - math.sqrt(5.0)))
+    x, y, z = (float(v) for v in c)
+    gx, gy, gz = (float(v) for v in toward)
+    d = gx * x + gy * y + gz * z
+    tx, ty, tz = gx - d * x, gy - d * y, gz - d * z
+    nt = math.sqrt(tx * tx + ty * ty + tz * tz)
+    if nt <= 1e-6 * math.sqrt(gx * gx + gy * gy + gz * gz) or nt == 0.0:
+        tx, ty, tz = (y, -x, 0.0) if abs(z) < 0.9 else (0.0, z, -y)  # c × e_z or c × e_x
+        nt = math.sqrt(tx * tx + ty * ty + tz * tz)
+    tx, ty, tz = tx / nt, ty / nt, tz / nt
+    frame = np.array([[x, y, z], [tx, ty, tz], [y * tz - z * ty, z * tx - x * tz, x * ty - y * tx]])  # c, t1, c × t1
+    sr = np.sin(r)
+    local = np.stack([np.cos(r), sr * np.cos(phi), sr * np.sin(phi)], axis=1)
+    return local @ frame
+
+
+def local_search(
     c: np.ndarray,
     BT: np.ndarray,
     w: np.ndarray,
     alpha: float,
-    radius: float,
-    points: int,
     cos_c: np.ndarray,
-    uniform: bool = False,
+    radii: list[float],
+    points: list[int],
 ) -> np.ndarray:
-    """The direction with the highest hard visible weight among ``c`` (3,) and ``points`` directions spread
-    evenly (a sunflower spiral) over the cap of angular ``radius`` [rad] around it; ``c`` itself unless one
-    is strictly better.
+    """Coarse-to-fine search of the hard visible weight around ``c`` (3,): for each radius r_k [rad] of
+    ``radii`` (decreasing), ``points[k]`` directions on a spiral over the cap of radius r_k around the current
+    best (:func:`_spiral`); the best one replaces it when it sees strictly more. Returns the final axis.
 
-    BT (3, n) float32 unit bearings, w (n,) weights, ``cos_c`` (n,) = c · k_j. Only landmarks within
-    α ± radius of ``c`` can change the count; the others are counted once. On a flat landscape (the
-    sensor inside a dense cloud) the nearby maxima are shallow and many, too far apart for a local
-    search from one of them; the spiral's spacing ≈ radius · √(π/points) puts a direction near each.
+    BT (3, n) float32 unit bearings, w (n,) float32 weights, ``cos_c`` (n,) = c · k_j. The axis moves at
+    most Σ r_k, so only landmarks within α ± Σ r_k of ``c`` can change state: that band is taken once, and
+    each level counts only the part of it within α ± r_k of its centre. On a flat landscape (the sensor
+    inside a dense cloud) the maxima are shallow and many: the first, wide cap (a spacing of ≈ 2.35° with
+    32 directions over α/2 = 7.5°) puts a direction near each nearby one; the next levels only have to
+    close the gap between spiral directions (each radius above 0.6 × the previous level's spacing, the
+    farthest any point of a cap is from its nearest spiral direction).
     """
-    band = _edge_band(BT, w, cos_c, alpha, radius)
+    band = _edge_band(BT, w, cos_c, alpha, float(sum(radii)))
     if band is None:
         return c
-    bandT, wb = band
+    bT, wb = band
+    toward = (bT @ wb).astype(float)  # the band's weighted mean bearing orients every spiral
     cos_a = np.float32(np.cos(alpha) - 1e-7)
-    i = np.arange(points) + 0.5
-    r = radius * np.sqrt(i / points)[:, None]  # (P, 1) polar radius: equal area per direction
-    phi = (i * (math.pi * (3.0 - math.sqrt(5.0))))[:, None]
-    x, y, z = (float(v) for v in c)
-    tx, ty, tz = (y, -x, 0.0) if abs(z) < 0.9 else (0.0, z, -y)  # c × e_z or c × e_x
-    nt = math.sqrt(tx * tx + ty * ty + tz * tz)
-    t1 = np.array([tx / nt, ty / nt, tz / nt])
-    t2 = np.cross(c, t1)
-    cand = np.cos(r) * c + np.sin(r) * (np.cos(phi) * t1 + np.sin(phi) * t2)  # (P, 3)
-    inside = cand.astype(np.float32) @ bandT  # (P, m)
-    vals = np.greater_equal(inside, cos_a, out=inside) @ wb  # 1.0 inside the cone
-    k = int(np.argmax(vals))
-    base = float(_row_weights(c.astype(np.float32)[None] @ bandT >= cos_a, wb, uniform)[0])
-    return cand[k] / np.sqrt(cand[k] @ cand[k]) if vals[k] > base else c
+    for r, p in zip(radii, points, strict=True):
+        cb = c.astype(np.float32) @ bT  # (m,)
+        lo, hi = np.float32(np.cos(min(np.pi, alpha + r))), np.float32(np.cos(max(0.0, alpha - r)))
+        sel = np.flatnonzero((cb >= lo) & (cb <= hi))
+        if sel.size == 0:
+            continue
+        lT, lw = bT.take(sel, axis=1), wb.take(sel)
+        cand = _spiral(c, r, p, toward)
+        inside = cand.astype(np.float32) @ lT  # (P, m')
+        vals = np.greater_equal(inside, cos_a, out=inside) @ lw  # 1.0 inside the cone
+        k = int(np.argmax(vals))
+        if vals[k] > float((cb.take(sel) >= cos_a) @ lw):
+            c = cand[k] / math.sqrt(float(cand[k] @ cand[k]))
+    return c
 
 
 def _edge_band(
@@ -578,50 +654,6 @@ def _edge_band(
     if sel.size == 0:
         return None
     return BT.take(sel, axis=1), w.take(sel).astype(np.float32)
-
-
-def polish_hard(
-    c: np.ndarray,
-    BT: np.ndarray,
-    w: np.ndarray,
-    alpha: float,
-    radius: float,
-    tol: float,
-    cos_c: np.ndarray,
-    uniform: bool = False,
-) -> np.ndarray:
-    """Pattern search on the hard visible weight around ``c``: evaluate 8 directions on each of the rings
-    radius, radius/2, …, ≥ tol [rad] at once, move to the best strict improvement, repeat (at most 4 moves).
-
-    BT (3, n) float32 unit bearings, w (n,) weights. The axis moves at most 4·radius, so only landmarks
-    within α ± 4.5·radius of ``c`` (``cos_c`` = c · k_j) can change the count: the others are counted
-    once. Float32 inside; the caller recounts exactly. ``uniform``: all weights equal (counts instead of sums).
-    """
-    band = _edge_band(BT, w, cos_c, alpha, 4.5 * radius)
-    if band is None:
-        return c
-    bandT, wb = band
-    cos_a = np.float32(np.cos(alpha) - 1e-7)
-    radii = [radius]
-    while radii[-1] * 0.5 >= tol:
-        radii.append(radii[-1] * 0.5)
-    r = np.repeat(radii, 8)[:, None]  # (8·rings, 1)
-    phi = np.tile(np.arange(8) * (math.pi / 4), len(radii))[:, None]
-    cos_r, sin_r, ca, sa = np.cos(r), np.sin(r), np.cos(phi), np.sin(phi)
-    best = float(_row_weights(c.astype(np.float32)[None] @ bandT >= cos_a, wb, uniform)[0])
-    for _ in range(4):
-        x, y, z = (float(v) for v in c)
-        tx, ty, tz = (y, -x, 0.0) if abs(z) < 0.9 else (0.0, z, -y)  # c × e_z or c × e_x
-        nt = math.sqrt(tx * tx + ty * ty + tz * tz)
-        t1 = np.array([tx / nt, ty / nt, tz / nt])
-        t2 = np.array([y * t1[2] - z * t1[1], z * t1[0] - x * t1[2], x * t1[1] - y * t1[0]])
-        cand = cos_r * c + sin_r * (ca * t1 + sa * t2)
-        vals = _row_weights(cand.astype(np.float32) @ bandT >= cos_a, wb, uniform)
-        k = int(np.argmax(vals))
-        if vals[k] <= best:
-            break
-        best, c = float(vals[k]), cand[k] / np.sqrt(cand[k] @ cand[k])
-    return c
 
 
 def schedule(alpha: float, start: float, stages: int) -> list[float]:
