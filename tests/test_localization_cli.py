@@ -52,3 +52,25 @@ def test_missing_optional_dependency_names_its_extra(monkeypatch, module, check,
     monkeypatch.setitem(sys.modules, module, None)  # makes `import module` raise ImportError
     with pytest.raises(InputError, match=extra.replace("[", r"\[").replace("]", r"\]")):
         check()
+
+
+def test_ablation_flags_change_the_daemon_config_and_bad_values_are_one_line_errors():
+    import argparse
+    import math
+
+    from pivotd.bench.localization import _settings, configure
+
+    parser = argparse.ArgumentParser()
+    configure(parser)
+    st = _settings(parser.parse_args(["--replan-on-waypoint", "--spread-cell-deg", "12", "--spread-saturation", "3",
+                                      "--lambda", "0.25"]))
+    pl = st.cfg.planner
+    assert pl.replan_on_waypoint and pl.spread_cell == pytest.approx(math.radians(12)) and pl.spread_saturation == 3
+    assert st.cfg.pivot.lam == 0.25
+    default = _settings(parser.parse_args([])).cfg
+    assert not default.planner.replan_on_waypoint and default.planner.spread_cell is None
+    assert _settings(parser.parse_args(["--spread-cell-deg", "0"])).cfg.planner.spread_cell is None
+    for bad, flag in ((["--spread-cell-deg", "200"], "--spread-cell-deg"),
+                      (["--spread-saturation", "0"], "--spread-saturation"), (["--lambda", "-1"], "--lambda")):
+        with pytest.raises(InputError, match=flag):
+            _settings(parser.parse_args(bad))

@@ -1,5 +1,6 @@
 """Whole runs: reproducible from the seed, and every policy's commanded stream inside the motion limits."""
 
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -78,3 +79,23 @@ def test_only_the_oracle_ignores_the_limits(rooms_world):
     traj = run_policy(rooms_world, make_policy(PolicyName.ORACLE, rooms_world, 0))
     assert traj.setpoints.shape[0] == 0  # no commanded stream: it teleports to its best view every frame
     assert traj.directions.shape == (traj.times.shape[0], 3)
+
+
+def test_event_driven_pivot_replans_once_per_waypoint_and_stays_within_the_limits(rooms_world):
+    cfg = replace(rooms_world.cfg, planner=replace(rooms_world.cfg.planner, replan_on_waypoint=True))
+    world = World(cfg, rooms_world.scene, rooms_world.camera)
+    ticks = make_policy(PolicyName.PIVOT, rooms_world, 0)
+    events = make_policy(PolicyName.PIVOT, world, 0)
+    t_ticks, t_events = run_policy(rooms_world, ticks), run_policy(world, events)
+    sc = rooms_world.scene
+    length = float(np.sum(np.linalg.norm(np.diff(sc.route, axis=0), axis=1)))
+    spacing = cfg.planner.waypoint_spacing
+    # 5 Hz: one replan per tick; on waypoints: one per spacing moved (or per max interval), plus the first
+    assert t_ticks.decisions == int(sc.duration * cfg.planner.replan_hz + 1e-9) + 1
+    most = math.ceil(length / spacing) + math.ceil(sc.duration / cfg.planner.replan_max_interval) + 1
+    assert t_events.decisions <= most
+    assert t_events.decisions < 0.5 * t_ticks.decisions
+    sp = t_events.setpoints
+    rep = setpoint_dynamics(sp[:, :2], t_events.dt, cfg.motion.pan, cfg.motion.tilt, rates=sp[:, 2:], resolution=0.0)
+    assert rep.worst_ratio <= 1.0 + 1e-6
+    assert np.ptp(sp[:, 0]) > np.radians(5.0)

@@ -44,6 +44,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     abl.add_argument("--no-distance-weights", action="store_true",
                      help="pivot.distance_weights: false (the optimizer weighs near and far landmarks alike)")
     abl.add_argument("--continuous-pan", action="store_true", help="a slip-ring gimbal: no pan limits")
+    abl.add_argument("--replan-on-waypoint", action="store_true",
+                     help="planner.replan_on_waypoint: true (replan once the robot moved a waypoint spacing)")
+    abl.add_argument("--spread-cell-deg", type=float, default=None, metavar="DEG",
+                     help="planner.spread_cell_deg (spread weights of the retained landmarks; 0: off)")
+    abl.add_argument("--spread-saturation", type=float, default=None, metavar="K", help="planner.spread_saturation")
+    abl.add_argument("--lambda", dest="lam", type=float, default=None, metavar="L", help="pivot.lambda (smoothness)")
     parser.add_argument("--json", metavar="FILE", help="write all results as JSON")
     parser.add_argument("--plot", metavar="FILE", help="routes coloured by success and success curves (PNG)")
     cam = parser.add_argument_group("camera")
@@ -88,6 +94,22 @@ def _settings(args: argparse.Namespace):
     cfg = load_config(args.config)
     if args.no_distance_weights:
         cfg = replace(cfg, pivot=replace(cfg.pivot, distance_weights=False))
+    planner = cfg.planner
+    if args.replan_on_waypoint:
+        planner = replace(planner, replan_on_waypoint=True)
+    if args.spread_cell_deg is not None:
+        if not 0.0 <= args.spread_cell_deg <= 180.0:
+            raise InputError(f"--spread-cell-deg: must be in [0, 180], got {args.spread_cell_deg}")
+        planner = replace(planner, spread_cell=math.radians(args.spread_cell_deg) if args.spread_cell_deg else None)
+    if args.spread_saturation is not None:
+        if not (math.isfinite(args.spread_saturation) and args.spread_saturation > 0):
+            raise InputError(f"--spread-saturation: must be > 0, got {args.spread_saturation}")
+        planner = replace(planner, spread_saturation=args.spread_saturation)
+    cfg = replace(cfg, planner=planner)
+    if args.lam is not None:
+        if not (math.isfinite(args.lam) and args.lam >= 0):
+            raise InputError(f"--lambda: must be ≥ 0, got {args.lam}")
+        cfg = replace(cfg, pivot=replace(cfg.pivot, lam=args.lam))
     if args.continuous_pan:
         cfg = replace(cfg, gimbal=replace(cfg.gimbal, limits=replace(cfg.gimbal.limits, continuous_pan=True)))
     return BenchSettings(scenes=scenes, policies=tuple(PolicyName(p) for p in names),
@@ -140,7 +162,11 @@ def run(args: argparse.Namespace) -> int:
         doc = {
             "command": "pivotd bench localization" + (" --quick" if args.quick else f" --seeds {len(st.seeds)}")
             + (" --no-distance-weights" if args.no_distance_weights else "")
-            + (" --continuous-pan" if args.continuous_pan else ""),
+            + (" --continuous-pan" if args.continuous_pan else "")
+            + (" --replan-on-waypoint" if args.replan_on_waypoint else "")
+            + ("" if args.spread_cell_deg is None else f" --spread-cell-deg {args.spread_cell_deg:g}")
+            + ("" if args.spread_saturation is None else f" --spread-saturation {args.spread_saturation:g}")
+            + ("" if args.lam is None else f" --lambda {args.lam:g}"),
             "seeds": list(st.seeds),
             "camera": asdict(st.camera),
             "config": str(args.config),

@@ -42,6 +42,7 @@ from pivotd.daemon.wiring import (
     build_control_loop,
     build_control_settings,
     build_gimbal,
+    build_replan_trigger,
     park_joints,
     return_large_frees_to_the_os,
 )
@@ -113,6 +114,8 @@ class Daemon:
         self._jitter: deque = deque(maxlen=5000)
         self._solve: deque = deque(maxlen=500)
         self._plans = 0
+        self._replan_trigger = build_replan_trigger(self.cfg)
+        self._inputs_generation = 0  # counts map layer replacements and worker restarts (inputs of a plan)
         self._reloads = 0
         self._reload_errors = 0
         self._needs_restart: tuple[str, ...] = ()  # changed settings that wait for a restart
@@ -165,6 +168,7 @@ class Daemon:
                 continue
             mult = float(getattr(self.cfg.map.layers, layer, 1.0))
             info = self.worker.set_layer(layer, lc, mult)
+            self._inputs_generation += 1
             self._bus_layers[layer] = lc
             log.info("map layer %r replaced from %s: %d points (map version %d)", layer, topic, len(lc), info.version)
 
@@ -206,8 +210,15 @@ class Daemon:
         if version != self._sent_path_version:
             self.worker.set_path(*(path or (None, None, 0)))
             self._sent_path_version = version
+        now = time.monotonic()
+        inputs = (version, self._inputs_generation)
+        if self.plan is None:
+            self._replan_trigger.reset()
+        if self._replan_trigger.due(now, pose.position, inputs) is None:
+            return  # the current plan stands (pivotd.daemon.replan_trigger)
         anchor = self.control.commanded_direction if self.control is not None else None
         plan = self.worker.replan(pose.position, pose.quat, anchor)
+        self._replan_trigger.planned(now, pose.position, inputs)
         self.plan = plan
         self._plans += 1
         self._solve.append(plan.solve_s)
@@ -233,6 +244,7 @@ class Daemon:
             log.error("planner worker restart failed: %s", exc)
             self._stop.wait(1.0)
             return
+        self._inputs_generation += 1
         for layer, lc in self._bus_layers.items():
             self.worker.set_layer(layer, lc, float(getattr(self.cfg.map.layers, layer, 1.0)))
         self._sent_path_version = -1
@@ -413,6 +425,7 @@ class Daemon:
                 self.control.reconfigure(build_control_settings(self.cfg), self.cfg.gimbal.mount)
         else:
             self.cfg = plan.config
+            self._replan_trigger = build_replan_trigger(self.cfg)
             self._needs_restart = plan.needs_restart
             self._reloads += 1
             log.info("reloaded %s: %d landmarks; applied: %s", self.config_path, info.landmarks,

@@ -42,6 +42,7 @@ from pivotd.maps.store import MapSnapshot
 from pivotd.pivot.constraints import PanTiltConstraint
 from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
 from pivotd.pivot.visibility import hard_count, in_cone
+from pivotd.pivot.weights import SpreadSettings, waypoint_spread_weights
 from pivotd.robot_path import Polyline, project_onto_polyline
 
 #: Most landmarks a plan reports as inside its first cone (:attr:`Plan.in_view`, shown as live markers).
@@ -125,6 +126,7 @@ class PlannerSettings:
     max_step: float | None = None
     max_path_offset: float = 3.0
     cold_polish: bool = False  # step-limited polish of cold starts (the warm replans after them do not polish)
+    spread: SpreadSettings | None = None  # per-waypoint spread weights of the retained landmarks (None: off)
 
     @property
     def alpha(self) -> float:
@@ -171,6 +173,7 @@ class RecedingHorizonPlanner:
         self.last_plan: Plan | None = None
         self._cache_key: tuple[int, int] | None = None
         self._cache: dict[int, np.ndarray] = {}
+        self._spread_cache: dict[int, np.ndarray] = {}
         self.unwind_target: np.ndarray | None = None  # world direction of an unwind slew under way
 
     def set_path(self, positions: np.ndarray | None, quats: np.ndarray | None, version: int) -> None:
@@ -224,7 +227,7 @@ class RecedingHorizonPlanner:
             return [np.zeros(0, np.int64) for _ in range(cams.shape[0])]
         key = (self._path_version, snapshot.version)
         if self._cache_key != key:
-            self._cache_key, self._cache = key, {}
+            self._cache_key, self._cache, self._spread_cache = key, {}, {}
         cached = {i: self._cache.get(round(float(s[i]) * 1e6)) for i in range(1, s.shape[0])}
         todo = [0] + [i for i, r in cached.items() if r is None]
         # the snapshot's rows are in a spatial order fixed by the landmarks (pivotd.maps.store.spatial_cell_order),
@@ -237,6 +240,22 @@ class RecedingHorizonPlanner:
             if r is not None:
                 out[i] = r
         self._cache = {round(float(s[i]) * 1e6): out[i] for i in range(1, s.shape[0])}
+        return out
+
+    def _spread_weights(self, snapshot: MapSnapshot, cams: np.ndarray, s: np.ndarray,
+                        retained: list[np.ndarray]) -> list[np.ndarray] | None:
+        """Spread weights (pivotd.pivot.weights) of each waypoint's retained landmarks (None when off); grid
+        waypoints reuse theirs while the path and map versions (the retained cache's key) hold."""
+        st = self.settings.spread
+        if st is None:
+            return None
+        keys = [round(float(x) * 1e6) for x in s]
+        out: list[np.ndarray | None] = [None if i == 0 else self._spread_cache.get(k) for i, k in enumerate(keys)]
+        todo = [i for i, w in enumerate(out) if w is None or w.shape[0] != retained[i].shape[0]]
+        fresh = waypoint_spread_weights(snapshot.points, cams[todo], [retained[i] for i in todo], st)
+        for i, w in zip(todo, fresh, strict=True):
+            out[i] = w
+        self._spread_cache = {k: out[i] for i, k in enumerate(keys) if i > 0}
         return out
 
     def _in_view(self, snapshot: MapSnapshot, cam: np.ndarray, direction: np.ndarray,
@@ -284,6 +303,7 @@ class RecedingHorizonPlanner:
             body_pos, quats = body_position[None, :], body_quat[None, :]
         cams = camera_positions(body_pos, quats, self.mount)
         retained = self._retained(snapshot, cams, s)
+        pair_weights = self._spread_weights(snapshot, cams, s, retained)
         init = self._warm_start(s, cams.shape[0])
         if init is None and anchor is not None:
             init = np.repeat(np.asarray(anchor, float)[None, :], cams.shape[0], axis=0)
@@ -302,6 +322,7 @@ class RecedingHorizonPlanner:
             constraint=self._constraint(quats),
             max_step=st.max_step,
             options=st.options if st.cold_polish else replace(st.options or TrajectoryOptions(), step_polish_deg=0.0),
+            pair_weights=pair_weights,
         )
         directions, visible, pans = self._joint_plan(snapshot, cams, retained, quats, result.directions,
                                                      np.asarray(result.visible), anchor)

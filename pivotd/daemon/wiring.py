@@ -16,6 +16,7 @@ from pivotd.config import Config
 from pivotd.config.settings import wire_config
 from pivotd.daemon.control import ControlLoop, ControlSettings
 from pivotd.daemon.planner import PlannerSettings, RecedingHorizonPlanner
+from pivotd.daemon.replan_trigger import ReplanTrigger
 from pivotd.errors import ConfigError
 from pivotd.gimbal.dynamixel_link import DynamixelGimbal, DynamixelSettings
 from pivotd.gimbal.interface import GimbalInterface
@@ -25,6 +26,7 @@ from pivotd.gimbal.motion import MotionGenerator
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapStore, load_map_store
 from pivotd.pivot.trajectory import TrajectoryOptions
+from pivotd.pivot.weights import SpreadSettings
 
 
 def build_retained_filter(cfg: Config) -> RetainedFilter:
@@ -93,11 +95,20 @@ def build_planner(cfg: Config) -> RecedingHorizonPlanner:
         max_step=pl.max_step,
         max_path_offset=pl.max_path_offset,
         retained_filter=build_retained_filter(cfg),
+        spread=None if pl.spread_cell is None else SpreadSettings(pl.spread_cell, pl.spread_depth_ratio,
+                                                                  pl.spread_saturation),
         options=TrajectoryOptions(width_deg=math.degrees(p.transition_width), max_iterations=p.iterations,
                                   warm_iterations=min(p.iterations, TrajectoryOptions.warm_iterations),
                                   distance_weights=p.distance_weights),
     )
     return RecedingHorizonPlanner(settings, cfg.gimbal.mount, cfg.gimbal.limits)
+
+
+def build_replan_trigger(cfg: Config) -> ReplanTrigger:
+    """When to replan (``planner.replan_on_waypoint``: once the body moved one waypoint spacing, at least every
+    ``replan_max_interval_s``; otherwise at every tick of ``replan_hz``)."""
+    pl = cfg.planner
+    return ReplanTrigger(pl.waypoint_spacing if pl.replan_on_waypoint else None, pl.replan_max_interval)
 
 
 def build_link_config(cfg: Config) -> LinkConfig:
@@ -118,9 +129,12 @@ def build_control_loop(cfg: Config, link: GimbalInterface, clock: Callable[[], f
 
 
 def build_control_settings(cfg: Config) -> ControlSettings:
-    """The control tick's timing: rate, stale-pose and stale-plan timeouts (ten replanning periods, ≥ 1 s)."""
+    """The control tick's timing: rate, stale-pose and stale-plan timeouts (ten replanning periods, ≥ 1 s, and
+    with event-driven replanning at least twice its longest interval)."""
+    pl = cfg.planner
+    longest = 2.0 * pl.replan_max_interval if pl.replan_on_waypoint else 0.0
     return ControlSettings(rate_hz=cfg.control.rate_hz, pose_timeout=cfg.control.pose_timeout_s,
-                           plan_timeout=max(1.0, 10.0 / cfg.planner.replan_hz))
+                           plan_timeout=max(1.0, 10.0 / pl.replan_hz, longest))
 
 
 def build_mavlink_settings(cfg: Config) -> MavlinkSettings:

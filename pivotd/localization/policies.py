@@ -25,7 +25,7 @@ import numpy as np
 from pivotd.geometry import pan_tilt_to_direction
 from pivotd.localization.camera import camera_rotation, in_view_counts
 from pivotd.localization.fisher import best_view
-from pivotd.localization.stack import Plan, PoseSample, base_from_world, build_planner
+from pivotd.localization.stack import Plan, PoseSample, base_from_world, build_planner, build_replan_trigger
 from pivotd.localization.world import World
 
 FISHER_GRID_DEG = 10.0  # pan × tilt step of the Fisher-information baseline
@@ -75,11 +75,26 @@ class PivotPolicy(Policy):
 
     def __post_init__(self) -> None:
         self.planner = build_planner(self.world.cfg)
+        self.trigger = build_replan_trigger(self.world.cfg)
+        self.replans = 0
+        self._plan: Plan | None = None
         sc = self.world.scene
         self.planner.set_path(sc.route, sc.route_quats, 1)
 
     def update(self, t: float, pose: PoseSample, commanded: np.ndarray | None) -> Command:
-        return self.planner.replan(self.world.store.snapshot(), pose.position, pose.quat, commanded)
+        """A new plan when the daemon's replan trigger says so (pivotd.daemon.replan_trigger), else the last one."""
+        snapshot = self.world.store.snapshot()
+        inputs = (1, snapshot.version)
+        if self._plan is not None and self.trigger.due(t, pose.position, inputs) is None:
+            return self._plan
+        self._plan = self.planner.replan(snapshot, pose.position, pose.quat, commanded)
+        self.trigger.planned(t, pose.position, inputs)
+        self.replans += 1
+        return self._plan
+
+    def decisions(self, calls: int) -> int:
+        """The replans made."""
+        return self.replans
 
 
 def joint_grid(limits, step_deg: float) -> tuple[np.ndarray, np.ndarray]:

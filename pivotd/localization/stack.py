@@ -11,7 +11,7 @@ from pivotd.bus.messages import PoseSample
 from pivotd.config import Config, load_config
 from pivotd.daemon.control import ControlLoop
 from pivotd.daemon.planner import Plan, RecedingHorizonPlanner
-from pivotd.daemon.wiring import build_control_loop, build_planner
+from pivotd.daemon.wiring import build_control_loop, build_planner, build_replan_trigger
 from pivotd.gimbal.kinematics import (
     JointLimits,
     Mount,
@@ -47,6 +47,7 @@ __all__ = [
     "base_from_world",
     "build_control_loop",
     "build_planner",
+    "build_replan_trigger",
     "camera_position",
     "joints_to_world_direction",
     "load_config",

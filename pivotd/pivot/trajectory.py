@@ -249,7 +249,8 @@ class _Pairs:
 
 
 def _gather_pairs(
-    points: np.ndarray, weights: np.ndarray | None, retained: Sequence[np.ndarray], N: int
+    points: np.ndarray, weights: np.ndarray | None, retained: Sequence[np.ndarray], N: int,
+    pair_weights: Sequence[np.ndarray] | None = None,
 ) -> _Pairs:
     """The retained pairs only, gathered once from the map in retained order (:class:`_Pairs`).
 
@@ -295,6 +296,15 @@ def _gather_pairs(
         if not (np.isfinite(fw).all() and (fw >= 0).all()):
             feature_weights(fw, flat.size, rows=flat)  # raises, naming the row in the map
         fw = fw.reshape(N, L)
+    if pair_weights is not None:  # per-waypoint factors aligned with retained (e.g. pivotd.pivot.weights)
+        if len(pair_weights) != N:
+            raise ValueError(f"pair_weights must have one array per waypoint ({N}), got {len(pair_weights)}")
+        fw = fw.astype(np.float64)
+        for i, pw in enumerate(pair_weights):
+            pw = np.asarray(pw, dtype=float).ravel()
+            if pw.shape != (lens[i],) or not (np.isfinite(pw).all() and (pw >= 0).all()):
+                raise ValueError(f"pair_weights[{i}] must hold {lens[i]} finite weights ≥ 0")
+            fw[i, : lens[i]] *= pw
     fw[np.arange(L)[None, :] >= lens[:, None]] = 0.0
     return _Pairs(P.reshape(N, L, 3), fw, lens)
 
@@ -434,6 +444,7 @@ def optimize_trajectory(
     constraint: PanTiltConstraint | None = None,
     max_step: float | None = None,
     options: TrajectoryOptions | None = None,
+    pair_weights: Sequence[np.ndarray] | None = None,
 ) -> TrajectoryResult:
     """Optimise viewing directions for landmarks ``points`` (M, 3) [m] along ``waypoints`` (N, 3) [m].
 
@@ -442,8 +453,10 @@ def optimize_trajectory(
     those landmarks are read, so the cost does not depend on the map's size; ``init_directions``
     (N, 3): warm start (no multi-start, no FoV widening unless configured) — None starts from the
     chain initialisation; ``anchor`` (3,): a fixed direction just before waypoint 0 (adds λ anchor·c_0);
-    ``constraint``: pan/tilt limits enforced at every step; ``max_step`` [rad]: a hard limit on the
-    angle between consecutive directions (and from the anchor), guaranteed (pivotd.pivot.steps).
+    ``pair_weights``: with ``retained``, one array (n_i,) ≥ 0 per waypoint multiplying the feature weights of
+    its retained landmarks (pivotd.pivot.weights); ``constraint``: pan/tilt limits enforced at every step;
+    ``max_step`` [rad]: a hard limit on the angle between consecutive directions (and from the anchor),
+    guaranteed (pivotd.pivot.steps).
     λ = 0 (or a single waypoint without ``anchor``) without ``constraint`` and ``max_step`` solves each
     waypoint with :func:`pivotd.pivot.view.optimize_view`. Landmarks coinciding with a waypoint are ignored there.
     Raises ValueError on NaN/inf or bad shapes.
@@ -462,6 +475,8 @@ def optimize_trajectory(
     if N == 0:
         raise ValueError("waypoints is empty")
     if retained is None:
+        if pair_weights is not None:
+            raise ValueError("pair_weights needs retained (one weight per retained landmark)")
         P = finite_array("points", points)
         fw = feature_weights(weights, P.shape[0])
         if P.shape[0] > 1:  # every landmark is used: lay them out along a space-filling curve (spatial_order)
@@ -469,7 +484,7 @@ def optimize_trajectory(
             P, fw = P[order], fw[order]
         pairs = None
     else:
-        pairs = _gather_pairs(points, weights, retained, N)
+        pairs = _gather_pairs(points, weights, retained, N, pair_weights)
     if constraint is not None and len(constraint) != N:
         raise ValueError(f"constraint has {len(constraint)} waypoints, the path has {N}")
     a_vec = None if anchor is None else unit_vector("anchor", anchor)
