@@ -241,6 +241,7 @@ class SetpointCheck:
     setpoints: int = 0
     checked_pairs: int = 0
     restarts: int = 0  # segments judged from a measured state after the device reported a stop
+    restarted_steps: int = 0  # of those, pairs that were a step from the previous setpoint (late frames before)
     beyond_position: int = 0
     beyond_velocity: int = 0
     beyond_acceleration: int = 0
@@ -349,6 +350,7 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                               and (jerk is None or np.all(np.abs(jerk) <= jmax + allow_j)))
                 if not continuous and restarted is not None:  # judged from the measured state it starts at
                     acc, jerk = restarted, restarted / dt
+                    out.restarted_steps += 1
                 out.checked_pairs += 1
                 out.worst["acceleration"] = max(out.worst["acceleration"], float(np.max(np.abs(acc) / amax)))
                 out.beyond_acceleration += int(np.any(np.abs(acc) > amax + allow_a))
@@ -619,6 +621,7 @@ def summarise(stack: SoakStack, events: list[dict], warmup: float, exit_code: in
     return {
         "events": len(events),
         "setpoints": check.setpoints, "checked_pairs": check.checked_pairs,
+        "restarts": check.restarts, "restarted_steps": check.restarted_steps,
         "setpoints_beyond_limits": check.beyond_limits,
         "beyond": {"position": check.beyond_position, "velocity": check.beyond_velocity,
                    "acceleration": check.beyond_acceleration, "jerk": check.beyond_jerk},
@@ -745,6 +748,8 @@ def _print_soak(r: dict) -> None:
           f"({r['checked_pairs']} consecutive pairs checked for acceleration and jerk)")
     print(f"  setpoints beyond limits: {r['setpoints_beyond_limits']} {r['beyond']}; worst ratio to limit "
           f"{r['worst_ratio_to_limit']}")
+    print(f"  restarts after the device stopped, judged from its measured state: {r['restarts']} "
+          f"({r['restarted_steps']} of them after late setpoints of the old stream)")
     print(f"  tracebacks in the daemon log: {r['tracebacks']} {r['traceback_lines'] or ''}")
     print(f"  RSS after {r['warmup_s']:g} s warm-up: {rss.get('baseline_mb')} -> {rss.get('final_mb')} MB "
           f"(growth {rss.get('growth')}, max {rss.get('max_mb')} MB, {rss['samples']} samples)")
