@@ -179,6 +179,27 @@ def parse_fault_at(text: str) -> tuple[float, int]:
     return out
 
 
+def add_fault_arguments(p: argparse.ArgumentParser, unit: str = "frame", fault_bit: str = "latch fault BIT",
+                        disconnect: str = "close the port", reconnect: str = "reopen the port",
+                        corrupt: bool = True, latency: str = "one-way delivery delay [ms]") -> None:
+    """Declare the fault-injection options every device simulator shares (read back by
+    :func:`parse_simulator_args`): ``--drop``, ``--corrupt`` (when the medium has bit flips), ``--latency-ms``,
+    ``--seed``, ``--fault-at``, ``--disconnect-after``, ``--from-first-frame``, ``--reconnect-after``. The words
+    name the simulator's own unit of transfer (``unit``), what a fault bit does, and what a disconnect is."""
+    p.add_argument("--drop", type=float, default=0.0, help=f"probability of losing each {unit} (both directions)")
+    if corrupt:
+        p.add_argument("--corrupt", type=float, default=0.0, help=f"probability of one bit flip in each {unit}")
+    p.add_argument("--latency-ms", type=float, default=0.0, help=latency)
+    p.add_argument("--seed", type=int, default=None, help="random seed of the fault injection")
+    p.add_argument("--fault-at", type=parse_fault_at, action="append", default=[], metavar="SECONDS:BIT",
+                   help=f"{fault_bit} at SECONDS after start (repeatable)")
+    p.add_argument("--disconnect-after", type=float, metavar="SECONDS", help=f"{disconnect} after SECONDS")
+    p.add_argument("--from-first-frame", action="store_true",
+                   help=f"count --fault-at and --disconnect-after from the host's first {unit}, not from start")
+    p.add_argument("--reconnect-after", type=float, metavar="SECONDS",
+                   help=f"{reconnect} SECONDS after the disconnect")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="mock_gimbal", description="Gimbal simulator speaking the pivotd serial protocol.")
     where = p.add_mutually_exclusive_group()
@@ -187,17 +208,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--baudrate", type=int, default=115200)
     p.add_argument("--link", metavar="PATH", help="pty mode: keep a symlink at PATH pointing to the current pty")
     p.add_argument("--state-hz", type=float, default=50.0, help="STATE rate [Hz] (default 50)")
-    p.add_argument("--drop", type=float, default=0.0, help="probability of losing each frame (both directions)")
-    p.add_argument("--corrupt", type=float, default=0.0, help="probability of one bit flip in each frame")
-    p.add_argument("--latency-ms", type=float, default=0.0, help="one-way delivery delay [ms]")
-    p.add_argument("--seed", type=int, default=None, help="random seed of the fault injection")
-    p.add_argument("--fault-at", type=parse_fault_at, action="append", default=[], metavar="SECONDS:BIT",
-                   help="latch fault BIT at SECONDS after start (repeatable)")
-    p.add_argument("--disconnect-after", type=float, metavar="SECONDS", help="close the port after SECONDS")
-    p.add_argument("--from-first-frame", action="store_true",
-                   help="count --fault-at and --disconnect-after from the host's first frame, not from start")
-    p.add_argument("--reconnect-after", type=float, metavar="SECONDS",
-                   help="reopen the port SECONDS after the disconnect")
+    add_fault_arguments(p)
     p.add_argument("--protocol-version", type=int, default=1, help="protocol version the device speaks")
     p.add_argument("--log", metavar="FILE", help="CSV log of every received and emitted message")
     p.add_argument("-v", "--verbose", action="store_true")
@@ -217,9 +228,8 @@ def make_transport(args: argparse.Namespace) -> PtyTransport | TcpTransport | Se
 
 def parse_simulator_args(parser: argparse.ArgumentParser,
                          argv: list[str] | None) -> tuple[argparse.Namespace, FaultInjector]:
-    """Parse the options every device simulator shares (``--verbose``, ``--state-hz``, ``--drop``,
-    ``--latency-ms``, ``--seed``, ``--disconnect-after``/``--reconnect-after``, ``--corrupt`` where the
-    parser has it), set up logging on stderr and build the fault injector; bad values exit through
+    """Parse the options every device simulator shares (``--verbose``, ``--state-hz`` and those of
+    :func:`add_fault_arguments`), set up logging on stderr and build the fault injector; bad values exit through
     ``parser.error``."""
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, stream=sys.stderr,

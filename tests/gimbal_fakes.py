@@ -43,9 +43,10 @@ class FakeGimbal:
         if self.link_state != LinkState.UP:
             return None
         self.setpoints.append((pan, tilt, pan_rate, tilt_rate))
+        seq = len(self.setpoints) & 0xFF  # the wire's 8-bit sequence number, echoed in the state
         self.state = replace(self.state, pan=pan, tilt=tilt, pan_rate=pan_rate, tilt_rate=tilt_rate,
-                             rx_time=self.clock())
-        return len(self.setpoints)
+                             last_setpoint_seq=seq, rx_time=self.clock())
+        return seq
 
     def send_heartbeat(self) -> None:
         self.heartbeats += 1

@@ -70,6 +70,35 @@ def sessions():
         yield a, b
 
 
+def test_a_large_payload_dropped_or_decoded_is_reported_once_for_the_memory_release(sessions):
+    """The daemon gives freed heap back to the OS after a large payload: the bus says when one was seen (too large
+    and dropped, or decoded), once, and not for small messages."""
+    from pivotd.bus.pivot_bus import LARGE_PAYLOAD_BYTES
+
+    got = queue.Queue()
+    bus = PivotBus(sessions[0], BusTopics(max_path_bytes=2 * LARGE_PAYLOAD_BYTES), on_path=got.put)
+    remote = ros.RosNode(sessions[1], "remote", node_id=int(time.monotonic_ns() % 1000) + 1000)
+    try:
+        plan = remote.publisher("/plan", m.PATH)
+        assert wait_for(plan.matched)
+
+        def put(payload):
+            sessions[1].put(plan.key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+
+        put(m.encode_path(0.0, "map", [[0, 0, 0], [1, 0, 0]]))
+        assert got.get(timeout=30).positions.shape == (2, 3)
+        assert not bus.large_payload_seen()
+        put(large_path(int(1.5 * LARGE_PAYLOAD_BYTES)))  # decoded
+        assert got.get(timeout=30).positions.shape[0] > 10_000
+        assert bus.large_payload_seen() and not bus.large_payload_seen()
+        put(large_path(3 * LARGE_PAYLOAD_BYTES))  # too large: dropped before decoding
+        assert wait_for(lambda: bus.counters()["/plan"].get("dropped_too_large") == 1, timeout=30)
+        assert bus.large_payload_seen() and not bus.large_payload_seen()
+    finally:
+        remote.close()
+        bus.close()
+
+
 def test_oversize_and_field_heavy_messages_are_dropped_before_decoding(sessions):
     events = queue.Queue()
     bus = PivotBus(sessions[0], BusTopics(max_path_bytes=64 * 1024, max_pose_bytes=1024),

@@ -87,3 +87,53 @@ def test_peer_listens_on_loopback_only_by_default():
     assert json.loads(cfg.get_json("listen/endpoints")) == ["tcp/127.0.0.1:0"]
     cfg = build_config(mode="peer", listen=["tcp/0.0.0.0:7448"])
     assert json.loads(cfg.get_json("listen/endpoints")) == ["tcp/0.0.0.0:7448"]
+
+
+_SHM_SENDER = """
+import sys, time, json, zenoh
+c = zenoh.Config()  # Zenoh's defaults: shared memory on, large messages handed over in a 16 MiB pool
+c.insert_json5("mode", '"peer"')
+c.insert_json5("connect/endpoints", json.dumps([sys.argv[1]]))
+c.insert_json5("scouting/multicast/enabled", "false")
+s = zenoh.open(c)
+pub = s.declare_publisher("shm/test")
+payload = bytes(1 << 20)
+for _ in range(100):
+    pub.put(payload)
+    time.sleep(0.1)
+"""
+
+
+def _zenoh_shm_mappings() -> list[str]:
+    with open("/proc/self/maps") as fh:
+        return [line.split()[-1] for line in fh if line.rstrip().endswith(".zenoh")]
+
+
+@pytest.mark.parametrize("shared_memory", [False, True])
+def test_large_messages_from_a_local_peer_do_not_map_its_shared_memory(tmp_path, shared_memory):
+    """A peer on the same host with Zenoh's defaults puts 1 MiB messages. Our session has shared memory off, so they
+    arrive over the link and the peer's 16 MiB pool is never mapped into this process (where it counted as the
+    daemon's resident memory: +16 MB the first time a large path arrived). Turned back on, the pool is mapped."""
+    import subprocess
+    import sys
+
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    before = set(_zenoh_shm_mappings())
+    config = build_config(listen=[ep])
+    if shared_memory:
+        config.insert_json5("transport/shared_memory/enabled", "true")
+    import zenoh
+
+    session = zenoh.open(config)
+    got: queue.Queue = queue.Queue()
+    sub = session.declare_subscriber("shm/test", lambda sample: got.put(len(sample.payload)))
+    sender = subprocess.Popen([sys.executable, "-c", _SHM_SENDER, ep])
+    try:
+        assert got.get(timeout=30.0) == 1 << 20
+        got.get(timeout=10.0)
+        assert bool(set(_zenoh_shm_mappings()) - before) == shared_memory
+    finally:
+        sender.kill()
+        sender.wait()
+        sub.undeclare()
+        session.close()

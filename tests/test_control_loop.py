@@ -168,12 +168,15 @@ class LaggingGimbal(FakeGimbal):
         if self.link_state != LinkState.UP:
             return None
         self.setpoints.append((pan, tilt, pan_rate, tilt_rate))
+        seq = len(self.setpoints) & 0xFF
         if self.frozen:
-            return len(self.setpoints)
-        old = self.setpoints[max(0, len(self.setpoints) - 1 - self.delay)]
+            return seq
+        k = max(0, len(self.setpoints) - 1 - self.delay)
+        old = self.setpoints[k]
         self.state = replace(self.state, pan=old[0], tilt=old[1], pan_rate=old[2], tilt_rate=old[3],
-                             mode=GimbalMode.ENABLED, faults=0, rx_time=self.clock())
-        return len(self.setpoints)
+                             mode=GimbalMode.ENABLED, faults=0, last_setpoint_seq=(k + 1) & 0xFF,
+                             rx_time=self.clock())
+        return seq
 
 
 @pytest.fixture
@@ -277,6 +280,82 @@ def test_late_states_of_the_same_watchdog_hold_do_not_restart_the_stream_again(l
     _run(loop, clock, 20, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
     assert loop.restarts == restarts + 1
     _assert_jerk_limited(cfg, np.vstack([[0.0, 0.0], np.array(gimbal.setpoints[n:])[:, 2:]]), dt)
+
+
+def test_a_hold_reported_late_from_before_the_restarted_stream_does_not_restart_it_again(lag_rig):
+    """The loop stalls; the device's watchdog holds it. On the loaded host the states of the stall are processed
+    late: a state from just before the hold comes first (the stream restarts from it), then the hold itself. The
+    hold echoes a setpoint from before the restarted stream: the device holds on the old stream, and the restarted
+    one resumes it. Restarting a second time, from the hold, stepped the stream's jerk by 2.9x its limit (soak)."""
+    cfg, clock, gimbal, loop = lag_rig
+    dt = cfg.control.dt
+    _run(loop, clock, 40, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    last_old_seq = len(gimbal.setpoints) & 0xFF
+    before = gimbal.state
+    gimbal.frozen = True  # the device receives the stream, but no state of it reaches the host for a while
+    clock.t += 2 * loop.settings.stall_s
+    assert _run(loop, clock, 1, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))[0].setpoint is None
+    gimbal.state = replace(before, rx_time=clock.t)  # measured before the hold, received after the stall
+    n, restarts = len(gimbal.setpoints), loop.restarts
+    _run(loop, clock, 2, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert loop.restarts == restarts + 1
+    gimbal.state = replace(before, pan_rate=0.8 * before.pan_rate, tilt_rate=0.8 * before.tilt_rate,
+                           mode=GimbalMode.HOLDING, faults=1 << 4, last_setpoint_seq=last_old_seq, rx_time=clock.t)
+    _run(loop, clock, 2, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    gimbal.frozen = False
+    _run(loop, clock, 20, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert loop.restarts == restarts + 1
+    start = [[before.pan_rate, before.tilt_rate]]
+    _assert_jerk_limited(cfg, np.vstack([start, start, np.array(gimbal.setpoints[n:])[:, 2:]]), dt)
+
+
+def test_a_hold_on_the_restarted_stream_restarts_it(lag_rig):
+    """The counterpart: a hold that echoes a setpoint of the current stream is a new interruption."""
+    _, clock, gimbal, loop = lag_rig
+    _run(loop, clock, 40, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    restarts = loop.restarts
+    gimbal.state = replace(gimbal.state, pan_rate=0.0, tilt_rate=0.0, mode=GimbalMode.HOLDING, faults=1 << 4,
+                           rx_time=clock.t)
+    gimbal.frozen = True
+    _run(loop, clock, 2, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert loop.restarts == restarts + 1
+
+
+class StallingClock(FakeClock):
+    """A fake clock that jumps by ``jump`` seconds at its next reading (the thread held up inside a tick)."""
+
+    jump = 0.0
+
+    def __call__(self) -> float:
+        self.t, self.jump = self.t + self.jump, 0.0
+        return self.t
+
+
+def test_a_setpoint_held_up_past_stall_s_before_sending_is_not_sent_and_the_stream_restarts():
+    """The thread is held up between computing a setpoint and sending it, longer than the device's watchdog: the
+    device held meanwhile. Sending the setpoint would resume it with the old stream's rate (a 3x acceleration step
+    in the soak); instead the stream restarts from the held state."""
+    cfg = load_config(REPO / "config" / "demo.yaml")
+    clock = StallingClock()
+    gimbal = LaggingGimbal(clock)
+    loop = build_control_loop(cfg, gimbal, clock=clock)
+    dt = cfg.control.dt
+    _run(loop, clock, 40, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert abs(gimbal.setpoints[-1][2]) > 0.3
+    n = len(gimbal.setpoints)
+    clock.jump = 1.5 * loop.settings.stall_s
+    held_up = _run(loop, clock, 1, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert held_up[0].setpoint is None and len(gimbal.setpoints) == n
+    # The next tick sees the gap as well and waits for a state measured from now on (none came yet).
+    assert _run(loop, clock, 1, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))[0].setpoint is None
+    rest = (gimbal.state.pan, gimbal.state.tilt)
+    gimbal.state = replace(gimbal.state, pan_rate=0.0, tilt_rate=0.0, mode=GimbalMode.HOLDING, faults=1 << 4,
+                           rx_time=clock.t)
+    _run(loop, clock, 30, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    resumed = np.array(gimbal.setpoints[n:])
+    amax, _ = _limits(cfg)
+    assert np.all(np.abs(resumed[0, :2] - rest) <= amax * dt * dt + 1e-9)
+    _assert_jerk_limited(cfg, np.vstack([[0.0, 0.0], resumed[:, 2:]]), dt)
 
 
 def test_disabled_device_gets_no_setpoints_and_the_stream_starts_where_it_stands_once_enabled(lag_rig):

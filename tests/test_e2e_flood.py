@@ -11,9 +11,10 @@ import pytest
 
 from pivotd.bench.flood import run_phase, watchdog_trips
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
+pytestmark = [pytest.mark.timeout(240)]
 
 
+@pytest.mark.slow
 def test_flooded_daemon_keeps_control_counts_the_drops_and_parks_on_sigterm(tmp_path):
     # a generous park timeout: on a loaded machine the park move itself may need more than the default 3 s
     r = run_phase("flood", seconds=5.0, flood_mb=8.0, tmp=tmp_path, forged_poses=4,
@@ -41,3 +42,18 @@ def test_watchdog_trips_count_rising_edges_inside_the_window():
     assert watchdog_trips(faults) == 2
     assert watchdog_trips(faults, np.array([True, True, True, True, False, False, False])) == 1
     assert watchdog_trips(np.array([FAULT_WATCHDOG, 0])) == 1
+
+
+def test_spawn_runs_another_checkout_first_on_the_path(tmp_path):
+    """``--flood-compare-with``: the other checkout's packages are imported, from its own directory."""
+    import sys
+
+    from pivotd.sim.launch import spawn
+
+    other = tmp_path / "other"
+    (other / "pivotd").mkdir(parents=True)
+    (other / "pivotd" / "__init__.py").write_text("WHERE = 'other checkout'\n")
+    proc = spawn([sys.executable, "-c", "import os, pivotd; print(pivotd.WHERE, os.getcwd())"], tmp_path / "out.log",
+                 other)
+    assert proc.wait(timeout=60) == 0
+    assert (tmp_path / "out.log").read_text().split() == ["other", "checkout", str(other)]

@@ -134,3 +134,23 @@ def test_from_first_frame_counts_faults_and_disconnect_from_the_hosts_first_fram
     assert len(quiet) >= 20 and all(s.faults == 0 for s in quiet)
     states = [f.msg for f in spoken if isinstance(f.msg, State)]
     assert states and states[-1].mode == MODE_FAULT and states[-1].faults == FAULT_ENCODER
+
+
+@pytest.mark.parametrize("module", ["firmware_proto.mock_server", "pivotd.sim.mavlink_server",
+                                    "pivotd.sim.dynamixel_server"])
+def test_every_simulator_takes_the_shared_fault_options(module):
+    """The three device simulators declare their fault injection once (add_fault_arguments) and parse it alike."""
+    import importlib
+
+    from firmware_proto.mock_server import parse_simulator_args
+
+    build = importlib.import_module(module).build_parser
+    args, injector = parse_simulator_args(build(), ["--drop", "0.1", "--latency-ms", "5", "--seed", "3",
+                                                    "--fault-at", "1.5:2", "--disconnect-after", "2",
+                                                    "--reconnect-after", "1", "--from-first-frame"])
+    assert (injector.drop, injector.latency_s) == (0.1, 0.005)
+    assert args.fault_at == [(1.5, 2)] and args.from_first_frame and args.reconnect_after == 1.0
+    with pytest.raises(SystemExit):
+        parse_simulator_args(build(), ["--drop", "1.5"])
+    with pytest.raises(SystemExit):
+        parse_simulator_args(build(), ["--reconnect-after", "1"])

@@ -20,6 +20,7 @@ import socket
 import statistics
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
@@ -33,6 +34,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="instead: the daemon tracking while flooded with large messages, SECONDS per phase "
                              "(pivotd.bench.flood)")
     parser.add_argument("--flood-mb", type=float, default=20.0, help="size of each flood message [MB]")
+    parser.add_argument("--flood-compare-with", type=Path, default=None, metavar="DIR",
+                        help="with --flood: a checkout of another commit whose daemon also runs the no-flood and "
+                             "default-limits phases, interleaved (phases '@other')")
 
 
 def _median_us(fn: Callable[[], object], repeats: int) -> float:
@@ -153,7 +157,10 @@ def run(args: argparse.Namespace) -> int:
     if args.flood is not None:
         from pivotd.bench.flood import run_flood
 
-        return run_flood(args.flood, args.flood_mb, args.json)
+        other = args.flood_compare_with
+        if other is not None and not (other / "pivotd" / "cli" / "__main__.py").is_file():
+            raise SystemExit(f"pivotd bench bus: --flood-compare-with {other}: not a pivotd checkout")
+        return run_flood(args.flood, args.flood_mb, args.json, other)
     results: dict[str, float | bool] = {"quick": bool(args.quick)}
     for stage in with_progress((codec_results, latency_results), "bus benchmarks"):
         results.update(stage(args.quick))

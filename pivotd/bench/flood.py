@@ -64,11 +64,12 @@ def spacing_stats(times: np.ndarray, period: float) -> dict[str, float]:
 
 
 def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, changes: dict | None = None,
-              forged_poses: int = 0) -> dict:
+              forged_poses: int = 0, repo: Path | None = None) -> dict:
     """One daemon run: ``seconds`` of tracking (with a flood when ``flood_mb``), then SIGTERM mid-flood.
 
     ``forged_poses``: that many poses 700 m away from the robot are also published (one every 0.5 s), which the
-    daemon's pose gate must refuse."""
+    daemon's pose gate must refuse. ``repo``: run the daemon of another checkout (e.g. an earlier commit); the
+    flood, the pose source and the measurements stay this checkout's."""
     from pivotd.bench.control import _tree_rss_mb
     from pivotd.bus import large_messages as payloads
     from pivotd.bus import messages as m
@@ -87,7 +88,7 @@ def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, chan
     cfg = load_config(cfg_path)
     py = sys.executable
     daemon = spawn([py, "-m", "pivotd.cli", "--config", str(cfg_path), "--log-level", "WARNING"],
-                   tmp / f"pivotd_{name}.log")
+                   tmp / f"pivotd_{name}.log", repo)
     sim = None
     session = open_session(connect=[endpoint])
     node = RosNode(session, "flooder")
@@ -177,23 +178,29 @@ def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, chan
         session.close()
 
 
-def run_flood(seconds: float, flood_mb: float, json_path: str | None) -> int:
-    """All phases, printed as a table (and written as JSON to ``json_path``)."""
+def run_flood(seconds: float, flood_mb: float, json_path: str | None, compare_with: Path | None = None) -> int:
+    """All phases, printed as a table (and written as JSON to ``json_path``). ``compare_with``: a checkout of
+    another commit; its daemon runs the no-flood and the default-limits phases too, each right after this one's."""
     big = int(flood_mb * 1e6) * 2
-    phases = [("baseline", None, None), ("flood", flood_mb, None),
-              ("flood-decoded", flood_mb, {"topics.max_path_bytes": big})]
+    phases: list[tuple[str, float | None, dict | None, Path | None]] = [("baseline", None, None, None)]
+    if compare_with is not None:
+        phases.append(("baseline@other", None, None, compare_with))
+    phases.append(("flood", flood_mb, None, None))
+    if compare_with is not None:
+        phases.append(("flood@other", flood_mb, None, compare_with))
+    phases.append(("flood-decoded", flood_mb, {"topics.max_path_bytes": big}, None))
     results = []
     with tempfile.TemporaryDirectory(prefix="pivotd-flood-") as tmp_s:
-        for name, mb, changes in phases:
-            results.append(run_phase(name, seconds, mb, Path(tmp_s), changes))
+        for name, mb, changes, repo in phases:
+            results.append(run_phase(name, seconds, mb, Path(tmp_s), changes, repo=repo))
     print(f"daemon at 100 Hz control tracking the hallway; {seconds:g} s per phase; flood: one {flood_mb:g} MB "
           "message per second (Path / PointCloud2 of PointFields, alternating); SIGTERM sent mid-flood")
-    print(f"  {'phase':<14} {'spacing p50/p99':>16} {'max gap':>8} {'watchdog':>8} {'RSS +':>7} {'exit':>6} "
+    print(f"  {'phase':<15} {'spacing p50/p99':>16} {'max gap':>8} {'watchdog':>8} {'RSS +':>7} {'exit':>6} "
           f"{'parked':>6}  drops")
     for r in results:
         drops = "; ".join(f"{t} " + ", ".join(f"{k[8:]} {v}" for k, v in c.items() if k.startswith("dropped_"))
                           + f", accepted {c.get('accepted', 0)}" for t, c in r["bus"].items()) or "-"
-        print(f"  {r['phase']:<14} {r['spacing_p50_periods']:>7}/{r['spacing_p99_periods']:<7}T "
+        print(f"  {r['phase']:<15} {r['spacing_p50_periods']:>7}/{r['spacing_p99_periods']:<7}T "
               f"{r['max_gap_s']:>6} s {r['watchdog_trips']:>8} {r['rss_growth_mb']:>4} MB {r['exit_s']:>4} s "
               f"{'yes' if r['parked'] else 'NO':>6}  {drops}")
     print("  goals while flooding: spacing p99 <= 2 periods, no gap > 0.25 s, no watchdog trip, RSS growth "

@@ -49,6 +49,7 @@ UNPLUG_SECONDS = {0.5: 4, 5.0: 4, 60.0: 1}  # replug after [s]: relative weights
 NOISE_SECONDS = 5.0
 RECOVERY_TIMEOUT_S = 60.0
 MAX_STREAM_GAP_S = 0.1  # [s] setpoints sent further apart than this are not one continuous stream
+RESTART_WINDOW_S = 1.0  # [s] device time after it reported a stop during which a stream may restart from its states
 GRACE_S = 0.05  # [s] status documents made this soon after a fault may predate its effect
 
 
@@ -206,6 +207,11 @@ class DeviceProcess:
     def noise(self, drop: float, corrupt: float) -> None:
         self._conn.send(("noise", (drop, corrupt)))
 
+    @property
+    def pid(self) -> int | None:
+        """Process id of the device model (e.g. to stop it for a while: a burst of late frames)."""
+        return self._proc.pid
+
     def elapsed(self) -> float:
         """Seconds on the device clock."""
         self._conn.send(("elapsed", ()))
@@ -234,6 +240,8 @@ class SetpointCheck:
 
     setpoints: int = 0
     checked_pairs: int = 0
+    restarts: int = 0  # segments judged from a measured state after the device reported a stop
+    restarted_steps: int = 0  # of those, pairs that were a step from the previous setpoint (late frames before)
     beyond_position: int = 0
     beyond_velocity: int = 0
     beyond_acceleration: int = 0
@@ -253,11 +261,23 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
     sent at most ``MAX_STREAM_GAP_S`` apart (a longer stall of the control loop restarts the stream), no device
     reboot between them, and the device following the stream (mode ENABLED in its last STATE). Across a break
     the controller restarts from the measured state, which the stream cannot show.
+
+    Restarts after the device stopped: when the device reported that it stopped following (a STATE with mode
+    HOLDING, DISABLED or FAULT), the host restarts the stream from a state the device measured after the stop;
+    setpoints it sent before it learnt of the stop may still reach the device after it (late, on a loaded host).
+    So within ``RESTART_WINDOW_S`` of device time after a reported stop, the first setpoint that is continuous with
+    one of the measured states reported since the stop (position within the distance the reported or commanded
+    rate covers in ``stall_s`` plus a period; rate within one period of the acceleration limit, and that
+    acceleration within one period of the jerk limit from rest) starts the new segment, judged from that state on.
+    One stop allows one restart: a second restart from the same stop, or a setpoint continuous with neither the
+    previous setpoint nor a measured state, counts as beyond the limits.
     """
     from firmware_proto.messages import MODE_ENABLED
+    from pivotd.daemon.control import ControlSettings
     from pivotd.sim.analysis import WIRE_RESOLUTION
 
     dt = cfg.control.dt
+    stall = ControlSettings.stall_s  # the longest gap the control loop continues a stream across [s]
     lim = cfg.gimbal.limits
     lo = np.array([-np.inf if lim.continuous_pan else lim.pan_min, lim.tilt_min]) - 1e-6
     hi = np.array([np.inf if lim.continuous_pan else lim.pan_max, lim.tilt_max]) + 1e-6
@@ -271,16 +291,39 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
     prev: tuple[int, int, np.ndarray] | None = None  # (seq, host time [µs], rate) of the previous setpoint
     prev_acc: np.ndarray | None = None
     last_t = -np.inf
+    last_mode = -1
+    stop_t: float | None = None  # device time of the latest reported stop within the restart window
+    measured: list[tuple[np.ndarray, np.ndarray]] = []  # (position, rate) of the states reported since that stop
+
+    def restart_acc(pos: np.ndarray, rate: np.ndarray) -> np.ndarray | None:
+        """Acceleration of a restart from one of the ``measured`` states that ``(pos, rate)`` continues, or None."""
+        for m_pos, m_rate in measured:
+            acc = (rate - m_rate) / dt
+            reach = np.maximum(np.abs(m_rate), np.abs(rate)) * (stall + dt) + 2 * res
+            if (np.all(np.abs(pos - m_pos) <= reach) and np.all(np.abs(acc) <= amax + allow_a)
+                    and np.all(np.abs(acc) / dt <= jmax + allow_j)):
+                return acc
+        return None
+
     with open(path, newline="") as fh:
         for row in csv.DictReader(fh):
             t = float(row["t_s"])
             if t < last_t - 1.0:  # the device clock restarted: a reboot
-                prev, prev_acc = None, None
+                prev, prev_acc, stop_t, measured, last_mode = None, None, None, [], -1
             last_t = t
+            if stop_t is not None and t - stop_t > RESTART_WINDOW_S:
+                stop_t, measured = None, []
             if row["dir"] == "tx" and row["type"] == "STATE":
                 mode = int(row["mode"])
+                state = (np.array([float(row["pan"]), float(row["tilt"])]),
+                         np.array([float(row["pan_rate"]), float(row["tilt_rate"])]))
                 if mode != MODE_ENABLED:
                     prev, prev_acc = None, None
+                if mode != MODE_ENABLED and mode != last_mode:  # it stopped following
+                    stop_t, measured = t, [state]
+                elif stop_t is not None:
+                    measured.append(state)
+                last_mode = mode
                 continue
             if row["dir"] != "rx":
                 continue
@@ -295,19 +338,28 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
             out.worst["velocity"] = max(out.worst["velocity"], float(np.max(np.abs(rate) / vmax)))
             out.beyond_velocity += int(np.any(np.abs(rate) > vmax + allow_v))
             host = int(row["host_time_us"])
+            restarted = restart_acc(pos, rate) if measured else None
+            if restarted is not None:  # the restart after the stop (one per stop)
+                out.restarts += 1
+                stop_t, measured = None, []
             if (prev is not None and seq == (prev[0] + 1) & 0xFF and mode == MODE_ENABLED
                     and ((host - prev[1]) & 0xFFFFFFFF) <= MAX_STREAM_GAP_S * 1e6):
                 acc = (rate - prev[2]) / dt
+                jerk = None if prev_acc is None else (acc - prev_acc) / dt
+                continuous = (np.all(np.abs(acc) <= amax + allow_a)
+                              and (jerk is None or np.all(np.abs(jerk) <= jmax + allow_j)))
+                if not continuous and restarted is not None:  # judged from the measured state it starts at
+                    acc, jerk = restarted, restarted / dt
+                    out.restarted_steps += 1
                 out.checked_pairs += 1
                 out.worst["acceleration"] = max(out.worst["acceleration"], float(np.max(np.abs(acc) / amax)))
                 out.beyond_acceleration += int(np.any(np.abs(acc) > amax + allow_a))
-                if prev_acc is not None:
-                    jerk = (acc - prev_acc) / dt
+                if jerk is not None:
                     out.worst["jerk"] = max(out.worst["jerk"], float(np.max(np.abs(jerk) / jmax)))
                     out.beyond_jerk += int(np.any(np.abs(jerk) > jmax + allow_j))
                 prev_acc = acc
             else:
-                prev_acc = None
+                prev_acc = restarted
             prev = (seq, host, rate)
     out.worst = {k: round(v, 3) for k, v in out.worst.items()}
     return out
@@ -569,6 +621,7 @@ def summarise(stack: SoakStack, events: list[dict], warmup: float, exit_code: in
     return {
         "events": len(events),
         "setpoints": check.setpoints, "checked_pairs": check.checked_pairs,
+        "restarts": check.restarts, "restarted_steps": check.restarted_steps,
         "setpoints_beyond_limits": check.beyond_limits,
         "beyond": {"position": check.beyond_position, "velocity": check.beyond_velocity,
                    "acceleration": check.beyond_acceleration, "jerk": check.beyond_jerk},
@@ -695,6 +748,8 @@ def _print_soak(r: dict) -> None:
           f"({r['checked_pairs']} consecutive pairs checked for acceleration and jerk)")
     print(f"  setpoints beyond limits: {r['setpoints_beyond_limits']} {r['beyond']}; worst ratio to limit "
           f"{r['worst_ratio_to_limit']}")
+    print(f"  restarts after the device stopped, judged from its measured state: {r['restarts']} "
+          f"({r['restarted_steps']} of them after late setpoints of the old stream)")
     print(f"  tracebacks in the daemon log: {r['tracebacks']} {r['traceback_lines'] or ''}")
     print(f"  RSS after {r['warmup_s']:g} s warm-up: {rss.get('baseline_mb')} -> {rss.get('final_mb')} MB "
           f"(growth {rss.get('growth')}, max {rss.get('max_mb')} MB, {rss['samples']} samples)")

@@ -36,6 +36,9 @@ CLOUD_LAYERS = ("landmarks", "targets")
 #: Payloads each input topic may hold while waiting to be decoded. Every input is a state whose newest
 #: message supersedes the older ones (pose, path, a whole cloud layer), so only the newest is kept.
 INBOX_CAPACITY = 1
+#: A payload at least this large [bytes] was reassembled by Zenoh in many small buffers; once it is dropped or
+#: decoded, :meth:`PivotBus.large_payload_seen` says so, and the daemon gives the freed heap back to the OS.
+LARGE_PAYLOAD_BYTES = 1 << 20
 
 
 class PivotBus:
@@ -62,6 +65,7 @@ another) and should be short. ``on_raw(topic, msgtype,
         self._ratelog = RateLimitedLog(log)
         self._status_json = b""
         self._closed = False
+        self._large_seen = threading.Event()
         self.node = RosNode(session, node_name, topics.domain_id, topics.namespace, humble=topics.humble)
         self._entities: list[Any] = []
         self._takers: dict[str, Callable[[bytes, float], None]] = {}
@@ -117,6 +121,8 @@ another) and should be short. ``on_raw(topic, msgtype,
                 self._drop(name, "wrong_type", f"{name}: message of type {got or '?'} on a {msgtype} topic")
                 return
             size = len(sample.payload)
+            if size >= LARGE_PAYLOAD_BYTES:
+                self._large_seen.set()
             if size > max_bytes:
                 self._drop(name, "too_large", f"{name}: payload of {size} bytes exceeds the {max_bytes}-byte limit")
                 return
@@ -140,7 +146,17 @@ another) and should be short. ``on_raw(topic, msgtype,
             self._ratelog.warning(f"{name}:callback", f"{name}: handler failed: {exc!r}")
             log.debug("handler failure", exc_info=True)
             return
+        finally:
+            if len(payload) >= LARGE_PAYLOAD_BYTES:
+                self._large_seen.set()  # its decoding temporaries are free now too
         self._count(name, "accepted")
+
+    def large_payload_seen(self) -> bool:
+        """Whether a payload of at least :data:`LARGE_PAYLOAD_BYTES` arrived or was decoded since the last call
+        (which clears it): the moment to give freed memory back to the OS."""
+        seen = self._large_seen.is_set()
+        self._large_seen.clear()
+        return seen
 
     def _drop(self, name: str, reason: str, message: str) -> None:
         self._count(name, f"dropped_{reason}")

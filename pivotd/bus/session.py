@@ -74,6 +74,10 @@ def build_config(mode: str = "peer", connect: Iterable[str] = (), listen: Iterab
         config.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast_scouting)))
         if config_file is None:  # as rmw_zenoh's default config: transient-local publishers timestamp samples
             config.insert_json5("timestamping/enabled", "true")
+            # No shared memory (rmw_zenoh's default too): with it, a peer on the same host hands over its large
+            # messages in its own 16 MiB pool, which this process then maps (resident memory it does not bound),
+            # and this process keeps a pool of its own for what it publishes.
+            config.insert_json5("transport/shared_memory/enabled", "false")
         if max_message_bytes is not None:
             config.insert_json5("transport/link/rx/max_message_size", json.dumps(int(max_message_bytes)))
         if security is not None:

@@ -12,6 +12,13 @@ device disabled (no setpoints are sent then), its watchdog stopped it, or a stal
 from where the gimbal really is, jerk-limited, instead of where the stream left off. A restart requested while the
 device kept following (e.g. after clearing a latched fault bit) keeps the stream as it is: a restart
 from the measured state would only add the device's tracking lag as a step.
+
+A watchdog hold restarts the stream only if the device held while following the current stream: the hold's
+state echoes the last setpoint the device received, and a hold reported with a setpoint from before the current
+stream's first one (a state that was delayed on a loaded host) is the interruption the stream already restarted
+from. A setpoint is never sent more than ``stall_s`` after the previous one of its stream: if the thread was held up
+between computing and sending it, the device may have held meanwhile, so the stream restarts from a fresh state
+instead of resuming the device with a setpoint that continues the old one.
 """
 
 from __future__ import annotations
@@ -88,6 +95,8 @@ class ControlLoop:
         self._seen_rx = -np.inf  # its receive time [s]
         self._last_tick: float | None = None
         self._streaming = False  # the previous tick sent a setpoint
+        self._segment_first: int | None = None  # seq of the first setpoint since the last restart
+        self._last_send: float | None = None  # clock() when the previous setpoint of this stream was sent [s]
         self.restarts = 0  # restarts of the stream from a measured state
         self._last_pose_rx: float | None = None
         self._prev_pose: PoseSample | None = None
@@ -114,7 +123,15 @@ class ControlLoop:
             pos = pos + rate * float(np.clip(now - state.rx_time, 0.0, self.settings.stall_s))
         self.motion.reset(pos, rate)
         self._need_reset = self._hard_reset = False
+        self._segment_first = self._last_send = None
         self.restarts += 1
+
+    def _held_on_this_stream(self, state: GimbalState) -> bool:
+        """Whether a HOLDING ``state`` shows the device stopped while following the current stream: it echoes a
+        setpoint of this stream (seq on the wire, modulo 256), or none of this stream was sent yet."""
+        if self._segment_first is None:
+            return True
+        return (state.last_setpoint_seq - self._segment_first) & 0xFF < 0x80
 
     def _resynchronise(self, now: float, state: GimbalState, gap: float, streaming: bool) -> bool:
         """Restart the stream from ``state`` if needed (see the module docstring); False while a state measured
@@ -125,7 +142,8 @@ class ControlLoop:
                      gap)
             self._request_reset(now, hard=True)  # the loop stalled: the device did not get the stream
         if state.rx_time > self._seen_rx:
-            if state.mode == GimbalMode.HOLDING and self._seen_mode == GimbalMode.ENABLED:
+            if (state.mode == GimbalMode.HOLDING and self._seen_mode == GimbalMode.ENABLED
+                    and self._held_on_this_stream(state)):
                 # Its watchdog stopped it: restart once, from this state. Later states of the same hold were
                 # sent before the device got the restarted stream (which resumes it) and are not followed.
                 self._request_reset(state.rx_time, hard=True)
@@ -235,7 +253,19 @@ class ControlLoop:
         sample = self.motion.step()
         pan, tilt = float(sample.position[0]), float(sample.position[1])
         vp, vt = float(sample.velocity[0]), float(sample.velocity[1])
-        self.link.send_setpoint(pan, tilt, vp, vt)
+        sent_at = self.clock()
+        if self._last_send is not None and sent_at - self._last_send > self.settings.stall_s:
+            # Held up between computing and sending: the device may have held meanwhile, and this setpoint would
+            # resume it with the old stream. Restart from a state measured from now on instead.
+            log.info("control tick held up for %.3f s before sending: restarting the setpoint stream",
+                     sent_at - self._last_send)
+            self._request_reset(sent_at, hard=True)
+            self.link.send_heartbeat()
+            return TickResult(DaemonState.HOLDING)
+        seq = self.link.send_setpoint(pan, tilt, vp, vt)
+        self._last_send = sent_at
+        if self._segment_first is None and seq is not None:
+            self._segment_first = seq
         self._streaming = True
         self.stats.setpoints += 1
         self.stats.clamped += int(clamped)

@@ -44,6 +44,7 @@ from pivotd.daemon.wiring import (
     build_gimbal,
     build_replan_trigger,
     park_joints,
+    release_free_memory,
     return_large_frees_to_the_os,
 )
 from pivotd.daemon.worker import PlannerWorker, WorkerError
@@ -527,6 +528,8 @@ class Daemon:
                         self.notifier.status(line)
                         last_line = line
                     self._supervise_gimbal()
+                    if self.bus is not None and self.bus.large_payload_seen():
+                        release_free_memory()  # Zenoh reassembled it in many small heap blocks, now free
                 except Exception as exc:
                     self._rl.exception("supervise", f"supervision failed: {exc!r}")
             self.notifier.stopping()

@@ -15,7 +15,7 @@ import sys
 import threading
 import time
 
-from firmware_proto.mock_server import PtyTransport, parse_fault_at, parse_simulator_args
+from firmware_proto.mock_server import PtyTransport, add_fault_arguments, parse_simulator_args
 from firmware_proto.realtime import CsvMessageLog
 from pivotd.sim.dynamixel_device import DynamixelChain
 
@@ -29,15 +29,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pan-id", type=int, default=1)
     p.add_argument("--tilt-id", type=int, default=2)
     p.add_argument("--state-hz", type=float, default=50.0, help="rate of the logged pan/tilt state [Hz]")
-    p.add_argument("--drop", type=float, default=0.0, help="probability of losing each chunk of bytes (both ways)")
-    p.add_argument("--latency-ms", type=float, default=0.0, help="delay of the servos' answers [ms]")
-    p.add_argument("--seed", type=int, default=None)
-    p.add_argument("--fault-at", type=parse_fault_at, action="append", default=[], metavar="SECONDS:BIT",
-                   help="set Hardware Error Status bit BIT on the pan servo at SECONDS (2: overheating)")
-    p.add_argument("--disconnect-after", type=float, metavar="SECONDS", help="close the pty after SECONDS")
-    p.add_argument("--from-first-frame", action="store_true",
-                   help="count --fault-at and --disconnect-after from the host's first packet, not from start")
-    p.add_argument("--reconnect-after", type=float, metavar="SECONDS", help="open a new pty SECONDS later")
+    add_fault_arguments(p, unit="chunk of bytes", corrupt=False, latency="delay of the servos' answers [ms]",
+                        fault_bit="set Hardware Error Status bit BIT on the pan servo (2: overheating)",
+                        disconnect="close the pty", reconnect="open a new pty")
     p.add_argument("--log", metavar="FILE", help="CSV log (the serial mock's columns, pivotd's pan/tilt convention)")
     p.add_argument("-v", "--verbose", action="store_true")
     return p

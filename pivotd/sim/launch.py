@@ -51,14 +51,16 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def spawn(args: list[str], log_path: Path) -> subprocess.Popen:
-    """Start ``args`` in its own session (process group) from the repository root, output to ``log_path``."""
+def spawn(args: list[str], log_path: Path, repo: Path | None = None) -> subprocess.Popen:
+    """Start ``args`` in its own session (process group) from the repository root, output to ``log_path``.
+    ``repo``: another checkout to run from (its packages first on the path; default: this one)."""
+    root = REPO if repo is None else Path(repo)
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    env["PYTHONPATH"] = os.pathsep.join([str(root), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
     env.pop("NOTIFY_SOCKET", None)
     fh = open(log_path, "w")  # noqa: SIM115 - owned by the child for its lifetime
     return subprocess.Popen(args, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env,
-                            cwd=str(REPO), start_new_session=True)
+                            cwd=str(root), start_new_session=True)
 
 
 def stop_processes(procs, timeout: float = 15.0) -> None:

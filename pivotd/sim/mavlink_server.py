@@ -21,7 +21,7 @@ import threading
 import time
 from typing import Any
 
-from firmware_proto.mock_server import parse_fault_at, parse_simulator_args
+from firmware_proto.mock_server import add_fault_arguments, parse_simulator_args
 from firmware_proto.realtime import CsvMessageLog, FaultInjector
 from pivotd.gimbal.kinematics import JointLimits
 from pivotd.gimbal.mavlink_link import load_mavutil
@@ -45,17 +45,9 @@ def build_parser() -> argparse.ArgumentParser:
                                 description="MAVLink Gimbal Protocol v2 manager + device simulator on UDP.")
     p.add_argument("--udp", metavar="HOST:PORT", default="127.0.0.1:0", help="bind here (port 0: pick one, print it)")
     p.add_argument("--state-hz", type=float, default=50.0, help="GIMBAL_DEVICE_ATTITUDE_STATUS rate [Hz]")
-    p.add_argument("--drop", type=float, default=0.0, help="probability of losing each datagram (both directions)")
-    p.add_argument("--corrupt", type=float, default=0.0, help="probability of one bit flip in each datagram")
-    p.add_argument("--latency-ms", type=float, default=0.0, help="one-way delivery delay [ms]")
-    p.add_argument("--seed", type=int, default=None, help="random seed of the fault injection")
-    p.add_argument("--fault-at", type=parse_fault_at, action="append", default=[], metavar="SECONDS:BIT",
-                   help="set GIMBAL_DEVICE_ERROR_FLAGS bit BIT at SECONDS after start (repeatable; 5 = motor error)")
+    add_fault_arguments(p, unit="datagram", fault_bit="set GIMBAL_DEVICE_ERROR_FLAGS bit BIT (5 = motor error)",
+                        disconnect="go silent", reconnect="answer again")
     p.add_argument("--fault-duration", type=float, default=2.0, help="seconds until the device clears a failure")
-    p.add_argument("--disconnect-after", type=float, metavar="SECONDS", help="go silent after SECONDS")
-    p.add_argument("--from-first-frame", action="store_true",
-                   help="count --fault-at and --disconnect-after from the host's first datagram, not from start")
-    p.add_argument("--reconnect-after", type=float, metavar="SECONDS", help="answer again SECONDS after going silent")
     p.add_argument("--pan-range-deg", type=float, nargs=2, default=(-180.0, 180.0), metavar=("MIN", "MAX"),
                    help="device pan range in pivotd's convention (positive left) [deg]")
     p.add_argument("--tilt-range-deg", type=float, nargs=2, default=(-90.0, 90.0), metavar=("MIN", "MAX"),
