@@ -57,3 +57,11 @@ def test_spawn_runs_another_checkout_first_on_the_path(tmp_path):
                  other)
     assert proc.wait(timeout=60) == 0
     assert (tmp_path / "out.log").read_text().split() == ["other", "checkout", str(other)]
+
+
+def test_flood_bench_rejects_a_realtime_priority_outside_sched_fifo_range(capsys):
+    from pivotd.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "bus", "--flood", "1", "--realtime-priority", "120"])
+    assert "--realtime-priority 120: must be 0..99" in str(exc.value)

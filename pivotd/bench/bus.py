@@ -37,6 +37,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--flood-compare-with", type=Path, default=None, metavar="DIR",
                         help="with --flood: a checkout of another commit whose daemon also runs the no-flood and "
                              "default-limits phases, interleaved (phases '@other')")
+    parser.add_argument("--realtime-priority", type=int, default=0, metavar="N",
+                        help="with --flood: also run the no-flood and default-limits phases with the control "
+                             "thread at SCHED_FIFO priority N (phases '-fifo'; needs CAP_SYS_NICE)")
 
 
 def _median_us(fn: Callable[[], object], repeats: int) -> float:
@@ -160,7 +163,9 @@ def run(args: argparse.Namespace) -> int:
         other = args.flood_compare_with
         if other is not None and not (other / "pivotd" / "cli" / "__main__.py").is_file():
             raise SystemExit(f"pivotd bench bus: --flood-compare-with {other}: not a pivotd checkout")
-        return run_flood(args.flood, args.flood_mb, args.json, other)
+        if not 0 <= args.realtime_priority <= 99:
+            raise SystemExit(f"pivotd bench bus: --realtime-priority {args.realtime_priority}: must be 0..99")
+        return run_flood(args.flood, args.flood_mb, args.json, other, args.realtime_priority)
     results: dict[str, float | bool] = {"quick": bool(args.quick)}
     for stage in with_progress((codec_results, latency_results), "bus benchmarks"):
         results.update(stage(args.quick))

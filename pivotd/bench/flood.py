@@ -171,6 +171,9 @@ def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, chan
         park = np.array([cfg.gimbal.park_pan, cfg.gimbal.park_tilt])
         out["final_pan_tilt_deg"] = np.round(np.degrees(dev.st_pos[-1]), 2).tolist()
         out["parked"] = bool(disabled) and bool(np.all(np.abs(dev.st_pos[-1] - park) < np.radians(1.0)))
+        if cfg.control.realtime_priority > 0:  # the daemon warns when SCHED_FIFO could not be applied
+            log_text = (tmp / f"pivotd_{name}.log").read_text(errors="replace")
+            out["realtime_applied"] = "not applied" not in log_text
         return out
     finally:
         node.close()
@@ -178,9 +181,12 @@ def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, chan
         session.close()
 
 
-def run_flood(seconds: float, flood_mb: float, json_path: str | None, compare_with: Path | None = None) -> int:
+def run_flood(seconds: float, flood_mb: float, json_path: str | None, compare_with: Path | None = None,
+              realtime_priority: int = 0) -> int:
     """All phases, printed as a table (and written as JSON to ``json_path``). ``compare_with``: a checkout of
-    another commit; its daemon runs the no-flood and the default-limits phases too, each right after this one's."""
+    another commit; its daemon runs the no-flood and the default-limits phases too, each right after this one's.
+    ``realtime_priority`` > 0: the no-flood and default-limits phases run again with the control thread at that
+    SCHED_FIFO priority (``control.realtime_priority``, as config/spot.yaml deploys it)."""
     big = int(flood_mb * 1e6) * 2
     phases: list[tuple[str, float | None, dict | None, Path | None]] = [("baseline", None, None, None)]
     if compare_with is not None:
@@ -189,6 +195,9 @@ def run_flood(seconds: float, flood_mb: float, json_path: str | None, compare_wi
     if compare_with is not None:
         phases.append(("flood@other", flood_mb, None, compare_with))
     phases.append(("flood-decoded", flood_mb, {"topics.max_path_bytes": big}, None))
+    if realtime_priority > 0:
+        rt = {"control.realtime_priority": int(realtime_priority)}
+        phases += [("baseline-fifo", None, rt, None), ("flood-fifo", flood_mb, rt, None)]
     results = []
     with tempfile.TemporaryDirectory(prefix="pivotd-flood-") as tmp_s:
         for name, mb, changes, repo in phases:
@@ -203,6 +212,8 @@ def run_flood(seconds: float, flood_mb: float, json_path: str | None, compare_wi
         print(f"  {r['phase']:<15} {r['spacing_p50_periods']:>7}/{r['spacing_p99_periods']:<7}T "
               f"{r['max_gap_s']:>6} s {r['watchdog_trips']:>8} {r['rss_growth_mb']:>4} MB {r['exit_s']:>4} s "
               f"{'yes' if r['parked'] else 'NO':>6}  {drops}")
+        if r.get("realtime_applied") is False:
+            print(f"  {'':<15} control.realtime_priority was NOT applied (no CAP_SYS_NICE): normal scheduling")
     print("  goals while flooding: spacing p99 <= 2 periods, no gap > 0.25 s, no watchdog trip, RSS growth "
           "<= 50 MB, SIGTERM parks and exits within a few seconds")
     if json_path:
