@@ -122,3 +122,12 @@ def test_narrow_path_takes_an_init_direction():
     seeded = optimize_view(B, None, alpha, init=free.direction)
     assert seeded.visible >= free.visible
     assert np.allclose(seeded.rotation[:, 2], seeded.direction)
+
+
+def test_equal_weights_other_than_one_give_the_unweighted_answer():
+    rng = np.random.default_rng(3)
+    B = normalize(_clustered(rng, 1500) - rng.uniform(-40, 40, 3))
+    alpha = np.radians(2.0)
+    plain = optimize_view(B, None, alpha)
+    scaled = optimize_view(B, np.full(B.shape[0], 100.0), alpha)
+    assert scaled.visible == plain.visible

@@ -11,7 +11,9 @@ bound could still beat it are refined by gradient ascent on the smooth objective
 hard-count search on spirals of directions (:func:`local_search`: a wide cap for flat landscapes with
 many shallow maxima close together, then finer ones) finishes. An optional FoV schedule starts wide and
 narrows to α with k_s recomputed from a target transition width; steps are normalised, clipped and
-adaptively scaled (see :func:`pivotd.pivot._ascent.ascend`).
+adaptively scaled (see :func:`pivotd.pivot._ascent.ascend`). Narrow cones (α < ``narrow_deg``) take another
+path, whatever the number of landmarks: a branch and bound over a 3-D hash of the bearings in cubes of the
+cone's chord, with exact local searches on the landmarks of the cone's edge (:func:`_narrow_view`).
 """
 
 from __future__ import annotations
@@ -241,7 +243,7 @@ def _cap_candidates(
     keys = (Q[0] * L + Q[1]) * L + Q[2]
     uk, inv = np.unique(keys, return_inverse=True)
     U = uk.size
-    own = np.bincount(inv, weights=None if uniform else w, minlength=U).astype(float)  # weight per occupied cube
+    own = np.bincount(inv, weights=None if uniform else w, minlength=U) * (float(w[0]) if uniform else 1.0)  # per cube
     offsets = np.array([(dx * L + dy) * L + dz for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)])
     cubes = uk if empty_upto < U else np.unique((uk[:, None] + offsets).ravel())
     bound = np.zeros(cubes.size)
@@ -263,15 +265,16 @@ def _narrow_view(
     B: np.ndarray, BT: np.ndarray, w: np.ndarray, w32: np.ndarray, alpha: float, opts: ViewOptions,
     init: np.ndarray | None, uniform: bool,
 ) -> np.ndarray:
-    """Global stage and hard-count search for a narrow cone (α < narrow_deg), a branch and bound over the cubes
-    of :func:`_cap_candidates`: in order of their bounds (``init`` first), while a bound exceeds the best weight
-    found and at most ``narrow_searches`` cubes, the best axis within narrow_cap_ratio · α of the cube's
-    projected centre (which covers the cube) is found exactly by :func:`_exact_local` when that disc's edge band
-    is small (sparse data), otherwise by the coarse-to-fine :func:`local_search` over that disc (skipping
-    cubes within α of one already searched so); the ``narrow_exact``
-    best distinct results of the latter then climb by exact searches within narrow_exact_ratio · α. Weights are
-    counted in float64 (float32 cosines resolve only ~7 µrad at 0.5°). No smooth ascent: its transition width
-    would be wider than the cone. B (n, 3) float64 and BT (3, n) float32 unit bearings, w / w32 (n,) weights.
+    """Global stage and hard-count search for a narrow cone (α < narrow_deg): a branch and bound over the cubes
+    of :func:`_cap_candidates`. In order of their bounds (``init`` first), while a bound exceeds the best weight
+    found (at most 4 · narrow_searches cubes, narrow_searches of them searched approximately), the best axis
+    within narrow_cap_ratio · α of the cube's projected centre (a disc covering the cube) is found exactly by
+    :func:`_exact_local` when the disc's edge band is small (sparse data), otherwise by the coarse-to-fine
+    :func:`local_search` over the disc (skipping cubes within α of one already searched so); the
+    ``narrow_exact`` best distinct results of the latter then climb by exact searches within
+    narrow_exact_ratio · α. Weights are counted in float64 (float32 cosines resolve only ~7 µrad at 0.5°).
+    No smooth ascent: its transition width would be wider than the cone. B (n, 3) float64 and BT (3, n)
+    float32 unit bearings, w / w32 (n,) weights.
     Returns the axis (3,)."""
     n_search = max(1, opts.narrow_searches)
     C, bound = _cap_candidates(BT, w, alpha, 8 * n_search, opts.narrow_empty_cubes, uniform)
@@ -288,14 +291,16 @@ def _narrow_view(
     searched: list[np.ndarray] = []  # centres of the cubes searched approximately
     cos_near = math.cos(alpha)
     for k in range(C.shape[0]):
-        if len(found) >= n_search or (found and bound[k] <= max(f[0] for f in found)):
+        if found and bound[k] <= max(f[0] for f in found):
             break  # no cone with its axis in this cube (or a later one) sees more
+        if len(searched) >= n_search or len(found) >= 4 * n_search:
+            break
+        if any(float(C[k] @ c) >= cos_near for c in searched):
+            continue  # dense: a neighbouring cube's search already went over most of this one
         exact = _exact_local(C[k], BT, w32, alpha, cover, opts.narrow_exact_band, shrink=False)
         if exact is not None:
             found.append((weight64(exact), k, exact, True))
             continue
-        if any(float(C[k] @ c) >= cos_near for c in searched):
-            continue  # dense: a neighbouring cube's search already went over most of this one
         searched.append(C[k])
         c = local_search(C[k], BT, w32, alpha, C[k].astype(np.float32) @ BT, radii, points) if radii else C[k]
         found.append((weight64(c), k, c, False))
