@@ -131,3 +131,23 @@ def test_equal_weights_other_than_one_give_the_unweighted_answer():
     plain = optimize_view(B, None, alpha)
     scaled = optimize_view(B, np.full(B.shape[0], 100.0), alpha)
     assert scaled.visible == plain.visible
+
+
+def test_exact_local_search_beats_a_dense_sample_of_its_disc():
+    from pivotd.pivot.view import _exact_local
+
+    rng = np.random.default_rng(9)
+    alpha, r = np.radians(1.0), np.radians(0.6)
+    c = normalize(np.array([0.2, -0.4, 1.0]))
+    B = normalize(c + np.radians(1.2) * rng.normal(size=(150, 3)))
+    w = rng.uniform(0.5, 2.0, 150)
+    BT = np.ascontiguousarray(B.T, dtype=np.float32)
+    axis = _exact_local(c, BT, w.astype(np.float32), alpha, r, 1000)
+    assert float(axis @ c) >= np.cos(r) - 1e-9
+    t1 = normalize(np.cross(c, [1.0, 0.0, 0.0]))
+    t2 = np.cross(c, t1)
+    rho, phi = r * np.sqrt(rng.uniform(0, 1, 40000)), rng.uniform(0, 2 * np.pi, 40000)
+    S = np.cos(rho)[:, None] * c + np.sin(rho)[:, None] * (np.cos(phi)[:, None] * t1 + np.sin(phi)[:, None] * t2)
+    cos_sb = S @ B.T
+    sampled = ((cos_sb >= np.cos(alpha)) @ w).max()
+    assert _seen(B, w, axis, alpha) >= sampled - 1e-9

@@ -347,8 +347,11 @@ def _exact_local(
     c: np.ndarray, BT: np.ndarray, w32: np.ndarray, alpha: float, reach: float, max_band: int, shrink: bool = True
 ) -> np.ndarray | None:
     """The best cone axis (3,) within r [rad] of the unit axis c (3,), exactly: every landmark within α − r
-    of c is inside all those cones, and the best of them can be moved onto c itself or onto a
-    :func:`boundary_axes` axis of two landmarks of the edge band α ± r, so those are scored on the band. r
+    of c is inside all those cones and every landmark beyond α + r outside, so only the edge band α ± r is
+    scored. The axes keeping a given set of landmarks inside form an intersection of caps; where it meets
+    the disc of radius r it has a corner that is c itself, a :func:`boundary_axes` axis of two band
+    landmarks, or a point of the disc's rim at angle α from one band landmark (:func:`_edge_meets_disc`),
+    so those candidates are scored. r
     starts at ``reach`` and halves until the band holds ≤ ``max_band`` landmarks (cost O(max_band³); None
     when ``shrink`` is False and the band at ``reach`` is larger).
     BT (3, n) float32 unit bearings, w32 (n,) weights."""
@@ -366,10 +369,30 @@ def _exact_local(
     Bb /= np.linalg.norm(Bb, axis=1, keepdims=True)
     wb = w32.take(sel).astype(float)
     A = boundary_axes(Bb, alpha - 1e-6)  # 1 µrad inside: float32 bearings stay inside in float64
-    A = np.vstack([c[None], A[A @ c >= np.cos(r)]])
+    A = np.vstack([c[None], A[A @ c >= np.cos(r)], _edge_meets_disc(Bb, alpha - 1e-6, c, r * (1 - 1e-9))])
     cos_ab = A @ Bb.T
     vals = (cos_ab >= np.cos(alpha) - 1e-12) @ wb
     return A[int(np.argmax(vals))]
+
+
+def _edge_meets_disc(Bb: np.ndarray, alpha: float, c: np.ndarray, r: float) -> np.ndarray:
+    """The directions (≤ 2m, 3) at angle α [rad] from one of the unit bearings Bb (m, 3) and at angle r from
+    the unit axis c (3,): v = x·c + y·b ± z·(c × b) with x + y (c·b) = cos r, x (c·b) + y = cos α."""
+    g = Bb @ c  # (m,)
+    n = np.cross(np.broadcast_to(c, Bb.shape), Bb)
+    det = 1.0 - g * g
+    ok = det > 1e-15
+    g, n, b, det = g[ok], n[ok], Bb[ok], det[ok]
+    cr, ca = math.cos(r), math.cos(alpha)
+    x = (cr - g * ca) / det
+    y = (ca - g * cr) / det
+    z2 = (1.0 - (x * x + y * y + 2.0 * x * y * g)) / det  # |c × b|² = 1 − g²
+    hit = z2 >= 0.0
+    x, y, n, b = x[hit], y[hit], n[hit], b[hit]
+    base = x[:, None] * c + y[:, None] * b
+    zn = np.sqrt(z2[hit])[:, None] * n
+    V = np.concatenate([base + zn, base - zn])
+    return V / np.linalg.norm(V, axis=1, keepdims=True) if V.size else V.reshape(0, 3)
 
 
 def _greedy_distinct(D: np.ndarray, cos_min: float, k: int) -> list[int]:
