@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pivotd.pivot._checks import feature_weights, finite_array, half_angle
+from pivotd.pivot.view import boundary_axes
 
 
 def sphere_grid(resolution_deg: float = 2.0) -> np.ndarray:
@@ -301,3 +302,40 @@ def refined_view(
     still_open = bool(np.any((cell_ub > best) & (spacing > fine)))
     bound = max(best, float(cell_ub.max(initial=best)))
     return RefinedView(best_dir, best, bound, not still_open)
+
+
+def exact_view(
+    bearings: np.ndarray, weights: np.ndarray | None, alpha: float, *, max_centres: int = 4_000_000
+) -> tuple[np.ndarray, float]:
+    """The exact single-pose optimum for half-angle α < 90° [rad]: a direction (3,) and its hard visible
+    weight (closed cone, cos θ ≥ cos α − 1e-12, float64).
+
+    A cone holding a set S of bearings can be moved, keeping S inside, until one of them is on its edge and
+    then turned about that one until a second is (for α < 90° the cones of radius α whose edge passes
+    through p meet only in p, so if none does, S is that single bearing). The optimum is therefore
+    centred on a bearing or on one of the two axes at angle α from a pair of bearings at most 2α apart:
+    every such axis is scored on all bearings, O(P n) for P such pairs. Meant for small instances; raises
+    ValueError when the axes would exceed ``max_centres``.
+    """
+    alpha = half_angle(alpha)
+    if alpha >= np.pi / 2:
+        raise ValueError(f"exact_view needs a half-angle below 90°, got {np.degrees(alpha):.3g}°")
+    B = finite_array("bearings", bearings)
+    w = feature_weights(weights, B.shape[0])
+    nrm = np.linalg.norm(B, axis=1)
+    keep = nrm > 1e-12
+    B, w = B[keep] / nrm[keep, None], w[keep]
+    if B.shape[0] == 0:
+        return np.array([1.0, 0.0, 0.0]), 0.0
+    ca = np.cos(alpha)
+    C = np.concatenate([B, boundary_axes(B, alpha)])
+    if C.shape[0] > max_centres:
+        raise ValueError(f"exact_view: {C.shape[0]} candidate axes exceed max_centres={max_centres}")
+    best, best_dir = -1.0, B[0]
+    for s in range(0, C.shape[0], 2048):
+        cos_cb = C[s : s + 2048] @ B.T
+        vals = (cos_cb >= ca - 1e-12) @ w
+        k = int(np.argmax(vals))
+        if vals[k] > best:
+            best, best_dir = float(vals[k]), C[s + k]
+    return best_dir / np.linalg.norm(best_dir), best

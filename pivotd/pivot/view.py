@@ -11,7 +11,9 @@ bound could still beat it are refined by gradient ascent on the smooth objective
 hard-count search on spirals of directions (:func:`local_search`: a wide cap for flat landscapes with
 many shallow maxima close together, then finer ones) finishes. An optional FoV schedule starts wide and
 narrows to α with k_s recomputed from a target transition width; steps are normalised, clipped and
-adaptively scaled (see :func:`pivotd.pivot._ascent.ascend`).
+adaptively scaled (see :func:`pivotd.pivot._ascent.ascend`). Narrow cones (α < ``narrow_deg``) take another
+path, whatever the number of landmarks: a branch and bound over a 3-D hash of the bearings in cubes of the
+cone's chord, with exact local searches on the landmarks of the cone's edge (:func:`_narrow_view`).
 """
 
 from __future__ import annotations
@@ -66,6 +68,14 @@ class ViewOptions:
     polish_ratio: float = 1.0 / 3.0  # ... shrinking by this factor ...
     polish_tol_deg: float = 0.1  # ... while the radius stays ≥ this (at most 0.05 α)
     polish_points: int = 24
+    narrow_deg: float = 6.0  # below this half-angle the global stage is the cap hash (_cap_candidates) ...
+    narrow_searches: int = 32  # ... and at most this many of its candidates (by cube bound) get a hard-count search,
+    narrow_empty_cubes: int = 1024  # ... (with the empty cubes next to the occupied ones while these are fewer) ...
+    narrow_cap_ratio: float = 1.75  # ... over a cap of radius ratio · α around a cube's centre (covers the cube) ...
+    narrow_cap_points: int = 64  # ... with this many directions, then an exact search (boundary_axes) within
+    narrow_exact_ratio: float = 1.0  # ... this fraction of α of the result (halved until its edge band holds ...
+    narrow_exact_band: int = 80  # ... at most this many landmarks) around each of the ...
+    narrow_exact: int = 3  # ... this many best distinct results of the hard-count search
 
 
 @dataclass
@@ -210,6 +220,181 @@ def _histogram_candidates(
     return Co[_greedy_distinct(Co, cos_d, max(1, opts.refine))].astype(float)
 
 
+def _cap_candidates(
+    BT: np.ndarray, w: np.ndarray, alpha: float, k: int, empty_upto: int, uniform: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """The k cubes with the highest bounds for a narrow cone: their centres projected on the sphere (K ≤ k, 3)
+    and bounds (K,), highest first (ties in key order).
+
+    The unit bearings BT (3, n) float32 (weights w (n,), ``uniform``: all equal) are hashed into a 3-D grid of
+    cubes of side s = 2 sin(α/2), the chord of α: a cone of half-angle α whose axis lies in a cube holds only
+    bearings of that cube and its 26 neighbours, so their weight bounds the weight of every such cone, whatever
+    α; every direction of a cube is within 2 asin(√3 s / 2) ≈ 1.73 α of its projected centre. The cube weights
+    come from one sort of the integer keys (``np.unique``: exact counts with equal weights, independent of the
+    landmarks' order) and 27 ``searchsorted`` lookups of the shifted keys. The cubes are the occupied ones and,
+    when there are at most ``empty_upto`` of those, also their empty neighbours (the axis of a cone can lie
+    in an empty cube: a ring of bearings). Cost O(n log n), no table that grows as α shrinks.
+    """
+    s = 2.0 * math.sin(0.5 * alpha)
+    M = math.ceil(1.0 / s) + 3  # indices of ⌊u_i / s⌋ + M (and ± 2) stay within 1 … 2M − 1
+    L = 2 * M + 1
+    Q = np.floor(BT * np.float32(1.0 / s)).astype(np.int64)
+    Q += M
+    keys = (Q[0] * L + Q[1]) * L + Q[2]
+    uk, inv = np.unique(keys, return_inverse=True)
+    U = uk.size
+    own = np.bincount(inv, weights=None if uniform else w, minlength=U) * (float(w[0]) if uniform else 1.0)  # per cube
+    offsets = np.array([(dx * L + dy) * L + dz for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)])
+    cubes = uk if empty_upto < U else np.unique((uk[:, None] + offsets).ravel())
+    bound = np.zeros(cubes.size)
+    for off in offsets:
+        q = cubes + off
+        pos = np.minimum(np.searchsorted(uk, q), U - 1)
+        hit = np.flatnonzero(uk.take(pos) == q)
+        bound[hit] += own.take(pos.take(hit))
+    k = min(k, cubes.size)
+    top = np.argpartition(-bound, k - 1)[:k] if k < cubes.size else np.arange(cubes.size)
+    top = top[np.lexsort((cubes.take(top), -bound.take(top)))]  # by bound, then key: order-independent
+    ix, rem = np.divmod(cubes.take(top), L * L)
+    iy, iz = np.divmod(rem, L)
+    D = (np.stack([ix, iy, iz], axis=1) - M + 0.5) * s
+    return D / np.linalg.norm(D, axis=1, keepdims=True), bound.take(top)
+
+
+def _narrow_view(
+    B: np.ndarray, BT: np.ndarray, w: np.ndarray, w32: np.ndarray, alpha: float, opts: ViewOptions,
+    init: np.ndarray | None, uniform: bool,
+) -> np.ndarray:
+    """Global stage and hard-count search for a narrow cone (α < narrow_deg): a branch and bound over the cubes
+    of :func:`_cap_candidates`. In order of their bounds (``init`` first), while a bound exceeds the best weight
+    found (at most 4 · narrow_searches cubes, narrow_searches of them searched approximately), the best axis
+    within narrow_cap_ratio · α of the cube's projected centre (a disc covering the cube) is found exactly by
+    :func:`_exact_local` when the disc's edge band is small (sparse data), otherwise by the coarse-to-fine
+    :func:`local_search` over the disc (skipping cubes within α of one already searched so); the
+    ``narrow_exact`` best distinct results of the latter then climb by exact searches within
+    narrow_exact_ratio · α. Weights are counted in float64 (float32 cosines resolve only ~7 µrad at 0.5°).
+    No smooth ascent: its transition width would be wider than the cone. B (n, 3) float64 and BT (3, n)
+    float32 unit bearings, w / w32 (n,) weights.
+    Returns the axis (3,)."""
+    n_search = max(1, opts.narrow_searches)
+    C, bound = _cap_candidates(BT, w, alpha, 8 * n_search, opts.narrow_empty_cubes, uniform)
+    if init is not None:
+        C, bound = np.vstack([init, C]), np.concatenate([[np.inf], bound])
+    cover = opts.narrow_cap_ratio * alpha
+    radii, points = _search_levels(alpha, opts, cover, opts.narrow_cap_points)
+    cos_a = math.cos(alpha) - 1e-12
+
+    def weight64(c: np.ndarray) -> float:
+        return float(w[B @ (c / math.sqrt(float(c @ c))) >= cos_a].sum())
+
+    found: list[tuple[float, int, np.ndarray, bool]] = []  # (hard weight, rank, axis, exact over the disc)
+    searched: list[np.ndarray] = []  # centres of the cubes searched approximately
+    cos_near = math.cos(alpha)
+    for k in range(C.shape[0]):
+        if found and bound[k] <= max(f[0] for f in found):
+            break  # no cone with its axis in this cube (or a later one) sees more
+        if len(searched) >= n_search or len(found) >= 4 * n_search:
+            break
+        if any(float(C[k] @ c) >= cos_near for c in searched):
+            continue  # dense: a neighbouring cube's search already went over most of this one
+        exact = _exact_local(C[k], BT, w32, alpha, cover, opts.narrow_exact_band, shrink=False)
+        if exact is not None:
+            found.append((weight64(exact), k, exact, True))
+            continue
+        searched.append(C[k])
+        c = local_search(C[k], BT, w32, alpha, C[k].astype(np.float32) @ BT, radii, points) if radii else C[k]
+        found.append((weight64(c), k, c, False))
+    found.sort(key=lambda f: (-f[0], f[1]))
+    best_s, c_best = found[0][0], found[0][2]
+    done: list[np.ndarray] = []
+    reach = opts.narrow_exact_ratio * alpha
+    for sc, _, c, exact in found:
+        if len(done) >= opts.narrow_exact or reach <= 0:
+            break
+        if exact or any(float(c @ d) >= math.cos(0.5 * reach) for d in done):
+            continue  # settled already, or the same basin as an axis already searched exactly
+        done.append(c)
+        for _ in range(3):  # exact in a disc around c; repeated while it moves to a better axis
+            e = _exact_local(c, BT, w32, alpha, reach, opts.narrow_exact_band)
+            se = -1.0 if e is None else weight64(e)
+            if e is None or se <= sc:
+                break
+            c, sc = e, se
+        if sc > best_s:
+            best_s, c_best = sc, c
+    return c_best
+
+
+def boundary_axes(B: np.ndarray, alpha: float) -> np.ndarray:
+    """The axes (2P, 3) of the cones of half-angle α [rad] whose edge passes through two of the unit bearings
+    B (m, 3) float64, for the P pairs at most 2α apart (coincident pairs skipped): c = a·m̂ ± √(1 − a²)·n̂ with
+    m̂ the pair's mid-bearing, n̂ its unit normal and a = cos α / (m̂ · b). A cone holding the most weight can
+    be moved onto such an axis (or onto a bearing) without losing any of it. O(m²) pairs."""
+    pair_cos = B @ B.T
+    i, j = np.nonzero(np.triu(pair_cos >= np.cos(2.0 * alpha), k=1))
+    mid = B[i] + B[j]
+    mid /= np.linalg.norm(mid, axis=1, keepdims=True)
+    ax = np.cross(B[i], B[j])
+    nrm = np.linalg.norm(ax, axis=1)
+    ok = nrm > 1e-12
+    mid, ax = mid[ok], ax[ok] / nrm[ok, None]
+    a = np.minimum(1.0, np.cos(alpha) / np.einsum("ij,ij->i", mid, B[i[ok]]))
+    t = np.sqrt(1.0 - a * a)[:, None]
+    return np.concatenate([a[:, None] * mid + t * ax, a[:, None] * mid - t * ax])
+
+
+def _exact_local(
+    c: np.ndarray, BT: np.ndarray, w32: np.ndarray, alpha: float, reach: float, max_band: int, shrink: bool = True
+) -> np.ndarray | None:
+    """The best cone axis (3,) within r [rad] of the unit axis c (3,), exactly: every landmark within α − r
+    of c is inside all those cones and every landmark beyond α + r outside, so only the edge band α ± r is
+    scored. The axes keeping a given set of landmarks inside form an intersection of caps; where it meets
+    the disc of radius r it has a corner that is c itself, a :func:`boundary_axes` axis of two band
+    landmarks, or a point of the disc's rim at angle α from one band landmark (:func:`_edge_meets_disc`),
+    so those candidates are scored. r
+    starts at ``reach`` and halves until the band holds ≤ ``max_band`` landmarks (cost O(max_band³); None
+    when ``shrink`` is False and the band at ``reach`` is larger).
+    BT (3, n) float32 unit bearings, w32 (n,) weights."""
+    cos_c = c.astype(np.float32) @ BT
+    r = reach
+    while True:
+        lo, hi = np.cos(min(np.pi, alpha + r)) - 1e-6, np.cos(max(0.0, alpha - r)) + 1e-6
+        sel = np.flatnonzero((cos_c >= lo) & (cos_c <= hi))
+        if sel.size <= max_band or r < 1e-6:
+            break
+        if not shrink:
+            return None
+        r *= 0.5
+    Bb = BT.take(sel, axis=1).T.astype(float)
+    Bb /= np.linalg.norm(Bb, axis=1, keepdims=True)
+    wb = w32.take(sel).astype(float)
+    A = boundary_axes(Bb, alpha - 1e-6)  # 1 µrad inside: float32 bearings stay inside in float64
+    A = np.vstack([c[None], A[A @ c >= np.cos(r)], _edge_meets_disc(Bb, alpha - 1e-6, c, r * (1 - 1e-9))])
+    cos_ab = A @ Bb.T
+    vals = (cos_ab >= np.cos(alpha) - 1e-12) @ wb
+    return A[int(np.argmax(vals))]
+
+
+def _edge_meets_disc(Bb: np.ndarray, alpha: float, c: np.ndarray, r: float) -> np.ndarray:
+    """The directions (≤ 2m, 3) at angle α [rad] from one of the unit bearings Bb (m, 3) and at angle r from
+    the unit axis c (3,): v = x·c + y·b ± z·(c × b) with x + y (c·b) = cos r, x (c·b) + y = cos α."""
+    g = Bb @ c  # (m,)
+    n = np.cross(np.broadcast_to(c, Bb.shape), Bb)
+    det = 1.0 - g * g
+    ok = det > 1e-15
+    g, n, b, det = g[ok], n[ok], Bb[ok], det[ok]
+    cr, ca = math.cos(r), math.cos(alpha)
+    x = (cr - g * ca) / det
+    y = (ca - g * cr) / det
+    z2 = (1.0 - (x * x + y * y + 2.0 * x * y * g)) / det  # |c × b|² = 1 − g²
+    hit = z2 >= 0.0
+    x, y, n, b = x[hit], y[hit], n[hit], b[hit]
+    base = x[:, None] * c + y[:, None] * b
+    zn = np.sqrt(z2[hit])[:, None] * n
+    V = np.concatenate([base + zn, base - zn])
+    return V / np.linalg.norm(V, axis=1, keepdims=True) if V.size else V.reshape(0, 3)
+
+
 def _greedy_distinct(D: np.ndarray, cos_min: float, k: int) -> list[int]:
     """Greedy non-maximum suppression over unit directions D (m, 3) sorted best first: the positions of at
     most k of them, each with cosine < ``cos_min`` to every one picked before it."""
@@ -279,6 +464,9 @@ def optimize_view(
         return ViewResult(d, optical_frame_from_direction(d), 0, 0.0, 0)
     w32 = w.astype(np.float32)
     uniform = weights is None or float(w.min()) == float(w.max())
+    if alpha < math.radians(opts.narrow_deg):
+        c_best = _narrow_view(B, BT, w, w32, alpha, opts, init_v, uniform)
+        return _result(c_best, B, BT, w32, alpha, opts, 0)
     if B.shape[0] > opts.sample:
         if kernel is None:
             kernel = cone_kernel(alpha, opts.cells)
@@ -323,27 +511,43 @@ def optimize_view(
         for c, cs, sc in ((R[0], cos_r, s_r), (C[k], cos_c[k], float(score[k]))):
             if sc > best_s:
                 best_s, c_best, cos_best = sc, c, cs
+    radii, points = _search_levels(alpha, opts, opts.cap_ratio * alpha, opts.cap_points)
+    if radii:
+        c_best = local_search(c_best, BT, w32, alpha, cos_best, radii, points)
+    return _result(c_best, B, BT, w32, alpha, opts, iters)
+
+
+def _search_levels(alpha: float, opts: ViewOptions, cap: float, cap_points: int) -> tuple[list[float], list[int]]:
+    """Radii [rad] and direction counts of :func:`local_search`: a first cap of radius ``cap`` with ``cap_points``
+    directions (none when either is 0), then polish spirals from polish_deg (at least 0.6 × the cap's spacing)
+    shrinking by polish_ratio down to polish_tol_deg (at most 0.05 α)."""
+    rad = np.radians
     radii, points = [], []
-    if opts.cap_points > 0 and opts.cap_ratio > 0:
-        radii.append(opts.cap_ratio * alpha)
-        points.append(opts.cap_points)
+    if cap_points > 0 and cap > 0:
+        radii.append(cap)
+        points.append(cap_points)
     if opts.polish_deg > 0:
         r, tol = min(rad(opts.polish_deg), 0.5 * alpha), min(rad(opts.polish_tol_deg), 0.05 * alpha)
         if radii:  # cover the gaps between the cap's directions
-            r = max(r, 0.6 * radii[0] * math.sqrt(math.pi / opts.cap_points))
+            r = max(r, 0.6 * radii[0] * math.sqrt(math.pi / cap_points))
         while True:
             radii.append(r)
             points.append(opts.polish_points)
             if r * opts.polish_ratio < tol:
                 break
             r *= opts.polish_ratio
-    if radii:
-        c_best = local_search(c_best, BT, w32, alpha, cos_best, radii, points)
-    c_best = c_best / np.sqrt(c_best @ c_best)
+    return radii, points
+
+
+def _result(
+    c: np.ndarray, B: np.ndarray, BT: np.ndarray, w32: np.ndarray, alpha: float,
+    opts: ViewOptions, iters: int,
+) -> ViewResult:
+    """The ViewResult of axis c (3,): hard count in float32, pairs within 2e-6 of cos α settled in float64."""
+    c_best = c / np.sqrt(c @ c)
     ca = np.cos(alpha)
     x = c_best.astype(np.float32) @ BT
     x -= np.float32(ca)  # cos θ − cos α
-    # hard count in float32, pairs within 2e-6 of cos α (float32 rounding) settled in float64
     edge = np.flatnonzero(np.abs(x) <= np.float32(2e-6))
     visible = int(np.count_nonzero(x > np.float32(2e-6)))
     visible += int(np.count_nonzero(B.take(edge, axis=0) @ c_best >= ca - 1e-12))
