@@ -75,6 +75,9 @@ def test_optimize_view_takes_a_prebuilt_kernel_and_rejects_one_of_another_angle(
         optimize_view(B, None, alpha, kernel=cone_kernel(np.radians(20.0)))
     with pytest.raises(ValueError, match="kernel"):
         optimize_view(B, None, alpha, options=ViewOptions(cells=12), kernel=cone_kernel(alpha, 16))
+    narrow = np.radians(2.0)  # the narrow-cone path ignores the kernel but still refuses a wrong one
+    with pytest.raises(ValueError, match="kernel"):
+        optimize_view(B, None, narrow, kernel=cone_kernel(alpha))
 
 
 def test_histogram_candidates_do_not_depend_on_the_landmark_order():

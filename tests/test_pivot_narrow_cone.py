@@ -151,3 +151,18 @@ def test_exact_local_search_beats_a_dense_sample_of_its_disc():
     cos_sb = S @ B.T
     sampled = ((cos_sb >= np.cos(alpha)) @ w).max()
     assert _seen(B, w, axis, alpha) >= sampled - 1e-9
+
+
+def test_narrow_bench_judges_against_the_exact_optimum():
+    from pivotd.bench.narrow import quality_rows
+
+    def looks_at_x(B, w, alpha):  # a deliberately poor optimizer: the bench must show it
+        from types import SimpleNamespace
+
+        return SimpleNamespace(direction=np.array([1.0, 0.0, 0.0]))
+
+    good = quality_rows((2.0,), seeds=1, poses=2, scale=0.03)
+    bad = quality_rows((2.0,), seeds=1, poses=2, scale=0.03, view=looks_at_x)
+    assert good[0]["poses"] == bad[0]["poses"] == 12
+    assert good[0]["min_pct"] >= 95.0 and good[0]["mean_pct"] <= 100.0 + 1e-9
+    assert bad[0]["mean_pct"] < 60.0

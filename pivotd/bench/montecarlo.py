@@ -66,6 +66,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
              "next to this tree's on the same poses (Monte Carlo levels and hard scenes) and report both",
     )
     parser.add_argument(
+        "--narrow", action="store_true",
+        help="only narrow cones (half-angles 0.5-5 deg): quality against the exact optimum on small instances "
+             "of every hard family, and the cost per pose at full size (pivotd.bench.narrow)",
+    )
+    parser.add_argument(
         "--replan", action="store_true",
         help="only the warm-started replanning regime: 40 waypoints, 20k landmarks, anchor + pan/tilt limits",
     )
@@ -477,6 +482,13 @@ def run(args: argparse.Namespace) -> int:
         rows = pareto_rows(families=not args.quick)
         if args.json:
             Path(args.json).write_text(json.dumps({"pareto": rows}, indent=2) + "\n")
+        return 0
+    if args.narrow:
+        from pivotd.bench.narrow import run_narrow
+
+        narrow = run_narrow(args.quick, args.compare_with)
+        if args.json:
+            Path(args.json).write_text(json.dumps({"narrow": narrow}, indent=2) + "\n")
         return 0
     if args.replan:
         out = []

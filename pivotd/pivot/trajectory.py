@@ -9,6 +9,7 @@ J_i = J_vis,i/W_i + λ c_i × (c_{i−1} + c_{i+1}) (eqs. 12, 18–20; one neigh
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -333,7 +334,7 @@ def _independent_views(
         if dist_w and n.size:
             w = np.maximum(_weights(n[None].astype(np.float32), None, w[None], True)[0].astype(float), 0.0)
         uniform = w.size == 0 or bool(np.all(w == w[0]))
-        if kernel is None and B.shape[0] > ViewOptions.sample:
+        if kernel is None and B.shape[0] > ViewOptions.sample and alpha >= math.radians(ViewOptions.narrow_deg):
             kernel = cone_kernel(alpha)
         r = optimize_view(B, None if uniform else w, alpha, init=None if init is None else init[i], kernel=kernel)
         dirs[i], rots[i], visible[i] = r.direction, r.rotation, r.visible

@@ -464,14 +464,15 @@ def optimize_view(
         return ViewResult(d, optical_frame_from_direction(d), 0, 0.0, 0)
     w32 = w.astype(np.float32)
     uniform = weights is None or float(w.min()) == float(w.max())
-    if alpha < math.radians(opts.narrow_deg):
+    if kernel is not None and (abs(kernel.alpha - alpha) > 1e-9 * alpha
+                               or (opts.cells is not None and kernel.m != opts.cells)):
+        raise ValueError(f"kernel was built for alpha={kernel.alpha} with {kernel.m} cells per face, not {alpha}")
+    if alpha < math.radians(opts.narrow_deg):  # the narrow path does not use the kernel
         c_best = _narrow_view(B, BT, w, w32, alpha, opts, init_v, uniform)
         return _result(c_best, B, BT, w32, alpha, opts, 0)
     if B.shape[0] > opts.sample:
         if kernel is None:
             kernel = cone_kernel(alpha, opts.cells)
-        elif abs(kernel.alpha - alpha) > 1e-9 * alpha or (opts.cells is not None and kernel.m != opts.cells):
-            raise ValueError(f"kernel was built for alpha={kernel.alpha} with {kernel.m} cells per face, not {alpha}")
         C = _histogram_candidates(BT, w, alpha, opts, init_v, uniform, kernel)
     else:
         C = _candidates(B, BT, w, alpha, opts, init_v, weights is None)
