@@ -158,6 +158,12 @@ def _solvers(alpha: float, grid: np.ndarray) -> tuple[Callable[..., Any], Callab
     return partial(optimize_view, kernel=cone_kernel(alpha)), partial(brute_force_view, grid=grid)
 
 
+def quality_stats(prefix: str, pct: list[float]) -> dict[str, float]:
+    """``{prefix}_mean_pct``, ``_p5_pct`` and ``_min_pct`` of per-pose percentages of a reference."""
+    return {f"{prefix}_mean_pct": float(np.mean(pct)), f"{prefix}_p5_pct": percentile(pct, 5),
+            f"{prefix}_min_pct": float(np.min(pct))}
+
+
 def hard_rows(
     seeds: int, poses: int, alpha: float, res: float, repeats: int = 3, compare_with: str | None = None
 ) -> list[dict]:
@@ -218,9 +224,7 @@ def hard_rows(
             "grid_ms": 1e3 * median(t_grid),
             "speedup": median(t_grid) / median(t_piv),
             "speedup_per_pose": median(list(np.array(t_grid) / np.array(t_piv))),
-            "ref_mean_pct": float(np.mean(ratio)),
-            "ref_p5_pct": percentile(ratio, 5),
-            "ref_min_pct": float(np.min(ratio)),
+            **quality_stats("ref", ratio),
             "grid_mean_pct": float(np.mean(grid_ratio)),
             "grid_min_pct": float(np.min(grid_ratio)),
             "ref_bound_gap_max_pct": float(np.max(gap)),
@@ -231,9 +235,7 @@ def hard_rows(
                 "other_ms": 1e3 * median(t_other),
                 "other_speedup": median(t_grid) / median(t_other),
                 "other_over_pivot": median(list(np.array(t_other) / np.array(t_piv))),
-                "other_mean_pct": float(np.mean(other_ratio)),
-                "other_p5_pct": percentile(other_ratio, 5),
-                "other_min_pct": float(np.min(other_ratio)),
+                **quality_stats("other", other_ratio),
             })
         rows.append(row)
         _print_hard_row(row)
