@@ -19,16 +19,24 @@ from firmware_proto.messages import FAULT_ENCODER, MODE_FAULT, Ack, Config, Enab
 pytestmark = pytest.mark.slow  # subprocesses / real time
 
 
-def exchange(port, msgs, wait: float = 0.3) -> list:
-    """Send ``msgs`` (list of (msg, seq)) and return the frames received within ``wait`` seconds."""
+def exchange(port, msgs, wait: float = 0.3, until=None) -> list:
+    """Send ``msgs`` (list of (msg, seq)) and return the frames received within ``wait`` seconds, or (with
+    ``until``, a predicate on the frames so far) as soon as ``until`` holds, waiting at most ``wait``."""
     for msg, seq in msgs:
         port.write(codec.encode(msg, seq))
     dec = codec.StreamDecoder()
     frames = []
     deadline = time.monotonic() + wait
-    while time.monotonic() < deadline:
+    while time.monotonic() < deadline and not (until is not None and until(frames)):
         frames += dec.feed(port.read(256))
     return frames
+
+
+def _acked_and_ten_states_after_setpoint(frames: list) -> bool:
+    """Both ACKs in, and ten STATEs of which the newest echoes setpoint 4 (a loaded machine may be slow)."""
+    states = [f.msg for f in frames if isinstance(f.msg, State)]
+    return (sum(isinstance(f.msg, Ack) for f in frames) >= 2 and len(states) >= 10
+            and states[-1].last_setpoint_seq == 4)
 
 
 def test_pty_announces_path_and_speaks_the_protocol(tmp_path) -> None:
@@ -38,7 +46,8 @@ def test_pty_announces_path_and_speaks_the_protocol(tmp_path) -> None:
         port = serial.serial_for_url(mock.url, timeout=0.05)
         try:
             frames = exchange(port, [(Hello(1), 1), (Config(-1, 1, -1, 1, 1, 1, 5, 5, 500), 2), (Enable(1), 3),
-                                     (Setpoint(0.25, -0.5, 0.0, 0.0, 42), 4)], wait=0.5)
+                                     (Setpoint(0.25, -0.5, 0.0, 0.0, 42), 4)], wait=20.0,
+                              until=_acked_and_ten_states_after_setpoint)
         finally:
             port.close()
         assert mock.terminate() == 0
