@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -59,6 +59,8 @@ class TrajectoryOptions:
     warm_polish: bool = False  # also polish warm starts (receding-horizon replans)
     step_polish_deg: float = 4.0  # step-limited DP polish of the visible count (pivotd.pivot.polish): radius (0: off)
     seed_cap: int = 512  # landmarks per node waypoint scoring the step-limited grid chain (a second candidate; 0: off)
+    narrow_seed_nodes: int = 16  # cold start, α below ViewOptions.narrow_deg: a candidate through this many node
+    # waypoints' single-view optima (optimize_view), kept when its objective is higher (0: off)
 
 
 @dataclass
@@ -610,4 +612,23 @@ def optimize_trajectory(
         obj += smooth * float(np.sum(C[1:] * C[:-1]))
         if a_vec is not None:
             obj += smooth * float(a_vec @ C[0])
-    return TrajectoryResult(C, R, visible.astype(int), iters, obj)
+    result = TrajectoryResult(C, R, visible.astype(int), iters, obj)
+    if (not warm and geom is not None and smooth > 0 and opts.narrow_seed_nodes > 0
+            and alpha < math.radians(ViewOptions.narrow_deg)):
+        # a narrow cone sees a few degrees: the chain's grid and the widened stages of a cold start cannot find
+        # its basins, while the single-view search can. Seed a second solve through those optima and keep the
+        # plan with the higher objective (both are judged by the same function).
+        nodes = chain.node_indices(N, opts.narrow_seed_nodes)
+        views = (lambda i: (P, fw)) if pairs is None else pairs.waypoint
+        peaks = _independent_views(lambda k: views(int(nodes[k])), T[nodes], alpha, None,
+                                   opts.distance_weights).directions
+        alt = optimize_trajectory(
+            points, waypoints, alpha, lam, weights=weights, retained=retained,
+            init_directions=chain.slerp_fill(N, nodes, peaks), anchor=anchor, constraint=constraint,
+            max_step=max_step, pair_weights=pair_weights,
+            options=replace(opts, warm_polish=True, warm_iterations=opts.max_iterations),
+        )
+        if alt.objective > result.objective:
+            result = TrajectoryResult(alt.directions, alt.rotations, alt.visible, iters + alt.iterations,
+                                      alt.objective)
+    return result
