@@ -186,3 +186,15 @@ def test_cold_trajectory_with_a_narrow_cone_finds_the_basins_the_single_view_sea
     assert plan.visible.sum() >= 0.85 * independent.visible.sum()
     steps = np.degrees(np.arccos(np.clip(np.sum(plan.directions[1:] * plan.directions[:-1], axis=1), -1, 1)))
     assert steps.max() < 5.0  # still a smooth plan
+
+
+def test_narrow_bench_plan_rows_compare_seeded_and_unseeded_cold_plans():
+    from pivotd.bench.narrow import plan_rows
+
+    rows = plan_rows((2.0,), scale=0.05, waypoints=12)
+    assert [r["family"] for r in rows] == list(HARD_FAMILIES)
+    for r in rows:
+        assert 0.0 <= r["unseeded_pct"] <= 100.0 + 1e-9 and 0.0 <= r["seeded_pct"] <= 100.0 + 1e-9
+        assert 0.0 <= r["max_step_deg"] < 45.0
+    near_far = next(r for r in rows if r["family"] == "near_far")
+    assert near_far["seeded_pct"] > near_far["unseeded_pct"] + 20.0  # the seed finds the small dense cluster
