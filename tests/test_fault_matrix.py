@@ -33,6 +33,14 @@ def no_tracebacks(stack: SoakStack) -> None:
         assert n == 0, (path, lines)
 
 
+def within_limits_and_no_tracebacks(stack: SoakStack):
+    """The device's log holds no setpoint beyond the motion limits and no daemon log a traceback; the check."""
+    check = check_device_log(stack.cfg, stack.out / "gimbal.csv")
+    assert check.beyond_limits == 0, check
+    no_tracebacks(stack)
+    return check
+
+
 def resumed_setpoints(log: list[dict], after_row: int) -> tuple[dict, dict]:
     """After row ``after_row``: the first SETPOINT of the next connection (after its HELLO) and the last STATE the
     device sent before it."""
@@ -90,8 +98,7 @@ def test_unplug_mid_motion_and_replug_resumes_from_the_measured_state(stack):
         _unplug_and_check(stack, seconds)
     code = stack.stop_daemon()
     assert code == 0
-    assert check_device_log(stack.cfg, stack.out / "gimbal.csv").beyond_limits == 0
-    no_tracebacks(stack)
+    within_limits_and_no_tracebacks(stack)
 
 
 @pytest.mark.slow
@@ -101,8 +108,7 @@ def test_unplug_for_a_minute_mid_motion_and_replug_resumes(stack):
     _unplug_and_check(stack, 60.0)
     assert stack.status["link_counters"]["reconnects"] >= 1
     assert stack.stop_daemon() == 0
-    assert check_device_log(stack.cfg, stack.out / "gimbal.csv").beyond_limits == 0
-    no_tracebacks(stack)
+    within_limits_and_no_tracebacks(stack)
 
 
 @pytest.mark.slow
@@ -136,8 +142,7 @@ def test_every_fault_bit_and_a_device_reboot_are_recovered_without_moving_throug
                if int(r["mode"]) != MODE_DISABLED)
     # After the reboot the device was configured again (a second CONFIG on a new connection) and enabled.
     assert sum(r["type"] == "CONFIG" for r in log if r["dir"] == "rx") >= 2
-    assert check_device_log(stack.cfg, stack.out / "gimbal.csv").beyond_limits == 0
-    no_tracebacks(stack)
+    within_limits_and_no_tracebacks(stack)
 
 
 @pytest.mark.slow
@@ -175,8 +180,7 @@ def test_hostile_poses_and_paths_a_stale_pose_and_a_starved_planner_are_survived
     # The flood did not starve the control loop: the device's watchdog did not expire around it.
     assert not any(int(r["faults"]) & FAULT_WATCHDOG for r in log if r["dir"] == "tx" and r["type"] == "STATE"
                    and flood[0] <= float(r["t_s"]) <= flood[1])
-    assert check_device_log(stack.cfg, stack.out / "gimbal.csv").beyond_limits == 0
-    no_tracebacks(stack)
+    within_limits_and_no_tracebacks(stack)
 
 
 @pytest.mark.slow
@@ -195,8 +199,7 @@ def test_sigkill_mid_motion_the_device_holds_and_a_restart_resumes_from_where_it
     setpoint, state = resumed_setpoints(rows(stack.out / "gimbal.csv"), n_rows)
     assert_continuous_with_the_device(stack, setpoint, state)
     assert stack.stop_daemon() == 0
-    assert check_device_log(stack.cfg, stack.out / "gimbal.csv").beyond_limits == 0
-    no_tracebacks(stack)
+    within_limits_and_no_tracebacks(stack)
 
 
 @pytest.mark.slow
@@ -265,10 +268,8 @@ def test_late_delivery_and_host_stalls_mid_motion_keep_every_setpoint_within_lim
         _pause(stack.device.pid if target == "device" else stack.daemon.pid, 0.3)
         assert stack.wait_healthy(RECOVER_S) is not None, stack.status
     assert stack.stop_daemon() == 0
-    check = check_device_log(stack.cfg, stack.out / "gimbal.csv")
-    assert check.beyond_limits == 0, check
+    check = within_limits_and_no_tracebacks(stack)
     assert check.restarts >= 1, check  # the device did hold at least once
-    no_tracebacks(stack)
 
 
 def _write_log(path: Path, log: list[dict]) -> Path:
