@@ -26,6 +26,12 @@ def percentile(values: Sequence[float], q: float) -> float:
     return float(np.percentile(values, q)) if len(values) else float("nan")
 
 
+def quality_stats(prefix: str, pct: Sequence[float]) -> dict[str, float]:
+    """``{prefix}_mean_pct``, ``_p5_pct`` and ``_min_pct`` of per-pose percentages of a reference."""
+    return {f"{prefix}_mean_pct": float(np.mean(pct)), f"{prefix}_p5_pct": percentile(pct, 5),
+            f"{prefix}_min_pct": float(np.min(pct))}
+
+
 def best_of(fn: Callable[[], Any], repeats: int) -> tuple[Any, list[float]]:
     """Run ``fn`` ``repeats`` times; return the last result and every duration [s]."""
     times = []

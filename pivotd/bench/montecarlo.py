@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from pivotd.bench._stats import best_of, median, percentile, steady_heap, timed
+from pivotd.bench._stats import best_of, median, percentile, quality_stats, steady_heap, timed
 from pivotd.progress import with_progress
 
 log = logging.getLogger(__name__)
@@ -156,12 +156,6 @@ def _solvers(alpha: float, grid: np.ndarray) -> tuple[Callable[..., Any], Callab
     from pivotd.pivot.view import optimize_view
 
     return partial(optimize_view, kernel=cone_kernel(alpha)), partial(brute_force_view, grid=grid)
-
-
-def quality_stats(prefix: str, pct: list[float]) -> dict[str, float]:
-    """``{prefix}_mean_pct``, ``_p5_pct`` and ``_min_pct`` of per-pose percentages of a reference."""
-    return {f"{prefix}_mean_pct": float(np.mean(pct)), f"{prefix}_p5_pct": percentile(pct, 5),
-            f"{prefix}_min_pct": float(np.min(pct))}
 
 
 def hard_rows(

@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from pivotd.bench._stats import quality_stats
+
 HALF_ANGLES_DEG: tuple[float, ...] = (0.5, 1.0, 2.0, 3.0, 5.0)
 WIDE_DEG = 15.0
 
@@ -48,10 +50,8 @@ def quality_rows(half_angles: tuple[float, ...], seeds: int, poses: int, scale: 
                     best = exact_view(B, None, alpha)[1]
                     got = _visible(B, view(B, None, alpha).direction, alpha)
                     pct.append(100.0 * got / max(best, 1e-12))
-        q = np.array(pct)
-        rows.append({"half_angle_deg": h, "poses": int(q.size), "landmarks_median": int(np.median(landmarks)),
-                     "mean_pct": round(float(q.mean()), 2), "p5_pct": round(float(np.percentile(q, 5)), 2),
-                     "min_pct": round(float(q.min()), 2)})
+        rows.append({"half_angle_deg": h, "poses": len(pct), "landmarks_median": int(np.median(landmarks)),
+                     **quality_stats("exact", pct)})
     return rows
 
 
@@ -129,7 +129,7 @@ def run_narrow(quick: bool, compare_with: str | None = None) -> dict:
         for r in result.get(key, []):
             tag = "" if key == "quality" else f" ({compare_with})"
             print(f"  {r['half_angle_deg']:4.1f} deg{tag}: {r['poses']} poses, ~{r['landmarks_median']} landmarks: "
-                  f"mean {r['mean_pct']:.2f} %  p5 {r['p5_pct']:.2f} %  min {r['min_pct']:.2f} %")
+                  f"mean {r['exact_mean_pct']:.2f} %  p5 {r['exact_p5_pct']:.2f} %  min {r['exact_min_pct']:.2f} %")
     cost_poses = 2 if quick else 5
     print(f"Cost at full size (6 families x {cost_poses} poses, CPU time, alternating with a {WIDE_DEG:g} deg cone):")
     result["cost"] = cost_rows((1.0, 3.0, 5.0), cost_poses)
