@@ -10,7 +10,7 @@ BACKEND ?= pivot
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test,plot,record,bench,mavlink,dynamixel]'
+	$(BIN)/pip install --quiet -e '.[test,plot,record,bench,mavlink,dynamixel,pcd]'
 	touch $(STAMP)
 
 # `make demo BACKEND=mavlink` (or dynamixel): the same run against that backend's simulator.

@@ -30,12 +30,31 @@ class PathData:
         return int(self.positions.shape[0])
 
 
+_STAMP_NAMES = ("timestamp", "time", "t", "stamp", "time_s", "t_s")
+
+
+def path_columns(names: list[str]) -> list[int]:
+    """Columns of a path CSV with a header row: timestamp, x, y, z, qw, qx, qy, qz when it names a timestamp
+    and the four quaternion components, else x, y, z (other columns are ignored)."""
+    index: dict[str, int] = {}
+    for k, name in enumerate(names):
+        index.setdefault(name, k)
+    missing = [c for c in ("x", "y", "z") if c not in index]
+    if missing:
+        raise ValueError(f"header row has no {'/'.join(missing)} column (columns: {', '.join(names[:12])})")
+    stamp = next((index[n] for n in _STAMP_NAMES if n in index), None)
+    quat = [index.get(n) for n in ("qw", "qx", "qy", "qz")]
+    if stamp is not None and None not in quat:
+        return [stamp, index["x"], index["y"], index["z"], *quat]
+    return [index["x"], index["y"], index["z"]]
+
+
 def load_path(path: str | Path) -> PathData:
     """Read a path CSV; raises :class:`InputError` naming the file and line on bad rows or an empty path."""
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file")
-    arr = read_numeric_text(path, (3, 8), what="path")
+    arr = read_numeric_text(path, (3, 8), what="path", select=path_columns)
     if arr.shape[0] == 0:
         raise InputError(f"{path}: path is empty (no waypoint rows)")
     xyz = arr[:, :3] if arr.shape[1] == 3 else arr[:, 1:4]

@@ -46,8 +46,9 @@ def _check(out: Outcome, data: bytes) -> None:
 
 _mutations = st.lists(st.tuples(st.sampled_from(MUTATIONS), st.integers(0, 1 << 30), st.integers(0, 1 << 30)),
                       min_size=1, max_size=3)
-MAP_SEEDS = ["npy4", "npy3", "txt", "csv", "ply_ascii", "ply_le", "ply_be", "colmap_bin_points",
-             "colmap_bin_images", "colmap_txt_points", "colmap_txt_images"]
+MAP_SEEDS = ["npy4", "npy3", "txt", "csv", "csv_header", "pcd_ascii", "pcd_binary", "pcd_binary_compressed",
+             "ply_ascii", "ply_le", "ply_be", "colmap_bin_points", "colmap_bin_images",
+             "colmap_txt_points", "colmap_txt_images"]
 
 
 def _fuzz(examples: int) -> settings:
@@ -72,7 +73,7 @@ def test_plan_on_mutated_maps_never_tracebacks(corpus, name, ops):
 
 @pytest.mark.slow
 @_fuzz(150)
-@given(name=st.sampled_from(["path3", "path8"]), ops=_mutations)
+@given(name=st.sampled_from(["path3", "path8", "path_header"]), ops=_mutations)
 def test_plan_on_mutated_paths_never_tracebacks(corpus, name, ops):
     data = _apply(corpus, name, ops)
     _check(_run(corpus, name, data), data)
@@ -86,11 +87,12 @@ def test_check_on_mutated_configs_never_tracebacks(corpus, ops):
     _check(_run(corpus, "config", data), data)
 
 
-BINARY_SEEDS = ["npy4", "npy3", "ply_le", "ply_be", "colmap_bin_points", "colmap_bin_images"]
+BINARY_SEEDS = ["npy4", "npy3", "pcd_binary", "pcd_binary_compressed", "ply_le", "ply_be", "colmap_bin_points",
+                "colmap_bin_images"]
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", [*MAP_SEEDS, "path3", "path8", "config"])
+@pytest.mark.parametrize("name", [*MAP_SEEDS, "path3", "path8", "path_header", "config"])
 def test_every_header_count_and_extreme_token(corpus, name):
     """Deterministic sweep: numbers of the header / aligned words replaced by each huge count, numeric tokens
     by extreme values, and (binary files) every bit of the first 12 bytes flipped (magic, version, lengths)."""

@@ -164,9 +164,60 @@ def test_missing_weight_property_lists_available(tmp_path):
         load_landmarks(f, weight_property="score")
 
 
-def test_weight_property_rejected_for_non_ply(fif_dir):
-    with pytest.raises(InputError, match="applies to PLY maps only"):
+def test_weight_property_needs_a_header_row_in_text_maps(fif_dir, tmp_path):
+    with pytest.raises(InputError, match="needs a header row naming the columns"):
         load_landmarks(fif_dir / "two_walls_points_w.txt", weight_property="w")
+    np.save(tmp_path / "m.npy", np.zeros((2, 3)))
+    with pytest.raises(InputError, match="applies to PLY and PCD maps and text maps with a header row"):
+        load_landmarks(tmp_path / "m.npy", weight_property="w")
+
+
+@pytest.mark.parametrize(
+    ("text", "weights"),
+    [
+        ("x,y,z\n1,2,3\n4,5,6\n", [1, 1]),
+        ("\ufeffx y z\n1 2 3\n4 5 6\n", [1, 1]),  # a byte-order mark before the header
+        ("//X,Y,Z,R,G,B\n1,2,3,9,9,9\n4,5,6,9,9,9\n", [1, 1]),  # CloudCompare's ASCII export
+        (",x,y,z,weight\n0,1,2,3,0.5\n1,4,5,6,2\n", [0.5, 2]),  # pandas' to_csv with its index column
+        ("# exported\n\"Z\",\"Y\",\"X\",\"w\"\n3,2,1,7\n6,5,4,8\n", [7, 8]),  # quoted, other order
+    ],
+)
+def test_text_maps_with_a_header_row_pick_columns_by_name(tmp_path, text, weights):
+    f = tmp_path / "m.csv"
+    f.write_text(text, encoding="utf-8")
+    cloud = load_landmarks(f)
+    np.testing.assert_array_equal(cloud.points, [[1, 2, 3], [4, 5, 6]])
+    np.testing.assert_array_equal(cloud.weights, weights)
+
+
+def test_text_map_header_errors_name_the_line(tmp_path):
+    f = tmp_path / "m.csv"
+    f.write_text("# c\nx,y,elevation\n1,2,3\n")
+    with pytest.raises(InputError, match=r"m\.csv:2: header row has no z column \(columns: x, y, elevation\)"):
+        load_landmarks(f)
+    f.write_text("x,y,z,intensity\n1,2,3,4\n1,2,3\n")
+    with pytest.raises(InputError, match=r"m\.csv:3: expected 4 columns, got 3"):
+        load_landmarks(f)
+    with pytest.raises(InputError, match=r"m\.csv:1: header row has no weight column 'score'"):
+        load_landmarks(f, weight_property="score")
+    f.write_text("x,y,z,intensity\n1,2,3,4\n")
+    assert load_landmarks(f, weight_property="Intensity").weights.tolist() == [4.0]
+    f.write_text("1;2;3\n")  # not a header: a number-like first field keeps the column-count error
+    with pytest.raises(InputError, match=r"m\.csv:1: expected 3 or 4 columns"):
+        load_landmarks(f)
+
+
+def test_path_csv_with_a_header_row(tmp_path):
+    from pivotd.robot_path import load_path
+
+    f = tmp_path / "p.csv"
+    f.write_text("t,x,y,z,qx,qy,qz,qw,speed\n0,1,2,3,0,0,0,1,9\n0.5,2,2,3,0,0,0.7071068,0.7071068,9\n")
+    p = load_path(f)
+    np.testing.assert_array_equal(p.positions, [[1, 2, 3], [2, 2, 3]])
+    np.testing.assert_allclose(p.quats[1], [0, 0, 0.7071068, 0.7071068], atol=1e-6)  # (x, y, z, w)
+    np.testing.assert_array_equal(p.stamps, [0, 0.5])
+    f.write_text("x,y,z,yaw\n1,2,3,0\n")
+    assert load_path(f).quats is None and load_path(f).positions.tolist() == [[1, 2, 3]]
 
 
 def test_missing_file(tmp_path):

@@ -62,7 +62,7 @@ def write_corpus(directory: Path, seed: int = 0, landmarks: int = 40) -> list[Se
     """Write the honest corpus (maps of ``landmarks`` points) under ``directory``; returns its seeds."""
     import plyfile
 
-    from pivotd.bench.maps import write_colmap_bin
+    from pivotd.bench.maps import write_colmap_bin, write_pcd
 
     rng = np.random.default_rng(seed)
     d = Path(directory)
@@ -90,6 +90,14 @@ def write_corpus(directory: Path, seed: int = 0, landmarks: int = 40) -> list[Se
     for name, text, order in (("ply_ascii", True, "="), ("ply_le", False, "<"), ("ply_be", False, ">")):
         plyfile.PlyData(elements, text=text, byte_order=order).write(str(d / f"{name}.ply"))
         add(name, "map", d / f"{name}.ply")
+    (d / "map_header.csv").write_text("x,y,z,intensity,weight\n" + "".join(
+        f"{a:.4f},{b:.4f},{c:.4f},7,{e:.3f}\n" for (a, b, c), e in zip(pts, w, strict=True)))
+    add("csv_header", "map", d / "map_header.csv")
+    fields = {"x": pts[:, 0].astype(np.float32), "y": pts[:, 1].astype(np.float32), "z": pts[:, 2].astype(np.float32),
+              "rgb": rng.integers(0, 1 << 24, landmarks).astype(np.uint32), "weight": w.astype(np.float32)}
+    for data in ("ascii", "binary", "binary_compressed"):
+        write_pcd(d / f"pcd_{data}.pcd", fields, data)
+        add(f"pcd_{data}", "map", d / f"pcd_{data}.pcd")
     (d / "colmap_bin").mkdir()
     write_colmap_bin(d / "colmap_bin", pts, rng, images=6)
     add("colmap_bin_points", "map", d / "colmap_bin" / "points3D.bin", d / "colmap_bin" / "images.bin",
@@ -105,6 +113,9 @@ def write_corpus(directory: Path, seed: int = 0, landmarks: int = 40) -> list[Se
     xs = np.linspace(-6.0, 6.0, 12)
     (d / "path3.csv").write_text("".join(f"{x:.3f},{0.5 * x:.3f},0.0\n" for x in xs))
     add("path3", "path", d / "path3.csv")
+    (d / "path_header.csv").write_text("t,x,y,z,qx,qy,qz,qw\n" + "".join(
+        f"{0.1 * i:.2f},{x:.3f},0.0,0.0,0.0,0.0,0.0,1.0\n" for i, x in enumerate(xs)))
+    add("path_header", "path", d / "path_header.csv")
     (d / "path8.csv").write_text("".join(f"{int(1.7e18 + i * 1e8)},{x:.3f},0.0,0.0,1.0,0.0,0.0,0.0\n"
                                          for i, x in enumerate(xs)))
     add("path8", "path", d / "path8.csv")

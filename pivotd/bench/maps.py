@@ -94,6 +94,41 @@ def _uniform_map(m: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarr
     return pts, np.array([side / 2, side / 2, height / 2])
 
 
+def write_pcd(path: Path, fields: dict[str, np.ndarray], data: str = "binary", *, width: int | None = None,
+              viewpoint: str = "0 0 0 1 0 0 0") -> None:
+    """Write a PCD file (the Point Cloud Library's format, v0.7) holding ``fields`` (name → (N,) array; its
+    dtype gives SIZE and TYPE; ``_`` names padding bytes, uint8), as ``data`` ascii, binary or
+    binary_compressed (LZF, needs the ``pcd`` extra); ``width`` < N writes an organized cloud."""
+    names = list(fields)
+    arrays = [np.ascontiguousarray(fields[n]) for n in names]
+    n = int(arrays[0].shape[0]) if arrays else 0
+    width = n if width is None else width
+    height = n // width if width else 1
+    kinds = ["F" if a.dtype.kind == "f" else "U" if a.dtype.kind == "u" else "I" for a in arrays]
+    header = (
+        "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n"
+        f"FIELDS {' '.join(names)}\nSIZE {' '.join(str(a.dtype.itemsize) for a in arrays)}\n"
+        f"TYPE {' '.join(kinds)}\nCOUNT {' '.join('1' for _ in names)}\nWIDTH {width}\nHEIGHT {height}\n"
+        f"VIEWPOINT {viewpoint}\nPOINTS {n}\nDATA {data}\n"
+    )
+    if data == "ascii":
+        rows = np.column_stack([a.astype(np.float64) for a in arrays]) if n else np.zeros((0, len(names)))
+        body = "".join(" ".join(f"{v:.9g}" for v in row) + "\n" for row in rows).encode()
+    else:
+        rec = np.empty(n, dtype=[(f"f{k}", "<" + a.dtype.str[1:]) for k, a in enumerate(arrays)])
+        for k, a in enumerate(arrays):
+            rec[f"f{k}"] = a
+        if data == "binary":
+            body = rec.tobytes()
+        else:
+            import lzf
+
+            planes = b"".join(a.astype("<" + a.dtype.str[1:]).tobytes() for a in arrays)  # field after field
+            packed = lzf.compress(planes, len(planes) * 2 + 16) if planes else b""
+            body = np.array([len(packed), len(planes)], "<u4").tobytes() + packed
+    Path(path).write_bytes(header.encode() + body)
+
+
 def write_colmap_bin(directory: Path, points: np.ndarray, rng: np.random.Generator, images: int = 500) -> None:
     """Write points3D.bin (tracks of 2–5 observations) and images.bin for ``points`` (M, 3), vectorised."""
     m = points.shape[0]

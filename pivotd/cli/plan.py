@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from pivotd.errors import InputError
+from pivotd.maps.formats import TEXT_SUFFIXES, text_map_weight_column
 from pivotd.pivot.steps import MAX_STEP_RANGE_DEG
 
 log = logging.getLogger(__name__)
@@ -41,7 +42,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-range", type=float, default=None, metavar="M", help="ignore landmarks farther than M")
     parser.add_argument("--weights-from", default="auto", metavar="COLUMN", help=WEIGHTS_HELP)
     parser.add_argument("--weight-property", default=None, metavar="NAME",
-                        help="PLY maps: the vertex property holding the feature weight")
+                        help="the feature weight's vertex property (PLY), field (PCD) or header column (text maps)")
     parser.add_argument("--max-view-angle-deg", type=float, default=None, metavar="DEG",
                         help="drop landmarks seen from more than DEG away from their mean observation direction "
                              "(needs observation directions: a COLMAP model with its images)")
@@ -106,12 +107,9 @@ def _column_count(path: Path) -> int | None:
             return int(np.load(path, mmap_mode="r").shape[1])
         except (ValueError, OSError, IndexError):
             return None
-    if suffix in (".txt", ".csv", ".xyz"):
-        with path.open() as fh:
-            for line in fh:
-                s = line.strip()
-                if s and not s.startswith("#"):
-                    return len([f for f in s.replace(",", " ").split() if f])
+    if suffix in TEXT_SUFFIXES:
+        has_weight = text_map_weight_column(path)
+        return None if has_weight is None else 4 if has_weight else 3
     return None
 
 

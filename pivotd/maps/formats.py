@@ -1,4 +1,4 @@
-"""Landmark map files (docs/FORMATS.md): ``.npy``, text ``x y z [w]``, PLY and COLMAP models.
+"""Landmark map files (docs/FORMATS.md): ``.npy``, text ``x y z [w]``, PLY, PCD and COLMAP models.
 
 :func:`load_landmarks` is the single entry point; it picks the reader by extension (or, for a
 directory, by its COLMAP content) and returns a :class:`LandmarkCloud`.
@@ -18,7 +18,7 @@ import logging
 import os
 import re
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from tokenize import TokenError
@@ -65,10 +65,12 @@ def load_landmarks(
 ) -> LandmarkCloud:
     """Load a landmark map from ``path``.
 
-    Formats: ``.npy`` (N,3)/(N,4); ``.txt``/``.csv``/``.xyz`` rows ``x y z [w]``; ``.ply`` (ASCII or
-    binary; ``weight_property`` names the vertex property holding weights, default ``weight`` when
-    present); COLMAP ``points3D.bin``/``.txt`` or a model directory (with ``images.bin|txt`` beside it
-    the cloud carries mean observation directions). ``weight_property`` applies to PLY only.
+    Formats: ``.npy`` (N,3)/(N,4); ``.txt``/``.csv``/``.xyz`` rows ``x y z [w]``, or any columns under a
+    header row naming ``x``, ``y``, ``z`` (and a weight); ``.ply`` (ASCII or binary; ``weight_property``
+    names the vertex property holding weights, default ``weight`` when present); ``.pcd`` (PCL, ASCII,
+    binary or binary_compressed; fields as PLY properties); COLMAP ``points3D.bin``/``.txt`` or a model
+    directory (with ``images.bin|txt`` beside it the cloud carries mean observation directions).
+    ``weight_property`` applies to PLY, PCD and text maps with a header row.
     """
     path = Path(path)
     if not path.exists():
@@ -87,12 +89,22 @@ def load_landmarks(
         _no_weight_property(path, weight_property, ".npy arrays")
         cloud = _npy_cloud(path, _read_npy(path))
     elif suffix in TEXT_SUFFIXES:
-        _no_weight_property(path, weight_property, "text maps")
-        cloud = cloud_from_array(path, read_numeric_text(path, (3, 4), what="landmark", dtype=POINT_DTYPE))
+        columns = TextMapColumns(weight_property)
+        arr = read_numeric_text(path, (3, 4), what="landmark", dtype=POINT_DTYPE, select=columns)
+        if weight_property is not None and not columns.header:
+            raise InputError(
+                f"{path}: weight property '{weight_property}' needs a header row naming the columns; text maps "
+                "without one carry weights in their 4th column (or none)"
+            )
+        cloud = cloud_from_array(path, arr)
+    elif suffix == ".pcd":
+        from pivotd.maps.formats_pcd import load_pcd
+
+        cloud = load_pcd(path, weight_property=weight_property)
     else:
         raise InputError(
             f"{path}: unknown map format '{suffix or path.name}' "
-            "(expected .npy, .txt, .csv, .xyz, .ply, a COLMAP points3D file or model directory)"
+            "(expected .npy, .txt, .csv, .xyz, .ply, .pcd, a COLMAP points3D file or model directory)"
         )
     if len(cloud) == 0 and not allow_empty:
         raise InputError(f"{path}: map is empty (no landmarks)")
@@ -100,11 +112,59 @@ def load_landmarks(
     return cloud
 
 
+WEIGHT_NAMES = ("weight", "w")  # header names taken as the feature weight when no weight property is named
+
+
+class TextMapColumns:
+    """:data:`HeaderSelect` for text maps: x, y, z and the weight column (``weight_property``, else ``weight``
+    or ``w`` when present) of a header row; other columns (colours, intensity, …) are ignored.
+    ``header`` tells whether the file had a header row."""
+
+    def __init__(self, weight_property: str | None = None) -> None:
+        self.weight_property = weight_property
+        self.header = False
+
+    def __call__(self, names: list[str]) -> list[int]:
+        self.header = True
+        index: dict[str, int] = {}
+        for k, name in enumerate(names):
+            index.setdefault(name, k)
+        shown = ", ".join(n or "(unnamed)" for n in names[:12]) + (", …" if len(names) > 12 else "")
+        missing = [c for c in ("x", "y", "z") if c not in index]
+        if missing:
+            raise ValueError(f"header row has no {'/'.join(missing)} column (columns: {shown})")
+        keep = [index["x"], index["y"], index["z"]]
+        if self.weight_property is not None:
+            key = self.weight_property.strip().lower()
+            if key not in index:
+                raise ValueError(f"header row has no weight column '{self.weight_property}' (columns: {shown})")
+            keep.append(index[key])
+        else:
+            keep += [index[n] for n in WEIGHT_NAMES if n in index][:1]
+        return keep
+
+
+def text_map_weight_column(path: Path) -> bool | None:
+    """Whether a text map carries a weight column (a 4th field, or a named one in its header row); None when
+    the file has no data line or cannot be read."""
+    try:
+        with open(path, encoding="utf-8-sig") as fh:
+            for line in fh:
+                if line.strip() and not line.lstrip().startswith("#"):
+                    names = header_names(line)
+                    if names is not None:
+                        return any(n in names for n in WEIGHT_NAMES)
+                    return len([f for f in _SPLIT.split(line.strip()) if f]) >= 4
+    except (OSError, UnicodeDecodeError):
+        return None
+    return None
+
+
 def _no_weight_property(path: Path, weight_property: str | None, what: str) -> None:
     if weight_property is not None:
         raise InputError(
-            f"{path}: weight property '{weight_property}' applies to PLY maps only; {what} carry weights "
-            "in their 4th column (or none)"
+            f"{path}: weight property '{weight_property}' applies to PLY and PCD maps and text maps with a "
+            f"header row; {what} carry weights in their 4th column (or none)"
         )
 
 
@@ -262,35 +322,70 @@ def cloud_from_array(path: Path, arr: np.ndarray) -> LandmarkCloud:
 
 
 _SPLIT = re.compile(r"[,\s]+")
+_NAME = re.compile(r"[\"']?[/#]*[A-Za-z_]")  # a header field starts like a name (never like a number)
 _TEXT_BLOCK = 1 << 18  # characters parsed per block (memory stays ~ the parsed numbers)
 
 
-def read_numeric_text(path: Path, columns: tuple[int, ...], what: str, dtype: type = np.float64) -> np.ndarray:
+HeaderSelect = Callable[[list[str]], list[int]]
+"""Maps a header row's normalised column names to the indices of the columns to keep, in order; raises
+ValueError with a message for a header it cannot use."""
+
+
+def header_names(line: str) -> list[str] | None:
+    """Column names of a header row, or None for a data row. A header row is a first data line none of whose
+    fields is a number (``x,y,z``, ``X Y Z intensity``, CloudCompare's ``//X,Y,Z``, pandas' ``,x,y,z`` with an
+    unnamed index column). Names are lower-cased without quotes and leading ``/`` or ``#``."""
+    text = line.strip().lstrip("\ufeff")
+    fields = [f.strip() for f in text.split(",")] if "," in text else text.split()
+    if not any(fields) or not all(_NAME.match(f) for f in fields if f):
+        return None
+    return [f.strip("\"'").lstrip("/#").strip().lower() for f in fields]
+
+
+def read_numeric_text(
+    path: Path, columns: tuple[int, ...], what: str, dtype: type = np.float64, select: HeaderSelect | None = None
+) -> np.ndarray:
     """Parse rows of numbers separated by spaces, tabs or commas; ``#`` starts a comment line.
 
     Every row must have one of ``columns`` fields (the first data row fixes the count) and be
-    finite. Returns an (N, C) array of ``dtype`` (float64 or float32; values beyond float32 become inf);
-    errors name the file and 1-based line number. The file is read in blocks of about _TEXT_BLOCK
-    characters, so memory is the parsed numbers plus one block.
+    finite. With ``select``, the first data line may instead be a header row (:func:`header_names`): then
+    every row has the header's number of fields and the columns ``select`` picks are returned. Returns an
+    (N, C) array of ``dtype`` (float64 or float32; values beyond float32 become inf); errors name the file
+    and 1-based line number. The file is read in blocks of about _TEXT_BLOCK characters, so memory is the
+    parsed numbers plus one block.
     """
     values = array.array("d" if np.dtype(dtype) == np.float64 else "f")
     ncols: int | None = None
     delimiter: str | None = None
+    keep: list[int] | None = None
     for lineno, block in text_blocks(path):
         if ncols is None:
             found = _first_data_line(block)
-            if found is not None:
+            names = header_names(found[1]) if found is not None and select is not None else None
+            if found is not None and names is not None and select is not None:
+                try:
+                    keep = select(names)
+                except ValueError as exc:
+                    raise InputError(f"{path}:{lineno + found[0]}: {exc}") from None
+                delimiter = "," if "," in found[1] else None
+                ncols = len(names)
+                rest = block.split("\n", found[0])  # drop the lines up to and including the header
+                block = rest[-1] if len(rest) > found[0] else ""
+                lineno += found[0]
+            elif found is not None:
                 delimiter = "," if "," in found[1] else None
                 ncols = _column_count(path, lineno + found[0], found[1], columns, what)
         if ncols is not None:
             parsed = parse_clean_block(block, ncols, delimiter)
             if parsed is None:
                 parsed = _parse_lines(path, block, lineno, ncols)
+            if keep is not None:  # only the selected columns are kept, block by block
+                parsed = parsed.reshape(-1, ncols)[:, keep]
             with np.errstate(over="ignore"):
                 values.frombytes(parsed.astype(dtype, copy=False).tobytes())
     if ncols is None:
         return np.zeros((0, columns[0]), dtype)
-    return np.frombuffer(values, dtype=dtype).reshape(-1, ncols)
+    return np.frombuffer(values, dtype=dtype).reshape(-1, ncols if keep is None else len(keep))
 
 
 def text_blocks(path: Path, size: int = _TEXT_BLOCK) -> Iterator[tuple[int, str]]:
@@ -298,7 +393,10 @@ def text_blocks(path: Path, size: int = _TEXT_BLOCK) -> Iterator[tuple[int, str]
     at a line end (the last one may not); errors name the file."""
     lineno = 0
     try:
-        with open(path) as fh, Progress(f"reading {path.name}", os.fstat(fh.fileno()).st_size, "B") as progress:
+        with (
+            open(path, encoding="utf-8-sig") as fh,
+            Progress(f"reading {path.name}", os.fstat(fh.fileno()).st_size, "B") as progress,
+        ):
             while True:
                 block = fh.read(size)
                 if not block:
