@@ -56,10 +56,15 @@ def test_demo_summary_reports_the_map():
         ("map: {allow_empty: true}\ncontrol: {rate_hz: 1000}\n", "broken.yaml:2: control.rate_hz: must be ≤ 200"),
         ("map: {file: absent.txt}\n", "broken.yaml:1: map.file: file not found"),
         ("map: {file: bad_map.txt}\n", "bad_map.txt:2: expected 3 columns, got 2"),
+        # the map is loaded as the daemon loads it: its weight property too
+        ("map: {file: named.csv, weight_property: score}\n", "named.csv:1: header row has no weight column 'score'"),
+        ("map: {file: empty.txt}\n", "empty.txt: map is empty"),
     ],
 )
 def test_broken_configs_exit_2_with_one_line(tmp_path, text, expected):
     (tmp_path / "bad_map.txt").write_text("0 0 0\n1 2\n")
+    (tmp_path / "named.csv").write_text("x,y,z,intensity\n0,0,0,1\n")
+    (tmp_path / "empty.txt").write_text("# no landmarks yet\n")
     config = tmp_path / "broken.yaml"
     config.write_text(text)
     result = run_check(config)
@@ -69,6 +74,18 @@ def test_broken_configs_exit_2_with_one_line(tmp_path, text, expected):
     assert lines[0].startswith("pivotd check: error: ")
     assert expected in lines[0]
     assert result.stdout == ""
+
+
+def test_map_settings_reach_the_map_reader(tmp_path):
+    (tmp_path / "named.csv").write_text("x,y,z,intensity\n0,0,0,1\n1,2,3,4\n")
+    (tmp_path / "empty.txt").write_text("# no landmarks yet\n")
+    for text, expected in (("map: {file: named.csv, weight_property: intensity}\n", "(2 landmarks"),
+                           ("map: {file: empty.txt, allow_empty: true}\n", "empty.txt (empty; landmarks from")):
+        config = tmp_path / "ok.yaml"
+        config.write_text(text)
+        result = run_check(config)
+        assert result.returncode == 0, result.stderr
+        assert expected in result.stdout
 
 
 def test_missing_config_exits_2(tmp_path):

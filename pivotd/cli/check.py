@@ -24,7 +24,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
-    cloud = load_landmarks(cfg.map.file) if cfg.map.file is not None else None
+    m = cfg.map  # loaded as the daemon loads it (pivotd.daemon.wiring), so that check fails where it would
+    cloud = (load_landmarks(m.file, weight_property=m.weight_property, allow_empty=m.allow_empty)
+             if m.file is not None else None)
     _check_occupancy(cfg, cloud)
     sys.stdout.write("\n".join(summary_lines(cfg, cloud)) + "\n")
     if (warning := bus_exposure_warning(cfg)) is not None:
@@ -67,6 +69,8 @@ def summary_lines(cfg: Config, cloud: LandmarkCloud | None) -> list[str]:
     lim = g.limits
     if cloud is None:
         map_line = f"map: none (landmarks from {t.landmarks})"
+    elif len(cloud) == 0:
+        map_line = f"map: {cfg.map.file} (empty; landmarks from {t.landmarks})"
     else:
         lo, hi = cloud.points.min(axis=0), cloud.points.max(axis=0)
         bounds = " ".join(f"[{a:.2f}, {b:.2f}]" for a, b in zip(lo, hi, strict=True))

@@ -26,7 +26,8 @@ WEIGHTS_HELP = (
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--map", required=True, metavar="MAP", help="landmark map (.npy, .txt, .csv, .xyz, ...)")
+    parser.add_argument("--map", required=True, metavar="MAP",
+                        help="landmark map (.npy, .txt, .csv, .xyz, .ply, .pcd, COLMAP)")
     parser.add_argument("--path", required=True, metavar="PATH", help="path CSV: x,y,z or t,x,y,z,qw,qx,qy,qz rows")
     parser.add_argument("--fov-deg", type=float, default=30.0, help="full cone opening angle [deg] (default 30)")
     parser.add_argument(
