@@ -30,7 +30,7 @@ class PathData:
         return int(self.positions.shape[0])
 
 
-_STAMP_NAMES = ("timestamp", "time", "t", "stamp", "time_s", "t_s")
+_STAMP_NAMES = ("timestamp", "time", "t", "stamp", "time_s", "t_s", "__time")
 
 
 def path_columns(names: list[str]) -> list[int]:

@@ -220,6 +220,39 @@ def test_path_csv_with_a_header_row(tmp_path):
     assert load_path(f).quats is None and load_path(f).positions.tolist() == [[1, 2, 3]]
 
 
+def test_a_comment_naming_the_columns_orders_them(tmp_path):
+    """A TUM trajectory (quaternion x y z w) and FIF's (w first) both load right from their comment lines."""
+    from pivotd.robot_path import load_path
+
+    tum = tmp_path / "groundtruth.txt"
+    tum.write_text("# ground truth trajectory\n# timestamp tx ty tz qx qy qz qw\n"
+                   "1.0 1 2 3 0 0 0.6 0.8\n2.0 2 2 3 0 0 0 1\n")
+    p = load_path(tum)
+    np.testing.assert_array_equal(p.positions, [[1, 2, 3], [2, 2, 3]])
+    np.testing.assert_allclose(p.quats[0], [0, 0, 0.6, 0.8])  # (x, y, z, w)
+    fif = tmp_path / "fif.csv"
+    fif.write_text("# timestamp, x, y, z, qw, qx, qy, qz\n1,1,2,3,0.8,0,0,0.6\n")
+    np.testing.assert_allclose(load_path(fif).quats[0], [0, 0, 0.6, 0.8])
+    ros = tmp_path / "odom.csv"  # field paths as ROS tools export them
+    ros.write_text("%time,field.pose.position.x,field.pose.position.y,field.pose.position.z,"
+                   "field.pose.orientation.x,field.pose.orientation.y,field.pose.orientation.z,"
+                   "field.pose.orientation.w\n1700000000000000000,1,2,3,0,0,0.6,0.8\n")
+    np.testing.assert_allclose(load_path(ros).quats[0], [0, 0, 0.6, 0.8])
+    free = tmp_path / "free.csv"  # a comment of words that names no x/y/z keeps the positional reading
+    free.write_text("# made by the survey team\n0,0,0\n1,0,0\n")
+    assert load_path(free).positions.shape == (2, 3)
+
+
+def test_a_comment_naming_map_columns_picks_the_weight_by_name(tmp_path):
+    f = tmp_path / "m.txt"
+    f.write_text("# x y z intensity\n1 2 3 9\n")
+    assert load_landmarks(f).weights.tolist() == [1.0]  # intensity is not a weight
+    f.write_text("# x y z weight\n1 2 3 9\n")
+    assert load_landmarks(f).weights.tolist() == [9.0]
+    f.write_text("# 1000 landmarks\n1 2 3 9\n")  # not a header: the 4th column is the weight, as always
+    assert load_landmarks(f).weights.tolist() == [9.0]
+
+
 def test_missing_file(tmp_path):
     with pytest.raises(InputError, match=r"nope\.ply: no such file"):
         load_landmarks(tmp_path / "nope.ply")

@@ -94,14 +94,16 @@ def _weights(args: argparse.Namespace, cloud) -> np.ndarray | None:
         raw = _column_count(Path(args.map))
         if raw is not None and raw < 4:
             raise InputError(
-                f"{args.map}: --weights-from {args.weights_from} needs a 4th (weight) column, the map has {raw}"
+                f"{args.map}: --weights-from {args.weights_from} needs a weight column (a 4th column, or one named "
+                "weight or w in a header row); the map has none"
             )
         return cloud.weights  # as stored: the optimizer reads only the retained rows
     return cloud.weights if has_column else None
 
 
 def _column_count(path: Path) -> int | None:
-    """Columns of a text or .npy map (None when the format does not say)."""
+    """Columns of a .npy map; 4 or 3 for a text map with or without a weight column (None when the format
+    does not say)."""
     suffix = path.suffix.lower()
     if suffix == ".npy":
         try:

@@ -149,15 +149,16 @@ def text_map_weight_column(path: Path) -> bool | None:
     the file has no data line or cannot be read."""
     try:
         with open(path, encoding="utf-8-sig") as fh:
-            for line in fh:
-                if line.strip() and not line.lstrip().startswith("#"):
-                    names = header_names(line)
-                    if names is not None:
-                        return any(n in names for n in WEIGHT_NAMES)
-                    return len([f for f in _SPLIT.split(line.strip()) if f]) >= 4
+            found = _first_data_line(fh.read(_TEXT_BLOCK))
     except (OSError, UnicodeDecodeError):
         return None
-    return None
+    if found is None:
+        return None
+    names = header_names(found[1])
+    if names is not None:
+        return any(n in names for n in WEIGHT_NAMES)
+    keep, _ = _comment_header(found[2], found[1], TextMapColumns())
+    return len(keep) == 4 if keep is not None else len([f for f in _SPLIT.split(found[1].strip()) if f]) >= 4
 
 
 def _no_weight_property(path: Path, weight_property: str | None, what: str) -> None:
@@ -322,7 +323,8 @@ def cloud_from_array(path: Path, arr: np.ndarray) -> LandmarkCloud:
 
 
 _SPLIT = re.compile(r"[,\s]+")
-_NAME = re.compile(r"[\"']?[/#]*[A-Za-z_]")  # a header field starts like a name (never like a number)
+_NAME = re.compile(r"[\"']?[/#%]*[A-Za-z_]")  # a header field starts like a name (never like a number)
+_ALIASES = {"tx": "x", "ty": "y", "tz": "z"}  # TUM trajectories: "# timestamp tx ty tz qx qy qz qw"
 _TEXT_BLOCK = 1 << 18  # characters parsed per block (memory stays ~ the parsed numbers)
 
 
@@ -332,14 +334,23 @@ ValueError with a message for a header it cannot use."""
 
 
 def header_names(line: str) -> list[str] | None:
-    """Column names of a header row, or None for a data row. A header row is a first data line none of whose
-    fields is a number (``x,y,z``, ``X Y Z intensity``, CloudCompare's ``//X,Y,Z``, pandas' ``,x,y,z`` with an
-    unnamed index column). Names are lower-cased without quotes and leading ``/`` or ``#``."""
+    """Column names of a header row, or None for a data row. A header row is a line none of whose fields is a
+    number (``x,y,z``, ``X Y Z intensity``, CloudCompare's ``//X,Y,Z``, pandas' ``,x,y,z`` with an unnamed
+    index column). Names are lower-cased without quotes and leading ``/``, ``#`` or ``%``; ``tx``/``ty``/``tz``
+    become x/y/z, and ROS field paths (dotted or with slashes) keep their last part
+    (``field.pose.position.x`` → ``x``, ``…/orientation/w`` → ``qw``, ``field.header.stamp`` → ``stamp``)."""
     text = line.strip().lstrip("\ufeff")
     fields = [f.strip() for f in text.split(",")] if "," in text else text.split()
     if not any(fields) or not all(_NAME.match(f) for f in fields if f):
         return None
-    return [f.strip("\"'").lstrip("/#").strip().lower() for f in fields]
+    return [_canonical(f.strip("\"'").lstrip("/#%").strip().lower()) for f in fields]
+
+
+def _canonical(name: str) -> str:
+    parts = re.split(r"[./]", name)
+    if len(parts) > 1:
+        name = ("q" if parts[-2] == "orientation" else "") + parts[-1]
+    return _ALIASES.get(name, name)
 
 
 def read_numeric_text(
@@ -374,7 +385,8 @@ def read_numeric_text(
                 lineno += found[0]
             elif found is not None:
                 delimiter = "," if "," in found[1] else None
-                ncols = _column_count(path, lineno + found[0], found[1], columns, what)
+                keep, named = _comment_header(found[2], found[1], select)
+                ncols = named or _column_count(path, lineno + found[0], found[1], columns, what)
         if ncols is not None:
             parsed = parse_clean_block(block, ncols, delimiter)
             if parsed is None:
@@ -410,12 +422,32 @@ def text_blocks(path: Path, size: int = _TEXT_BLOCK) -> Iterator[tuple[int, str]
         raise InputError(f"{path}: cannot read ({exc})") from None
 
 
-def _first_data_line(block: str) -> tuple[int, str] | None:
-    """(1-based line number within ``block``, line) of its first non-blank, non-comment line."""
+def _first_data_line(block: str) -> tuple[int, str, str | None] | None:
+    """(1-based line number within ``block``, line, the comment line right before it or None) of the block's
+    first non-blank, non-comment line."""
+    comment = None
     for k, line in enumerate(io.StringIO(block), start=1):
-        if line.strip() and not line.lstrip().startswith("#"):
-            return k, line
+        stripped = line.strip()
+        if stripped.startswith("#"):
+            comment = stripped
+        elif stripped:
+            return k, line, comment
     return None
+
+
+def _comment_header(comment: str | None, line: str, select: HeaderSelect | None) -> tuple[list[int] | None, int]:
+    """(columns to keep, their count in a row) when the comment line right before the first data row names as
+    many columns as that row holds and ``select`` can use them (``# timestamp tx ty tz qx qy qz qw``); else
+    (None, 0): the columns are taken by position."""
+    if comment is None or select is None:
+        return None, 0
+    names = header_names(comment.lstrip("#"))
+    if names is None or len(names) != len([f for f in _SPLIT.split(line.strip()) if f]):
+        return None, 0
+    try:
+        return select(names), len(names)
+    except ValueError:  # free text that happens to hold words: positions as usual
+        return None, 0
 
 
 def _column_count(path: Path, lineno: int, line: str, columns: tuple[int, ...], what: str) -> int:
