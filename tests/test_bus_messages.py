@@ -54,6 +54,33 @@ def test_pose_stamped_from_rosbags_and_big_endian():
         np.testing.assert_allclose(s.position, [1, 2, 3])
 
 
+def test_pose_with_covariance_stamped_as_amcl_publishes_it():
+    """Built field by field with rosbags (not our encoder), big- and little-endian, with a real covariance."""
+    T = typestore().types
+    cov = np.diag([0.04, 0.04, 0.0, 0.0, 0.0, 0.01]).reshape(36)
+    msg = T[m.POSE_WITH_COVARIANCE_STAMPED](
+        header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=40, nanosec=250_000_000),
+                                        frame_id="map"),
+        pose=T["geometry_msgs/msg/PoseWithCovariance"](
+            pose=T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=3.0, y=-1.0, z=0.0),
+                                             orientation=T["geometry_msgs/msg/Quaternion"](
+                                                 x=Q90[0], y=Q90[1], z=Q90[2], w=Q90[3])),
+            covariance=cov))
+    for big in (False, True):
+        payload = bytes(typestore().serialize_cdr(msg, m.POSE_WITH_COVARIANCE_STAMPED, little_endian=not big))
+        s = m.decode_pose(payload, m.POSE_WITH_COVARIANCE_STAMPED, "/amcl_pose")
+        assert s.stamp == pytest.approx(40.25) and s.frame_id == "map"
+        np.testing.assert_allclose(s.position, [3, -1, 0])
+        np.testing.assert_allclose(s.quat, Q90)
+    ours = m.encode_pose_with_covariance_stamped(40.25, "map", [3, -1, 0], Q90, cov)
+    assert ours == bytes(typestore().serialize_cdr(msg, m.POSE_WITH_COVARIANCE_STAMPED))
+    for msgtype in m.POSE_TYPES:  # the encoder of each pose type decodes as that type
+        s = m.decode_pose(m.encode_pose(msgtype, 1.0, "map", [3, -1, 0], Q90), msgtype, "/p")
+        np.testing.assert_allclose(s.position, [3, -1, 0])
+    with pytest.raises(m.MessageError):  # a PoseStamped payload is too short for this type
+        m.decode_pose(pose_stamped_from_rosbags(), m.POSE_WITH_COVARIANCE_STAMPED, "/amcl_pose")
+
+
 def test_quaternion_is_normalized():
     s = m.decode_pose(pose_stamped_from_rosbags(quat=(0.0, 0.0, 0.0, 2.0)), m.POSE_STAMPED, "/pose")
     np.testing.assert_allclose(s.quat, [0, 0, 0, 1])

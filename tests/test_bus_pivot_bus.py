@@ -76,6 +76,19 @@ def test_pose_path_and_clouds_are_delivered(sessions, remote):
         bus.close()
 
 
+def test_pose_with_covariance_stamped_topic_is_delivered(sessions, remote):
+    bus, events = make_bus(sessions[0], pose="/amcl_pose", pose_type=m.POSE_WITH_COVARIANCE_STAMPED)
+    try:
+        amcl = connected_publisher(remote, "/amcl_pose", m.POSE_WITH_COVARIANCE_STAMPED)
+        amcl.put(m.encode_pose_with_covariance_stamped(5.0, "map", [4, 5, 0], [0, 0, 0, 1], np.eye(6).reshape(36)))
+        kind, pose = drain(events, 1)[0]
+        assert kind == "pose"
+        np.testing.assert_allclose(pose.position, [4, 5, 0])
+        assert bus.counters()["/amcl_pose"] == {"received": 1, "accepted": 1}
+    finally:
+        bus.close()
+
+
 def settled_count(counters: dict[str, int]) -> int:
     """Messages of one topic that are through: accepted or dropped for any reason."""
     return counters["accepted"] + sum(v for k, v in counters.items() if k.startswith("dropped_"))

@@ -156,18 +156,19 @@ def test_sim_pose_publishes_odometry_and_path_and_honours_gap(listener):
 
 
 @pytest.mark.slow
-def test_sim_pose_csv_route_as_pose_stamped(listener):
+@pytest.mark.parametrize("pose_type", [m.POSE_STAMPED, m.POSE_WITH_COVARIANCE_STAMPED])
+def test_sim_pose_csv_route_as_pose_stamped(listener, pose_type):
     session, endpoint = listener
     events = queue.Queue()
-    topics = BusTopics(pose="/robot/pose", pose_type=m.POSE_STAMPED, path="/robot/plan", domain_id=4)
+    topics = BusTopics(pose="/robot/pose", pose_type=pose_type, path="/robot/plan", domain_id=4)
     bus = PivotBus(session, topics)
     recorder = record_poses(session, topics, events)
     proc = run_tool("--connect", endpoint, "--route", f"csv:{YCORRIDOR}", "--odom-topic", "", "--pose-topic",
-                    "/robot/pose", "--path-topic", "/robot/plan", "--domain-id", "4", "--rate", "50",
-                    "--wait-subscribers", "30", "--duration", "60", "--quiet")
+                    "/robot/pose", "--pose-type", pose_type, "--path-topic", "/robot/plan", "--domain-id", "4",
+                    "--rate", "50", "--wait-subscribers", "30", "--duration", "60", "--quiet")
     try:
         first = drain(events, 1, timeout=60)
-        assert first, "no PoseStamped received"
+        assert first, f"no {pose_type} received"
         assert wait_for(lambda: bus.counters()["/robot/plan"]["accepted"] >= 1, timeout=30)
         assert wait_for(lambda: bus.counters()["/robot/pose"]["accepted"] >= 1, timeout=30)
     finally:

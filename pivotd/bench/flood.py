@@ -119,10 +119,8 @@ def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, chan
                       (node.publisher(cfg.topics.targets, m.POINT_CLOUD2), payloads.cloud_with_fields(size))]
             time.sleep(0.5)  # let the publishers match
         forger = node.publisher(cfg.topics.pose, cfg.topics.pose_type) if forged_poses else None
-        forged = m.encode_odometry(0.0, "map", "base_link", np.array([500.0, 500.0, 0.0]),
-                                   np.array([0.0, 0.0, 0.0, 1.0]))
-        if forger is not None and cfg.topics.pose_type == m.POSE_STAMPED:
-            forged = m.encode_pose_stamped(0.0, "map", np.array([500.0, 500.0, 0.0]), np.array([0.0, 0.0, 0.0, 1.0]))
+        forged = m.encode_pose(cfg.topics.pose_type, 0.0, "map", np.array([500.0, 500.0, 0.0]),
+                               np.array([0.0, 0.0, 0.0, 1.0]))
         t_start = time.monotonic()
         peak, k, next_put = 0.0, 0, t_start
         sent = forged_sent = 0

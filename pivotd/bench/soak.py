@@ -414,9 +414,7 @@ class Vandal:
     def _pose(self, position: np.ndarray, stamp: float | None = None, quat=(0.0, 0.0, 0.0, 1.0)) -> bytes:
         m, t = self.m, self.cfg.topics
         stamp = time.time() if stamp is None else stamp
-        if t.pose_type == m.ODOMETRY:
-            return m.encode_odometry(stamp, t.frame_id, "base_link", position, np.asarray(quat, float))
-        return m.encode_pose_stamped(stamp, t.frame_id, position, np.asarray(quat, float))
+        return m.encode_pose(t.pose_type, stamp, t.frame_id, position, np.asarray(quat, float))
 
     def send(self, kind: str, last_position: np.ndarray) -> None:
         frame = self.cfg.topics.frame_id

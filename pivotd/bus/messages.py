@@ -26,6 +26,7 @@ from pivotd.bus.ros import typestore
 from pivotd.bus.topics import ODOMETRY as ODOMETRY
 from pivotd.bus.topics import POSE_STAMPED as POSE_STAMPED
 from pivotd.bus.topics import POSE_TYPES as POSE_TYPES
+from pivotd.bus.topics import POSE_WITH_COVARIANCE_STAMPED as POSE_WITH_COVARIANCE_STAMPED
 from pivotd.errors import PivotdError
 from pivotd.geometry import MAX_COORDINATE, matrix_to_quat, optical_frame_from_direction, safe_unit_quats
 
@@ -156,12 +157,13 @@ def _pose_arrays(pose: object, topic: str, what: str) -> tuple[np.ndarray, np.nd
 
 def decode_pose(payload: bytes, msgtype: str, topic: str, expected_frame: str | None = "map",
                 accept_empty_frame: bool = True, rx_time: float | None = None) -> PoseSample:
-    """Decode an ``nav_msgs/msg/Odometry`` or ``geometry_msgs/msg/PoseStamped`` payload."""
+    """Decode a ``nav_msgs/msg/Odometry``, ``geometry_msgs/msg/PoseStamped`` or
+    ``geometry_msgs/msg/PoseWithCovarianceStamped`` payload (the covariance is not used)."""
     rx = time.monotonic() if rx_time is None else rx_time
     if msgtype not in POSE_TYPES:
         raise MessageError(topic, "wrong_type", f"unsupported pose type {msgtype}")
     msg = deserialize(payload, msgtype, topic)
-    pose = msg.pose.pose if msgtype == ODOMETRY else msg.pose  # type: ignore[attr-defined]
+    pose = msg.pose if msgtype == POSE_STAMPED else msg.pose.pose  # type: ignore[attr-defined]
     frame = check_frame(msg.header.frame_id, expected_frame, topic, accept_empty_frame)  # type: ignore[attr-defined]
     position, quat = _pose_arrays(pose, topic, "pose")
     stamp = stamp_to_seconds(msg.header.stamp)  # type: ignore[attr-defined]
@@ -394,6 +396,26 @@ def encode_pose_stamped(stamp: float, frame_id: str, position: np.ndarray, quat:
     return serialize(_t(POSE_STAMPED)(header=_header(stamp, frame_id), pose=_pose(position, quat)), POSE_STAMPED)
 
 
+def encode_pose_with_covariance_stamped(stamp: float, frame_id: str, position: np.ndarray, quat: np.ndarray,
+                                        covariance: np.ndarray | None = None) -> bytes:
+    """geometry_msgs/msg/PoseWithCovarianceStamped CDR; quat (x, y, z, w), covariance (36,) row-major (zeros)."""
+    cov = np.zeros(36) if covariance is None else np.asarray(covariance, dtype=np.float64).reshape(36)
+    msg = _t(POSE_WITH_COVARIANCE_STAMPED)(
+        header=_header(stamp, frame_id),
+        pose=_t("geometry_msgs/msg/PoseWithCovariance")(pose=_pose(position, quat), covariance=cov))
+    return serialize(msg, POSE_WITH_COVARIANCE_STAMPED)
+
+
+def encode_pose(msgtype: str, stamp: float, frame_id: str, position: np.ndarray, quat: np.ndarray,
+                child_frame_id: str = "base_link") -> bytes:
+    """CDR of a pose of any of :data:`POSE_TYPES` (the type a ``topics.pose_type`` names); quat (x, y, z, w)."""
+    if msgtype == ODOMETRY:
+        return encode_odometry(stamp, frame_id, child_frame_id, position, quat)
+    if msgtype == POSE_WITH_COVARIANCE_STAMPED:
+        return encode_pose_with_covariance_stamped(stamp, frame_id, position, quat)
+    return encode_pose_stamped(stamp, frame_id, position, quat)
+
+
 def encode_odometry(stamp: float, frame_id: str, child_frame_id: str, position: np.ndarray, quat: np.ndarray,
                     linear_velocity: np.ndarray | None = None, angular_velocity: np.ndarray | None = None) -> bytes:
     """nav_msgs/msg/Odometry CDR; velocities (3,) in the child (body) frame [m/s, rad/s], zero covariances."""
@@ -431,6 +453,8 @@ def warm_up() -> None:
     decode_pose(encode_odometry(0.0, "map", "b", np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])), ODOMETRY, "warm-up")
     decode_pose(encode_pose_stamped(0.0, "map", np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])), POSE_STAMPED,
                 "warm-up")
+    decode_pose(encode_pose_with_covariance_stamped(0.0, "map", np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])),
+                POSE_WITH_COVARIANCE_STAMPED, "warm-up")
     decode_path(encode_path(0.0, "map", np.zeros((2, 3))), "warm-up")
     decode_cloud(encode_cloud(0.0, "map", np.zeros((2, 3)), np.ones(2)), "warm-up")
     encode_joint_state(0.0, ["pan"], [0.0], [0.0])

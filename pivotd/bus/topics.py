@@ -13,7 +13,8 @@ from pivotd.errors import ConfigError
 
 ODOMETRY = "nav_msgs/msg/Odometry"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
-POSE_TYPES = (ODOMETRY, POSE_STAMPED)
+POSE_WITH_COVARIANCE_STAMPED = "geometry_msgs/msg/PoseWithCovarianceStamped"  # e.g. AMCL's /amcl_pose
+POSE_TYPES = (ODOMETRY, POSE_STAMPED, POSE_WITH_COVARIANCE_STAMPED)
 TOPIC_FIELDS = ("pose", "path", "landmarks", "targets", "joint_states", "view_plan")
 #: Payload size limits of the input topics (``topics`` keys) [bytes] and their smallest allowed value.
 PAYLOAD_LIMITS = ("max_pose_bytes", "max_path_bytes", "max_cloud_bytes")

@@ -52,16 +52,19 @@ def parse_gap(text: str) -> Gap:
 
 
 class PosePublisher:
-    """Publisher facade of the simulator: Odometry and/or PoseStamped poses and the route's Path."""
+    """Publisher facade of the simulator: Odometry and/or PoseStamped (or PoseWithCovarianceStamped) poses and the
+    route's Path."""
 
     def __init__(self, session: zenoh.Session, domain_id: int = 0, odom_topic: str | None = "/odom",
                  pose_topic: str | None = None, path_topic: str | None = "/plan", frame_id: str = "map",
-                 child_frame_id: str = "base_link", node_name: str = "sim_pose", humble: bool = False) -> None:
+                 child_frame_id: str = "base_link", node_name: str = "sim_pose", humble: bool = False,
+                 pose_type: str = m.POSE_STAMPED) -> None:
         self.node = RosNode(session, node_name, domain_id, humble=humble)
         self.frame_id = frame_id
         self.child_frame_id = child_frame_id
         self.odom = self.node.publisher(odom_topic, m.ODOMETRY, QoS(depth=10)) if odom_topic else None
-        self.pose = self.node.publisher(pose_topic, m.POSE_STAMPED, QoS(depth=10)) if pose_topic else None
+        self.pose_type = pose_type
+        self.pose = self.node.publisher(pose_topic, pose_type, QoS(depth=10)) if pose_topic else None
         # latched like a planner's path: a pivotd that starts later gets it at once
         self.path = self.node.publisher(path_topic, m.PATH, QoS(durability=DURABILITY_TRANSIENT_LOCAL, depth=1)) if (
             path_topic) else None
@@ -72,7 +75,7 @@ class PosePublisher:
             v_body = quat_to_matrix(quat).T @ np.asarray(velocity_world, float)
             self.odom.put(m.encode_odometry(stamp, self.frame_id, self.child_frame_id, position, quat, v_body))
         if self.pose is not None:
-            self.pose.put(m.encode_pose_stamped(stamp, self.frame_id, position, quat))
+            self.pose.put(m.encode_pose(self.pose_type, stamp, self.frame_id, position, quat))
 
     def publish_path(self, stamp: float, positions: np.ndarray, quats: np.ndarray | None) -> None:
         if self.path is not None:
@@ -112,6 +115,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--humble", action="store_true", help="publish with ROS 2 Humble keys (no type hash)")
     p.add_argument("--odom-topic", default="/odom", help="nav_msgs/Odometry topic ('' disables)")
     p.add_argument("--pose-topic", default="", help="geometry_msgs/PoseStamped topic ('' disables, the default)")
+    p.add_argument("--pose-type", default=m.POSE_STAMPED, choices=(m.POSE_STAMPED, m.POSE_WITH_COVARIANCE_STAMPED),
+                   help="message type of --pose-topic (default geometry_msgs/msg/PoseStamped)")
     p.add_argument("--path-topic", default="/plan", help="nav_msgs/Path topic ('' disables)")
     p.add_argument("--frame-id", default="map")
     p.add_argument("--child-frame-id", default="base_link")
@@ -145,7 +150,8 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     pub = None
     try:
         pub = PosePublisher(session, args.domain_id, args.odom_topic or None, args.pose_topic or None,
-                            args.path_topic or None, args.frame_id, args.child_frame_id, humble=args.humble)
+                            args.path_topic or None, args.frame_id, args.child_frame_id, humble=args.humble,
+                            pose_type=args.pose_type)
         path_quats = route.quats if route.quats is not None else np.array([route.at(s).quat for s in route.arc])
         if args.wait_subscribers > 0:
             deadline = time.monotonic() + args.wait_subscribers
