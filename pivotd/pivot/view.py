@@ -557,9 +557,10 @@ def _result(
     ca = np.cos(alpha)
     x = c_best.astype(np.float32) @ BT
     x -= np.float32(ca)  # cos θ − cos α
-    edge = np.flatnonzero(np.abs(x) <= np.float32(2e-6))
     visible = int(np.count_nonzero(x > np.float32(2e-6)))
-    visible += int(np.count_nonzero(B.take(edge, axis=0) @ c_best >= ca - 1e-12))
+    if int(np.count_nonzero(x >= np.float32(-2e-6))) > visible:  # pairs at the edge (rare): settle in float64
+        edge = np.flatnonzero(np.abs(x) <= np.float32(2e-6))
+        visible += int(np.count_nonzero(B.take(edge, axis=0) @ c_best >= ca - 1e-12))
     # F at α: v = (1 + tanh((k_s/2)(cos θ − cos α))) / 2, in float32 like the ascent
     x *= np.float32(0.5 * ks_from_width(alpha, _width(alpha, opts)))
     np.tanh(x, out=x)
