@@ -507,17 +507,16 @@ def optimize_view(
             break
         if all(float(C[k] @ C[j]) < cos_d for j in keep):
             keep.append(int(k))
-    # the chosen candidates are refined one at a time, best first (each on its own band); a rival is refined only
-    # while its bound still exceeds the best hard weight found so far. Each refined axis competes with its start.
+    # the chosen candidates are refined together (one band, one product per step for all); a rival stops once it
+    # comes within distinct_ratio · α of the axis of a better-ranked one (a basin already being climbed). Each
+    # refined axis competes with its start.
+    R, steps = _refine(BT, w32, C[keep], cos_c[keep], alpha, opts, uniform)
+    iters += steps
+    cos_r = R.astype(np.float32) @ BT
+    s_r = _row_weights(cos_r >= cos_a32, w32, uniform)
     best_s, c_best, cos_best = -1.0, C[keep[0]], cos_c[keep[0]]
     for j, k in enumerate(keep):
-        if j and bound[k] <= best_s:
-            continue
-        R, steps = _refine(BT, w32, C[k : k + 1], cos_c[k : k + 1], alpha, opts, uniform, c_best if j else None)
-        iters += steps
-        cos_r = R[0].astype(np.float32) @ BT
-        s_r = float(_row_weights((cos_r >= cos_a32)[None], w32, uniform)[0])
-        for c, cs, sc in ((R[0], cos_r, s_r), (C[k], cos_c[k], float(score[k]))):
+        for c, cs, sc in ((R[j], cos_r[j], float(s_r[j])), (C[k], cos_c[k], float(score[k]))):
             if sc > best_s:
                 best_s, c_best, cos_best = sc, c, cs
     radii, points = _search_levels(alpha, opts, opts.cap_ratio * alpha, opts.cap_points)
@@ -701,7 +700,6 @@ def _refine(
     alpha: float,
     opts: ViewOptions,
     uniform: bool,
-    avoid: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int]:
     """Gradient ascent at α from each unit axis of C (K, 3) over float32 bearings BT (3, n) / weights w (n,),
     all K at once; ``cos_c`` (K, n) = C · k_j; ``uniform``: all weights equal. Returns the final axes (K, 3)
@@ -712,8 +710,8 @@ def _refine(
     any axis; the band is re-selected when an axis drifts further than ``drift_deg`` from where it was
     selected. The step exp((h Ĵ)^) R turns the axis about the unit tangent Ĵ ⟂ c:
     c ← cos h · c + sin h · (Ĵ × c), so only the axes are tracked (the roll does not change the objective).
-    An axis that comes within distinct_ratio · α of ``avoid`` (3,) (an axis already refined) stops there: it
-    is climbing a basin that was already explored.
+    An axis that comes within distinct_ratio · α of the current axis of an earlier row stops there: it is
+    climbing the basin that row is climbing.
     One iteration is a handful of numpy calls whatever K: (K, 4) @ (4, m) gives (k_s/2)(c · k_j − cos α)
     for every axis (the band carries a row of ones), then tanh, and v(1 − v) @ band for the ascent directions.
     """
@@ -747,8 +745,7 @@ def _refine(
     h = [h0] * K
     active = list(range(K))
     A, AwT = band(cos_c)
-    ax, ay, az = (0.0, 0.0, 0.0) if avoid is None else (float(v) for v in avoid)
-    cos_avoid = 2.0 if avoid is None else math.cos(opts.distinct_ratio * alpha)
+    cos_near = math.cos(opts.distinct_ratio * alpha)
     it = 0
     for it in range(1, opts.max_iterations + 1):  # noqa: B007
         if not active or A.shape[1] == 0:
@@ -778,10 +775,12 @@ def _refine(
             nrm = math.sqrt(x * x + y * y + z * z)
             x, y, z = x / nrm, y / nrm, z / nrm
             xyz[k] = [x, y, z]
-            if x * ax + y * ay + z * az < cos_avoid:
-                still.append(k)
+            still.append(k)
             r = ref[k]
             moved |= xyz[k][0] * r[0] + xyz[k][1] * r[1] + xyz[k][2] * r[2] < cos_drift
+        if K > 1:  # an axis within distinct_ratio · α of an earlier row's axis stops there
+            still = [k for k in still if not any(
+                xyz[k][0] * xyz[i][0] + xyz[k][1] * xyz[i][1] + xyz[k][2] * xyz[i][2] >= cos_near for i in range(k))]
         active = still
         if moved and active:
             A, AwT = band(np.array(xyz, np.float32) @ BT)
