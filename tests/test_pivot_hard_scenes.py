@@ -92,3 +92,15 @@ def test_optimize_view_does_not_depend_on_the_landmark_order_inside_a_blob():
         for _ in range(3):
             counts.append(optimize_view(B[rng.permutation(B.shape[0])], None, alpha).visible)
         assert max(counts) - min(counts) <= 0.005 * max(counts)
+
+
+def test_bench_builds_the_compared_version_s_kernel_once():
+    from pivotd.bench.montecarlo import _other_view
+
+    alpha = np.radians(15.0)
+    view = _other_view("pivotd", alpha)
+    assert view.keywords["kernel"].alpha == pytest.approx(alpha)  # built once, outside the timed calls
+    assert _other_view("pivotd") is optimize_view  # any half-angle (narrow cones): no kernel
+    assert _other_view(None, alpha) is None
+    B = normalize(hard_scene("twins", seed=1, poses=1, scale=0.2).points)
+    assert view(B, None, alpha).visible == optimize_view(B, None, alpha).visible

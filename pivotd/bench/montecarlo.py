@@ -76,13 +76,21 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _other_view(compare_with: str | None) -> Callable[..., Any] | None:
-    """optimize_view of ``compare_with`` (a renamed copy of another pivotd version on the path), or None."""
+def _other_view(compare_with: str | None, alpha: float | None = None) -> Callable[..., Any] | None:
+    """optimize_view of ``compare_with`` (a renamed copy of another pivotd version on the path), or None. With
+    ``alpha`` (every call uses that half-angle) and a version that takes a prebuilt cone kernel, its own kernel
+    of α is built once here, as this tree's is (:func:`_solvers`), so neither side pays it per call."""
     if not compare_with:
         return None
+    import inspect
+    from functools import partial
+
     from pivotd.bench.horizon import _module
 
-    return _module(compare_with, "pivot.view").optimize_view
+    view = _module(compare_with, "pivot.view").optimize_view
+    if alpha is not None and "kernel" in inspect.signature(view).parameters:
+        return partial(view, kernel=_module(compare_with, "pivot.cone_kernel").cone_kernel(alpha))
+    return view
 
 
 def _level_rows(
@@ -92,7 +100,7 @@ def _level_rows(
     from pivotd.pivot.scenes import monte_carlo_levels, monte_carlo_map, monte_carlo_poses
 
     optimize_view, brute_force_view = _solvers(alpha, sphere_grid(res))
-    other_view = _other_view(compare_with)
+    other_view = _other_view(compare_with, alpha)
     poses = monte_carlo_poses()[pose_idx]
     counts = monte_carlo_levels()
     rows, detail = [], {}
@@ -173,7 +181,7 @@ def hard_rows(
     from pivotd.pivot.scenes import HARD_FAMILIES, hard_scene
 
     optimize_view, brute_force_view = _solvers(alpha, sphere_grid(res))
-    other_view = _other_view(compare_with)
+    other_view = _other_view(compare_with, alpha)
     rows = []
     for family in with_progress(HARD_FAMILIES, "hard scene families"):
         t_piv, t_grid, ratio, grid_ratio, gap, exact, sizes = [], [], [], [], [], 0, []

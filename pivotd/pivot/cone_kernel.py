@@ -28,14 +28,17 @@ def cells_per_face(alpha: float) -> int:
 
 
 def cell_keys(BT: np.ndarray, m: int) -> np.ndarray:
-    """Surface-voxel key (n,) intp of every unit direction of BT (3, n) float32 (see the module docstring)."""
+    """Surface-voxel key (n,) intp of every unit direction of BT (3, n) float32 (see the module docstring).
+
+    The scaled coordinates are shrunk by 2⁻¹⁵ towards the cube's centre, so that their float32 rounding
+    (≈ 10⁻⁶ m) never takes one outside 0 … m − 1 and no clipping pass is needed (a direction within 2⁻¹⁵ of
+    a cell boundary may fall in the neighbouring cell)."""
     A = np.abs(BT)
     s = A.max(axis=0)
-    np.divide(np.float32(0.5 * m), s, out=s)  # (m / 2) / max|u_i|
+    np.divide(np.float32(0.5 * m * (1.0 - 2.0**-15)), s, out=s)  # (m / 2)(1 − 2⁻¹⁵) / max|u_i|
     Q = np.multiply(BT, s, out=A)
     Q += np.float32(0.5 * m)
     np.floor(Q, out=Q)
-    np.clip(Q, np.float32(0.0), np.float32(m - 1), out=Q)  # s rounds: ±max|u_i| may land just outside
     return (np.array([m * m, m, 1], np.float32) @ Q).astype(np.intp)  # exact: keys < 2²⁴
 
 
@@ -55,7 +58,9 @@ class ConeKernel:
     half-angle α around centre i and ``overlap`` (float32) the estimated fraction of that cell inside it
     (the cell as a disc of its area cut by the cone's edge, at most the cone's area over the cell's).
     ``soft_lo``/``soft_span`` (C,) float32: the same fraction for any axis, linear in the cosine between the
-    axis and the cell's centre (:meth:`soft_weights`).
+    axis and the cell's centre (:meth:`soft_weights`). ``centres_t`` (3, C): the centres' contiguous transpose
+    ((K, 3) @ (3, C) products on a transposed view take several times as long); ``centres1`` (C, 4): the
+    centres with a column of ones (one product gives a weighted sum of centres and the total weight).
     """
 
     alpha: float
@@ -69,6 +74,8 @@ class ConeKernel:
     soft_lo: np.ndarray
     soft_span: np.ndarray
     soft_cap: np.ndarray | None
+    centres_t: np.ndarray
+    centres1: np.ndarray
 
     @property
     def size(self) -> int:
@@ -85,7 +92,8 @@ class ConeKernel:
         ``cos_c`` (K, C) float32 to the cell centres (overwritten)."""
         cos_c -= self.soft_lo
         cos_c *= self.soft_span
-        np.clip(cos_c, 0.0, 1.0, out=cos_c)
+        np.maximum(cos_c, np.float32(0.0), out=cos_c)  # two ufuncs: np.clip's wrapper costs more than both
+        np.minimum(cos_c, np.float32(1.0), out=cos_c)
         if self.soft_cap is not None:
             cos_c *= self.soft_cap
         return cos_c
@@ -141,4 +149,6 @@ def cone_kernel(alpha: float, m: int | None = None, *, samples_per_cell: int = 4
         soft_lo=lo.astype(np.float32),
         soft_span=(1.0 / np.maximum(hi - lo, 1e-12)).astype(np.float32),
         soft_cap=cap.astype(np.float32) if bool((cap < 1.0).any()) else None,
+        centres_t=np.ascontiguousarray(c32.T),
+        centres1=np.ascontiguousarray(np.hstack([c32, np.ones((C, 1), np.float32)])),
     )

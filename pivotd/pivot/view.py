@@ -186,38 +186,42 @@ def _histogram_candidates(
     A = kernel.counts(h)  # (C,) approximate weight of the cone on every cell centre
     k = min(8 * max(1, opts.peaks), A.size)
     top = np.argpartition(A, A.size - k)[A.size - k :]
-    top = top[np.argsort(-A.take(top), kind="stable")]
-    cos_d = np.cos(opts.distinct_ratio * alpha)
-    D = kernel.centres[top]
+    top = top.take(np.argsort(-A.take(top), kind="stable"))
+    cos_d = math.cos(opts.distinct_ratio * alpha)
+    D = kernel.centres.take(top, axis=0)
     picks = _greedy_distinct(D, cos_d, max(1, opts.peaks))
-    seeds, score = [D[picks]], [A.take(top.take(picks))]
-    extra = []
-    if opts.hist_shift or init is not None:
-        hs = h.take(kernel.keys)  # (C,) weight per cell
-        if opts.hist_shift:
-            centroid = hs @ kernel.centres
-            nc = float(np.sqrt(centroid @ centroid))
-            if nc > 1e-6 * max(float(hs.sum()), 1e-12):
-                extra.append(centroid / nc)
-        if init is not None:
-            extra.append(init.astype(np.float32))
-    if extra:  # their approximate weights: each cell counted by its estimated fraction inside the cone
-        E = np.array(extra, np.float32)
-        seeds.append(E)
-        score.append(kernel.soft_weights(E @ kernel.centres.T) @ hs)
-    C, score = np.concatenate(seeds), np.concatenate(score)
-    for _ in range(opts.hist_shift):  # mean shift on the histogram, keeping the better of start and end
-        Wt = kernel.soft_weights(C @ kernel.centres.T)
+    seeds = [D.take(picks, axis=0)]
+    hs = h.take(kernel.keys)  # (C,) weight per cell
+    if opts.hist_shift:
+        centroid = hs @ kernel.centres
+        nc = float(np.sqrt(centroid @ centroid))
+        if nc > 1e-6 * max(float(hs.sum()), 1e-12):
+            seeds.append((centroid / nc)[None])
+    if init is not None:
+        seeds.append(init.astype(np.float32)[None])
+    C = np.concatenate(seeds) if len(seeds) > 1 else seeds[0]
+    score = np.empty(C.shape[0], np.float32)
+    score[: len(picks)] = A.take(top.take(picks))
+    for step in range(max(1, opts.hist_shift)):  # mean shift on the histogram, keeping the better of start and end
+        # one product gives each axis's cells weighted by their estimated fraction inside its cone: the shifted
+        # axis (weighted mean of the cell centres) and the estimate of the axis itself (the total)
+        Wt = kernel.soft_weights(C @ kernel.centres_t)
         Wt *= hs
-        moved = Wt @ kernel.centres
+        moved = Wt @ kernel.centres1  # (K, 4)
+        if step == 0:
+            score[len(picks) :] = moved[len(picks) :, 3]  # the centroid's and init's estimates
+        if not opts.hist_shift:
+            break
+        moved = moved[:, :3]
         nrm = np.sqrt(np.einsum("ij,ij->i", moved, moved))
         ok = nrm > 1e-12
         M = np.where(ok[:, None], moved / np.where(ok, nrm, 1.0)[:, None], C)
-        C, score = np.concatenate([M, C]), np.concatenate([kernel.soft_weights(M @ kernel.centres.T) @ hs, score])
+        sM = kernel.soft_weights(M @ kernel.centres_t) @ hs
+        C, score = np.concatenate([M, C]), np.concatenate([sM, score])
     order = np.argsort(-score, kind="stable")
-    order = order[score[order] >= opts.keep_ratio * score[order[0]]]
-    Co = C[order]
-    return Co[_greedy_distinct(Co, cos_d, max(1, opts.refine))].astype(float)
+    order = order[score.take(order) >= opts.keep_ratio * score[order[0]]]
+    Co = C.take(order, axis=0)
+    return Co.take(_greedy_distinct(Co, cos_d, max(1, opts.refine)), axis=0).astype(float)
 
 
 def _cap_candidates(
@@ -397,16 +401,20 @@ def _edge_meets_disc(Bb: np.ndarray, alpha: float, c: np.ndarray, r: float) -> n
 
 def _greedy_distinct(D: np.ndarray, cos_min: float, k: int) -> list[int]:
     """Greedy non-maximum suppression over unit directions D (m, 3) sorted best first: the positions of at
-    most k of them, each with cosine < ``cos_min`` to every one picked before it."""
-    far = np.less(D @ D.T, np.float32(cos_min))  # (m, m)
-    free = np.ones(D.shape[0], dtype=bool)
+    most k of them, each with cosine < ``cos_min`` to every one picked before it. The pairwise test is one
+    product; the greedy walk runs on the rows packed as Python integers (bit j of row i: i and j are far)."""
+    m = D.shape[0]
+    if m == 0 or k <= 0:
+        return []
+    far = np.less(D @ np.ascontiguousarray(D.T), np.float32(cos_min))  # (m, m)
+    nb = (m + 7) // 8
+    rows = np.packbits(far, axis=1, bitorder="little").tobytes()
+    free = (1 << m) - 1
     picks: list[int] = []
-    for _ in range(k):
-        i = int(free.argmax())
-        if not free[i]:
-            break
+    while free and len(picks) < k:
+        i = (free & -free).bit_length() - 1  # the best direction still free
         picks.append(i)
-        free &= far[i]
+        free &= int.from_bytes(rows[i * nb : (i + 1) * nb], "little")
     return picks
 
 
@@ -499,17 +507,16 @@ def optimize_view(
             break
         if all(float(C[k] @ C[j]) < cos_d for j in keep):
             keep.append(int(k))
-    # the chosen candidates are refined one at a time, best first (each on its own band); a rival is refined only
-    # while its bound still exceeds the best hard weight found so far. Each refined axis competes with its start.
+    # the chosen candidates are refined together (one band, one product per step for all); a rival stops once it
+    # comes within distinct_ratio · α of the axis of a better-ranked one (a basin already being climbed). Each
+    # refined axis competes with its start.
+    R, steps = _refine(BT, w32, C[keep], cos_c[keep], alpha, opts, uniform)
+    iters += steps
+    cos_r = R.astype(np.float32) @ BT
+    s_r = _row_weights(cos_r >= cos_a32, w32, uniform)
     best_s, c_best, cos_best = -1.0, C[keep[0]], cos_c[keep[0]]
     for j, k in enumerate(keep):
-        if j and bound[k] <= best_s:
-            continue
-        R, steps = _refine(BT, w32, C[k : k + 1], cos_c[k : k + 1], alpha, opts, uniform, c_best if j else None)
-        iters += steps
-        cos_r = R[0].astype(np.float32) @ BT
-        s_r = float(_row_weights((cos_r >= cos_a32)[None], w32, uniform)[0])
-        for c, cs, sc in ((R[0], cos_r, s_r), (C[k], cos_c[k], float(score[k]))):
+        for c, cs, sc in ((R[j], cos_r[j], float(s_r[j])), (C[k], cos_c[k], float(score[k]))):
             if sc > best_s:
                 best_s, c_best, cos_best = sc, c, cs
     radii, points = _search_levels(alpha, opts, opts.cap_ratio * alpha, opts.cap_points)
@@ -549,9 +556,10 @@ def _result(
     ca = np.cos(alpha)
     x = c_best.astype(np.float32) @ BT
     x -= np.float32(ca)  # cos θ − cos α
-    edge = np.flatnonzero(np.abs(x) <= np.float32(2e-6))
     visible = int(np.count_nonzero(x > np.float32(2e-6)))
-    visible += int(np.count_nonzero(B.take(edge, axis=0) @ c_best >= ca - 1e-12))
+    if int(np.count_nonzero(x >= np.float32(-2e-6))) > visible:  # pairs at the edge (rare): settle in float64
+        edge = np.flatnonzero(np.abs(x) <= np.float32(2e-6))
+        visible += int(np.count_nonzero(B.take(edge, axis=0) @ c_best >= ca - 1e-12))
     # F at α: v = (1 + tanh((k_s/2)(cos θ − cos α))) / 2, in float32 like the ascent
     x *= np.float32(0.5 * ks_from_width(alpha, _width(alpha, opts)))
     np.tanh(x, out=x)
@@ -647,9 +655,7 @@ def _unit_bearings(bearings: np.ndarray, weights: np.ndarray | None) -> tuple[np
     w = feature_weights(weights, B.shape[0])
     with np.errstate(over="ignore", invalid="ignore"):
         BT = np.ascontiguousarray(B.T, dtype=np.float32)
-        sq = BT[0] * BT[0]
-        sq += BT[1] * BT[1]
-        sq += BT[2] * BT[2]
+        sq = np.einsum("ij,ij->j", BT, BT)
     # one reduction decides the common case: every row unit (to float32 rounding) and finite
     dev = max(1.0 - float(sq.min()), float(sq.max()) - 1.0) if sq.size else 0.0  # NaN stays NaN
     if dev <= 1e-6:
@@ -694,7 +700,6 @@ def _refine(
     alpha: float,
     opts: ViewOptions,
     uniform: bool,
-    avoid: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int]:
     """Gradient ascent at α from each unit axis of C (K, 3) over float32 bearings BT (3, n) / weights w (n,),
     all K at once; ``cos_c`` (K, n) = C · k_j; ``uniform``: all weights equal. Returns the final axes (K, 3)
@@ -705,8 +710,8 @@ def _refine(
     any axis; the band is re-selected when an axis drifts further than ``drift_deg`` from where it was
     selected. The step exp((h Ĵ)^) R turns the axis about the unit tangent Ĵ ⟂ c:
     c ← cos h · c + sin h · (Ĵ × c), so only the axes are tracked (the roll does not change the objective).
-    An axis that comes within distinct_ratio · α of ``avoid`` (3,) (an axis already refined) stops there: it
-    is climbing a basin that was already explored.
+    An axis that comes within distinct_ratio · α of the current axis of an earlier row stops there: it is
+    climbing the basin that row is climbing.
     One iteration is a handful of numpy calls whatever K: (K, 4) @ (4, m) gives (k_s/2)(c · k_j − cos α)
     for every axis (the band carries a row of ones), then tanh, and v(1 − v) @ band for the ascent directions.
     """
@@ -740,8 +745,7 @@ def _refine(
     h = [h0] * K
     active = list(range(K))
     A, AwT = band(cos_c)
-    ax, ay, az = (0.0, 0.0, 0.0) if avoid is None else (float(v) for v in avoid)
-    cos_avoid = 2.0 if avoid is None else math.cos(opts.distinct_ratio * alpha)
+    cos_near = math.cos(opts.distinct_ratio * alpha)
     it = 0
     for it in range(1, opts.max_iterations + 1):  # noqa: B007
         if not active or A.shape[1] == 0:
@@ -771,10 +775,12 @@ def _refine(
             nrm = math.sqrt(x * x + y * y + z * z)
             x, y, z = x / nrm, y / nrm, z / nrm
             xyz[k] = [x, y, z]
-            if x * ax + y * ay + z * az < cos_avoid:
-                still.append(k)
+            still.append(k)
             r = ref[k]
             moved |= xyz[k][0] * r[0] + xyz[k][1] * r[1] + xyz[k][2] * r[2] < cos_drift
+        if K > 1:  # an axis within distinct_ratio · α of an earlier row's axis stops there
+            still = [k for k in still if not any(
+                xyz[k][0] * xyz[i][0] + xyz[k][1] * xyz[i][1] + xyz[k][2] * xyz[i][2] >= cos_near for i in range(k))]
         active = still
         if moved and active:
             A, AwT = band(np.array(xyz, np.float32) @ BT)
@@ -782,14 +788,29 @@ def _refine(
     return np.array(xyz), it
 
 
-def _spiral(c: np.ndarray, radius: float, points: int, toward: np.ndarray) -> np.ndarray:
-    """``points`` unit directions (P, 3) spread evenly (a sunflower spiral, equal area per direction) over the
-    cap of angular ``radius`` [rad] around the unit axis ``c`` (3,); spacing ≈ radius · √(π / points). The
-    spiral's zero azimuth points along the tangent part of ``toward`` (3,) (a direction taken from the data,
-    so that a rotated scene gives the rotated spiral), or along c × e_z when that part vanishes."""
-    i = np.arange(points) + 0.5
-    r = radius * np.sqrt(i / points)  # polar radius
-    phi = i * (math.pi * (3.0 - math.sqrt(5.0)))
+def _spirals(radii: list[float], points: list[int]) -> list[np.ndarray]:
+    """For each radius r_k [rad] of ``radii``, the local coordinates (1 + P_k, 3) of the sunflower spiral of
+    :func:`_spiral_frame`: row 0 the cap's centre (1, 0, 0), then ``points[k]`` directions spread evenly (equal
+    area per direction) over the cap of radius r_k around it (spacing ≈ r_k · √(π / P_k)), as
+    (cos ρ, sin ρ cos φ, sin ρ sin φ) for polar radius ρ and azimuth φ. All levels in one set of array calls."""
+    sizes = [int(p) + 1 for p in points]  # each level: its centre, then its spiral
+    starts = [sum(sizes[:k]) for k in range(len(sizes))]
+    i = np.arange(sum(sizes), dtype=float) - np.repeat(np.array(starts, float) + 0.5, sizes)
+    np.maximum(i, 0.0, out=i)  # i + 0.5 along each spiral, 0 at the centres
+    r = np.sqrt(i)
+    r *= np.repeat([rk / math.sqrt(p) for rk, p in zip(radii, points, strict=True)], sizes)  # r_k √(i / P_k)
+    i *= math.pi * (3.0 - math.sqrt(5.0))  # azimuth
+    flat = np.empty((r.size, 3))
+    np.cos(r, out=flat[:, 0])
+    np.sin(r, out=r)
+    np.multiply(r, np.cos(i), out=flat[:, 1])
+    np.multiply(r, np.sin(i), out=flat[:, 2])
+    return [flat[s : s + p] for s, p in zip(starts, sizes, strict=True)]
+
+def _spiral_frame(c: np.ndarray, toward: np.ndarray) -> np.ndarray:
+    """Rows (3, 3): the unit axis c (3,), a unit tangent t1 and c × t1. The spiral's zero azimuth points along
+    the tangent part of ``toward`` (3,) (a direction taken from the data, so that a rotated scene gives the
+    rotated spiral), or along c × e_z when that part vanishes."""
     x, y, z = (float(v) for v in c)
     gx, gy, gz = (float(v) for v in toward)
     d = gx * x + gy * y + gz * z
@@ -799,10 +820,7 @@ def _spiral(c: np.ndarray, radius: float, points: int, toward: np.ndarray) -> np
         tx, ty, tz = (y, -x, 0.0) if abs(z) < 0.9 else (0.0, z, -y)  # c × e_z or c × e_x
         nt = math.sqrt(tx * tx + ty * ty + tz * tz)
     tx, ty, tz = tx / nt, ty / nt, tz / nt
-    frame = np.array([[x, y, z], [tx, ty, tz], [y * tz - z * ty, z * tx - x * tz, x * ty - y * tx]])  # c, t1, c × t1
-    sr = np.sin(r)
-    local = np.stack([np.cos(r), sr * np.cos(phi), sr * np.sin(phi)], axis=1)
-    return local @ frame
+    return np.array([[x, y, z], [tx, ty, tz], [y * tz - z * ty, z * tx - x * tz, x * ty - y * tx]])
 
 
 def local_search(
@@ -816,35 +834,44 @@ def local_search(
 ) -> np.ndarray:
     """Coarse-to-fine search of the hard visible weight around ``c`` (3,): for each radius r_k [rad] of
     ``radii`` (decreasing), ``points[k]`` directions on a spiral over the cap of radius r_k around the current
-    best (:func:`_spiral`); the best one replaces it when it sees strictly more. Returns the final axis.
+    best (:func:`_spirals`); the best one replaces it when it sees strictly more. Returns the final axis.
 
     BT (3, n) float32 unit bearings, w (n,) float32 weights, ``cos_c`` (n,) = c · k_j. The axis moves at
-    most Σ r_k, so only landmarks within α ± Σ r_k of ``c`` can change state: that band is taken once, and
-    each level counts only the part of it within α ± r_k of its centre. On a flat landscape (the sensor
-    inside a dense cloud) the maxima are shallow and many: the first, wide cap (a spacing of ≈ 2.35° with
-    32 directions over α/2 = 7.5°) puts a direction near each nearby one; the next levels only have to
-    close the gap between spiral directions (each radius above 0.6 × the previous level's spacing, the
-    farthest any point of a cap is from its nearest spiral direction).
+    most Σ r_k, so only landmarks within α ± Σ r_k of ``c`` can change state: that band is taken once. The
+    first level counts the part of it within α ± r_0 of ``c``, the later levels (which move the axis by at
+    most their sum) the part within α ± Σ_{k≥1} r_k of the first level's result: a landmark outside it is
+    inside all or none of their cones, which shifts every score of a level by the same amount. The current
+    axis is scored with its spiral (row 0), so each level is one (1 + P, 3) @ (3, m) product, compared in
+    place, and one matrix-vector product. On a flat landscape (the sensor inside a dense cloud) the maxima
+    are shallow and many: the first, wide cap (a spacing of ≈ 2.35° with 32 directions over α/2 = 7.5°) puts
+    a direction near each nearby one; the next levels only have to close the gap between spiral directions
+    (each radius above 0.6 × the previous level's spacing, the farthest any point of a cap is from its
+    nearest spiral direction).
     """
     band = _edge_band(BT, w, cos_c, alpha, float(sum(radii)))
     if band is None:
         return c
     bT, wb = band
     toward = (bT @ wb).astype(float)  # the band's weighted mean bearing orients every spiral
-    cos_a = np.float32(np.cos(alpha) - 1e-7)
-    for r, p in zip(radii, points, strict=True):
-        cb = c.astype(np.float32) @ bT  # (m,)
-        lo, hi = np.float32(np.cos(min(np.pi, alpha + r))), np.float32(np.cos(max(0.0, alpha - r)))
-        sel = np.flatnonzero((cb >= lo) & (cb <= hi))
-        if sel.size == 0:
-            continue
-        lT, lw = bT.take(sel, axis=1), wb.take(sel)
-        cand = _spiral(c, r, p, toward)
-        inside = cand.astype(np.float32) @ lT  # (P, m')
+    cos_a = np.float32(math.cos(alpha) - 1e-7)
+    lT, lw = bT, wb
+    for k, local in enumerate(_spirals(radii, points)):
+        if k <= 1:  # narrow the band: level 0 to α ± r_0 around c, the later levels to α ± Σ_{j≥1} r_j
+            reach = radii[0] if k == 0 else float(sum(radii[1:]))
+            cb = c.astype(np.float32) @ bT  # (m,)
+            lo, hi = np.float32(math.cos(min(math.pi, alpha + reach))), np.float32(math.cos(max(0.0, alpha - reach)))
+            sel = np.flatnonzero((cb >= lo) & (cb <= hi))
+            if sel.size == 0:
+                if k == 0:
+                    continue
+                break
+            lT, lw = bT.take(sel, axis=1), wb.take(sel)
+        cand = local @ _spiral_frame(c, toward)  # (1 + P, 3), row 0 = c
+        inside = cand.astype(np.float32) @ lT  # (1 + P, m')
         vals = np.greater_equal(inside, cos_a, out=inside) @ lw  # 1.0 inside the cone
-        k = int(np.argmax(vals))
-        if vals[k] > float((cb.take(sel) >= cos_a) @ lw):
-            c = cand[k] / math.sqrt(float(cand[k] @ cand[k]))
+        best = int(np.argmax(vals))  # the first maximum: 0 (stay) unless a direction sees strictly more
+        if best:
+            c = cand[best] / math.sqrt(float(cand[best] @ cand[best]))
     return c
 
 
