@@ -48,80 +48,82 @@ def cells_for(alpha: float) -> int:
     return int(min(128, max(1, round((0.5 * math.pi) / alpha))))
 
 
-def _row_bearings(geom: Geometry, row: int) -> tuple[np.ndarray, np.ndarray]:
-    """Unit bearings (n, 3) float32 and weights (n,) float64 of one row's landmarks with weight > 0."""
-    w = geom.weights[row] if geom.weights.ndim == 2 else geom.weights
+def _bearings(geom: Geometry) -> tuple[np.ndarray, np.ndarray]:
+    """Unit bearings (N, L, 3) float32 and weights (N, L) float32 of every row (0 for padding and landmarks at
+    the sensor)."""
+    W = np.array(geom.weight_rows(), dtype=np.float32)
     if geom.inv_dist is None:
-        B = geom.points[row] if not geom.shared else geom.points
-    else:
-        inv = geom.inv_dist[row]
-        w = np.where(inv > 0, w, 0)
-        B = (geom.points - geom.origins[row]) * inv[:, None]
-    keep = np.flatnonzero(w > 0)
-    return B[keep].astype(np.float32, copy=False), w[keep].astype(np.float64)
+        B = np.broadcast_to(geom.points, (geom.rows, *geom.points.shape)) if geom.shared else geom.points
+        return B, W
+    inv = geom.inv_dist
+    W[inv <= 0] = 0.0
+    B = (geom.points[None, :, :] if geom.shared else geom.points) - geom.origins[:, None, :]
+    B *= inv[:, :, None]
+    return B, W
 
 
-def _row_candidates(B: np.ndarray, w: np.ndarray, m: int, k: int) -> np.ndarray:
-    """Weighted mean bearings (≤ k, 3) of the k heaviest cube-map cells (m cells per face) of B (n, 3)."""
-    keys = cell_keys(np.ascontiguousarray(B.T), m)
-    cells, inverse = np.unique(keys, return_inverse=True)
-    mass = np.bincount(inverse, weights=w, minlength=cells.size)
-    top = np.lexsort((cells, -mass))[:k]  # heaviest first, ties by cell key: independent of landmark order
-    sums = np.stack([np.bincount(inverse, weights=w * B[:, j], minlength=cells.size)[top] for j in range(3)], axis=1)
-    norms = np.linalg.norm(sums, axis=1, keepdims=True)
-    return np.where(norms > 1e-12, sums / np.maximum(norms, 1e-300), B[0])  # opposite bearings cancelling: any axis
+def _candidates(B: np.ndarray, W: np.ndarray, m: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted mean bearings (N, k, 3) of each row's k heaviest cube-map cells (m cells per face) and whether
+    each exists (N, k) bool. Ties in weight go to the lower cell key, so the choice does not depend on the
+    landmarks' order."""
+    N, L, _ = B.shape
+    w = W.reshape(-1)
+    live = np.flatnonzero(w > 0)  # padding and landmarks at the sensor have no bearing
+    flat = B.reshape(-1, 3)[live]
+    w = w[live].astype(np.float64)
+    keys = cell_keys(np.ascontiguousarray(flat.T), m).astype(np.int64) + (live // L) * (m**3)
+    dense = N * m**3 <= 4 * max(live.size, 1024)
+    if dense:  # few cells (wide cones): histogram over every cell
+        inverse, size = keys, N * m**3
+    else:  # many cells (narrow cones): only the occupied ones
+        cells, inverse = np.unique(keys, return_inverse=True)
+        size = cells.size
+    mass = np.bincount(inverse, weights=w, minlength=size)
+    sums = np.stack([np.bincount(inverse, weights=w * flat[:, j], minlength=size) for j in range(3)], axis=1)
+    if dense:
+        cells = np.flatnonzero(mass > 0)
+        mass, sums = mass[cells], sums[cells]
+    row = cells // (m**3)
+    order = np.lexsort((cells, -mass, row))  # by row, heaviest first, ties by key
+    row_sorted = row[order]
+    first = np.searchsorted(row_sorted, np.arange(N))
+    rank = np.arange(order.size) - first[row_sorted]
+    top = rank < k
+    C = np.zeros((N, k, 3))
+    C[:, :, 2] = 1.0
+    have = np.zeros((N, k), dtype=bool)
+    r, q, o = row_sorted[top], rank[top], order[top]
+    norms = np.linalg.norm(sums[o], axis=1)
+    ok = norms > 1e-12  # opposite bearings cancelling in one cell: no axis from it
+    C[r[ok], q[ok]] = sums[o[ok]] / norms[ok, None]
+    have[r[ok], q[ok]] = True
+    return C, have
 
 
-def _weighted_inside(geom: Geometry, C: np.ndarray, cos_a: np.float32) -> tuple[np.ndarray, np.ndarray]:
-    """Hard visible weight (N,) float64 of axes C (N, 3) and each row's weighted sum of the bearings inside (N, 3)."""
-    cos = geom.cos_all(C)
-    W = geom.weight_rows()
-    inside = cos >= cos_a
-    if geom.inv_dist is not None:
-        inside &= geom.inv_dist > 0
-    coeff = np.where(inside, W, np.float32(0.0))
-    weight = coeff.sum(axis=1, dtype=np.float64)
-    if geom.inv_dist is None:
-        sums = coeff @ geom.points if geom.shared else np.einsum("nl,nlk->nk", coeff, geom.points)
-    else:  # bearing = (p − t) / ‖p − t‖
-        coeff = coeff * geom.inv_dist
-        sums = coeff @ geom.points if geom.shared else np.einsum("nl,nlk->nk", coeff, geom.points)
-        sums = sums - coeff.sum(axis=1)[:, None] * geom.origins
-    return weight, sums.astype(np.float64)
-
-
-def attainable_weights(geom: Geometry, alpha: float, *, candidates: int = 8, shifts: int = 3) -> np.ndarray:
+def attainable_weights(geom: Geometry, alpha: float, *, candidates: int = 6, shifts: int = 2) -> np.ndarray:
     """Estimated best single-cone weight (N,) float64 of every row of ``geom`` for half-angle α [rad].
 
     ``candidates`` heaviest cells per row (cells about α wide, :func:`cells_for`) seed the axes; each is moved
     ``shifts`` times to the weighted mean bearing inside its cone. Every axis visited is scored by its hard
     visible weight (cos θ ≥ cos α, the weights of ``geom``) and each row keeps its best score. Rows without
-    weight give 0.
+    weight give 0. All rows and candidates are handled together: ``shifts`` + 1 passes over the (N, L,
+    candidates) cosines.
     """
-    N = geom.rows
-    m = cells_for(alpha)
+    B, W = _bearings(geom)
+    N = B.shape[0]
+    if N == 0 or B.shape[1] == 0:
+        return np.zeros(N)
+    C, have = _candidates(B, W, cells_for(alpha), candidates)
     cos_a = np.float32(math.cos(alpha))
-    seeds = np.zeros((candidates, N, 3))
-    seeds[:, :, 2] = 1.0
-    have = np.zeros((candidates, N), dtype=bool)
-    for i in range(N):
-        B, w = _row_bearings(geom, i)
-        if w.size == 0:
-            continue
-        c = _row_candidates(B, w, m, candidates)
-        seeds[: c.shape[0], i] = c
-        have[: c.shape[0], i] = True
+    BW = B * W[:, :, None]  # weighted bearings: the mean-shift sums are one product per pass
     best = np.zeros(N)
-    for j in range(candidates):
-        rows = have[j]
-        if not rows.any():
+    for step in range(shifts + 1):
+        inside = (np.matmul(B, C.astype(np.float32).transpose(0, 2, 1)) >= cos_a).astype(np.float32)  # (N, L, k)
+        weight = np.matmul(W[:, None, :], inside)[:, 0, :].astype(np.float64)  # (N, k)
+        best = np.maximum(best, np.where(have, weight, 0.0).max(axis=1))
+        if step == shifts:
             break
-        C = seeds[j]
-        for step in range(shifts + 1):
-            weight, sums = _weighted_inside(geom, C, cos_a)
-            best = np.where(rows, np.maximum(best, weight), best)
-            if step == shifts:
-                break
-            n = np.linalg.norm(sums, axis=1, keepdims=True)
-            C = np.where(n > 1e-12, sums / np.maximum(n, 1e-300), C)
+        sums = np.matmul(inside.transpose(0, 2, 1), BW).astype(np.float64)  # (N, k, 3)
+        n = np.linalg.norm(sums, axis=2, keepdims=True)
+        C = np.where(n > 1e-12, sums / np.maximum(n, 1e-300), C)
     return best
