@@ -70,6 +70,8 @@ def test_ablation_flags_change_the_daemon_config_and_bad_values_are_one_line_err
     default = _settings(parser.parse_args([])).cfg
     assert not default.planner.replan_on_waypoint and default.planner.spread_cell is None
     assert _settings(parser.parse_args(["--spread-cell-deg", "0"])).cfg.planner.spread_cell is None
+    assert default.planner.normalise == "total"
+    assert _settings(parser.parse_args(["--normalise", "attainable"])).cfg.planner.normalise == "attainable"
     for bad, flag in ((["--spread-cell-deg", "200"], "--spread-cell-deg"),
                       (["--spread-saturation", "0"], "--spread-saturation"), (["--lambda", "-1"], "--lambda")):
         with pytest.raises(InputError, match=flag):

@@ -49,6 +49,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     abl.add_argument("--spread-cell-deg", type=float, default=None, metavar="DEG",
                      help="planner.spread_cell_deg (spread weights of the retained landmarks; 0: off)")
     abl.add_argument("--spread-saturation", type=float, default=None, metavar="K", help="planner.spread_saturation")
+    abl.add_argument("--normalise", choices=("total", "attainable"), default=None,
+                     help="planner.normalise (visible term over each waypoint's total or attainable weight)")
     abl.add_argument("--lambda", dest="lam", type=float, default=None, metavar="L", help="pivot.lambda (smoothness)")
     parser.add_argument("--json", metavar="FILE", help="write all results as JSON")
     parser.add_argument("--plot", metavar="FILE", help="routes coloured by success and success curves (PNG)")
@@ -105,6 +107,10 @@ def _settings(args: argparse.Namespace):
         if not (math.isfinite(args.spread_saturation) and args.spread_saturation > 0):
             raise InputError(f"--spread-saturation: must be > 0, got {args.spread_saturation}")
         planner = replace(planner, spread_saturation=args.spread_saturation)
+    if args.normalise is not None:
+        from pivotd.pivot.normalise import Normalisation
+
+        planner = replace(planner, normalise=Normalisation(args.normalise))
     cfg = replace(cfg, planner=planner)
     if args.lam is not None:
         if not (math.isfinite(args.lam) and args.lam >= 0):
@@ -166,7 +172,8 @@ def run(args: argparse.Namespace) -> int:
             + (" --replan-on-waypoint" if args.replan_on_waypoint else "")
             + ("" if args.spread_cell_deg is None else f" --spread-cell-deg {args.spread_cell_deg:g}")
             + ("" if args.spread_saturation is None else f" --spread-saturation {args.spread_saturation:g}")
-            + ("" if args.lam is None else f" --lambda {args.lam:g}"),
+            + ("" if args.lam is None else f" --lambda {args.lam:g}")
+            + ("" if args.normalise is None else f" --normalise {args.normalise}"),
             "seeds": list(st.seeds),
             "camera": asdict(st.camera),
             "config": str(args.config),

@@ -71,6 +71,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
              "of every hard family, and the cost per pose at full size (pivotd.bench.narrow)",
     )
     parser.add_argument(
+        "--normalise", choices=("total", "attainable"), default="total",
+        help="--pareto and --fov-carry: each waypoint's visible weight over its total (default) or attainable "
+             "weight (TrajectoryOptions.normalise)",
+    )
+    parser.add_argument(
+        "--fov-carry", action="store_true",
+        help="only: does lambda mean the same across FoVs? Smooth plans with a 2 and a 30 deg cone on the same "
+             "paths, visible sum as % of the lambda 0 plan's, with total and attainable normalisation",
+    )
+    parser.add_argument(
         "--replan", action="store_true",
         help="only the warm-started replanning regime: 40 waypoints, 20k landmarks, anchor + pan/tilt limits",
     )
@@ -344,7 +354,8 @@ def interleaved_grid_speed(
     return np.concatenate(parts), grid_s, {k: median(v) for k, v in times.items()}, results
 
 
-def pareto_rows(limits_deg: tuple[float, ...] = (5.0, 10.0), families: bool = True) -> list[dict]:
+def pareto_rows(limits_deg: tuple[float, ...] = (5.0, 10.0), families: bool = True,
+                normalise: str = "total") -> list[dict]:
     """Trajectory plans against the exact step-limited plan on the 2° grid (hard counts, `pivotd plan`'s
     objective): the λ = 0.6 plan against the best grid plan with its own largest step, and plans with a hard
     step limit S (``max_step``) against the best grid plan with steps ≤ S. Scenes: the FIF corridor (30°
@@ -368,7 +379,7 @@ def pareto_rows(limits_deg: tuple[float, ...] = (5.0, 10.0), families: bool = Tr
             hp = hard_path(fam, 0)
             scenes.append((f"path_{fam}", hp.points, hp.path, 15.0))
     grid = sphere_grid(2.0)
-    opts = TrajectoryOptions(distance_weights=False)
+    opts = TrajectoryOptions(distance_weights=False, normalise=normalise)
     rows = []
     for name, pts, way, half_deg in with_progress(scenes, "trajectory scenes"):
         alpha = math.radians(half_deg)
@@ -483,9 +494,16 @@ def run(args: argparse.Namespace) -> int:
     if not steady_heap():
         log.warning("could not fix the allocator's thresholds (not glibc?): timings include page faults")
     if args.pareto:
-        rows = pareto_rows(families=not args.quick)
+        rows = pareto_rows(families=not args.quick, normalise=args.normalise)
         if args.json:
             Path(args.json).write_text(json.dumps({"pareto": rows}, indent=2) + "\n")
+        return 0
+    if args.fov_carry:
+        from pivotd.bench.narrow import run_fov_carry
+
+        carry = run_fov_carry(args.quick)
+        if args.json:
+            Path(args.json).write_text(json.dumps({"fov_carry": carry}, indent=2) + "\n")
         return 0
     if args.narrow:
         from pivotd.bench.narrow import run_narrow

@@ -88,25 +88,26 @@ def cost_rows(half_angles: tuple[float, ...], poses: int, repeats: int = 3) -> l
     return rows
 
 
-def plan_rows(half_angles: tuple[float, ...], scale: float, waypoints: int = 40) -> list[dict]:
-    """Smooth plans (λ = 0.6, no distance weights) on a path through each hard family at ``scale``: the visible
-    sum as a share [%] of the independent λ = 0 plan's, with and without the narrow-cone seed of cold starts
-    (``TrajectoryOptions.narrow_seed_nodes``), and the plan's largest step [deg]."""
+def plan_rows(half_angles: tuple[float, ...], scale: float, waypoints: int = 40, normalise: str = "total",
+              lam: float = 0.6) -> list[dict]:
+    """Smooth plans (λ = ``lam``, no distance weights, ``TrajectoryOptions.normalise``) on a path through each hard
+    family at ``scale``: the visible sum as a share [%] of the independent λ = 0 plan's, with and without the
+    narrow-cone seed of cold starts (``TrajectoryOptions.narrow_seed_nodes``), and the plan's largest step [deg]."""
     from dataclasses import replace
 
     from pivotd.pivot.scenes import HARD_FAMILIES, hard_path
     from pivotd.pivot.steps import step_angles
     from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
 
-    opts = TrajectoryOptions(distance_weights=False)
+    opts = TrajectoryOptions(distance_weights=False, normalise=normalise)
     rows = []
     for h in half_angles:
         alpha = math.radians(h)
         for family in HARD_FAMILIES:
             hp = hard_path(family, 0, waypoints=waypoints, scale=scale)
             free = float(optimize_trajectory(hp.points, hp.path, alpha, 0.0, options=opts).visible.sum())
-            plan = optimize_trajectory(hp.points, hp.path, alpha, 0.6, options=opts)
-            bare = optimize_trajectory(hp.points, hp.path, alpha, 0.6, options=replace(opts, narrow_seed_nodes=0))
+            plan = optimize_trajectory(hp.points, hp.path, alpha, lam, options=opts)
+            bare = optimize_trajectory(hp.points, hp.path, alpha, lam, options=replace(opts, narrow_seed_nodes=0))
             rows.append({"half_angle_deg": h, "family": family,
                          "seeded_pct": round(100.0 * float(plan.visible.sum()) / max(free, 1.0), 1),
                          "unseeded_pct": round(100.0 * float(bare.visible.sum()) / max(free, 1.0), 1),
@@ -145,3 +146,19 @@ def run_narrow(quick: bool, compare_with: str | None = None) -> dict:
         print(f"  {r['half_angle_deg']:4.1f} deg {r['family']:>9}: {r['seeded_pct']:5.1f} % / "
               f"{r['unseeded_pct']:5.1f} %, largest step {r['max_step_deg']:.2f} deg")
     return result
+
+
+def run_fov_carry(quick: bool) -> dict:
+    """Does λ mean the same across FoVs? λ = 0.6 plans with a 2° and a 30° cone (half-angles 1° and 15°) on the
+    same path through each hard family, visible sum as % of the λ = 0 plan's and largest step, with each
+    normalisation of the objective (``TrajectoryOptions.normalise``). Prints the table; returns its rows."""
+    scale = 0.1 if quick else 0.3
+    print(f"lambda 0.6 across FoVs (40 waypoints through each hard family at scale {scale:g}): visible sum as % of "
+          "the lambda 0 plan's, largest step")
+    out: dict = {}
+    for normalise in ("total", "attainable"):
+        out[normalise] = plan_rows((1.0, 15.0), scale, normalise=normalise)
+        for r in out[normalise]:
+            print(f"  {normalise:>10} {2 * r['half_angle_deg']:4.0f} deg cone {r['family']:>9}: "
+                  f"{r['seeded_pct']:5.1f} %, largest step {r['max_step_deg']:6.2f} deg", flush=True)
+    return out

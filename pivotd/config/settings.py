@@ -24,6 +24,7 @@ from pivotd.errors import ConfigError, InputError
 from pivotd.gimbal.kinematics import JointLimits, Mount
 from pivotd.gimbal.motion import AxisLimits
 from pivotd.maps.occlusion import voxel_problem
+from pivotd.pivot.normalise import Normalisation
 from pivotd.pivot.steps import MAX_STEP_RANGE_DEG
 
 #: Most landmarks the live markers highlight (the planner reports at most this many in view).
@@ -129,6 +130,7 @@ class PlannerConfig:
     spread_cell: float | None = None  # [rad] bearing cell of the spread weights (pivotd.pivot.weights); None: off
     spread_saturation: float = 1.0  # most weight one bearing × depth cell contributes
     spread_depth_ratio: float = 2.0  # depth shells of the spread weights: [d, d · ratio)
+    normalise: Normalisation = Normalisation.TOTAL  # per-waypoint visible term over total or attainable weight
 
 
 def _default_limits() -> JointLimits:
@@ -581,6 +583,7 @@ def _planner(s: Section, control: ControlConfig) -> PlannerConfig:
         spread_cell=_spread_cell(s, d.spread_cell),
         spread_saturation=s.number("spread_saturation", d.spread_saturation, min=0.0, min_open=True, max=1e6),
         spread_depth_ratio=s.number("spread_depth_ratio", d.spread_depth_ratio, min=1.0, min_open=True, max=1e3),
+        normalise=Normalisation(s.string("normalise", d.normalise.value, choices=tuple(Normalisation))),
     )
     s.finish()
     return out

@@ -99,7 +99,7 @@ def build_planner(cfg: Config) -> RecedingHorizonPlanner:
                                                                   pl.spread_saturation),
         options=TrajectoryOptions(width_deg=math.degrees(p.transition_width), max_iterations=p.iterations,
                                   warm_iterations=min(p.iterations, TrajectoryOptions.warm_iterations),
-                                  distance_weights=p.distance_weights),
+                                  distance_weights=p.distance_weights, normalise=pl.normalise),
     )
     return RecedingHorizonPlanner(settings, cfg.gimbal.mount, cfg.gimbal.limits)
 

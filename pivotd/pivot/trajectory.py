@@ -5,6 +5,8 @@ F_i = Σ_j s_ij v(θ_ij) (eq. 6) over waypoint i's retained landmarks, s_ij = fe
 weight (eq. 15) and W_i = Σ_j s_ij normalises each waypoint by its local feature weight (the paper's
 ε = 1/(nπ)). All waypoints are updated together with padded arrays: R_i ← exp((h_i Ĵ_i)^) R_i with
 J_i = J_vis,i/W_i + λ c_i × (c_{i−1} + c_{i+1}) (eqs. 12, 18–20; one neighbour at the ends).
+With ``TrajectoryOptions.normalise`` = attainable, W_i is instead the most weight one cone of the FoV holds at
+that waypoint (:mod:`pivotd.pivot.normalise`), so each visible term is a share of what the waypoint could see.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from pivotd.pivot._checks import feature_weights, finite_array, half_angle, unit
 from pivotd.pivot.cone_kernel import cone_kernel
 from pivotd.pivot.constraints import PanTiltConstraint
 from pivotd.pivot.morton import morton_keys
+from pivotd.pivot.normalise import Normalisation, attainable_weights
 from pivotd.pivot.steps import limit_steps, step_angles
 from pivotd.pivot.view import ViewOptions, optimize_view, schedule
 
@@ -59,6 +62,7 @@ class TrajectoryOptions:
     warm_polish: bool = False  # also polish warm starts (receding-horizon replans)
     step_polish_deg: float = 4.0  # step-limited DP polish of the visible count (pivotd.pivot.polish): radius (0: off)
     seed_cap: int = 512  # landmarks per node waypoint scoring the step-limited grid chain (a second candidate; 0: off)
+    normalise: Normalisation = Normalisation.TOTAL  # W_i: total retained weight, or the attainable one (normalise.py)
     narrow_seed_nodes: int = 16  # cold start, α below ViewOptions.narrow_deg: a candidate through this many node
     # waypoints' single-view optima (optimize_view), kept when its objective is higher (0: off)
 
@@ -465,6 +469,7 @@ def optimize_trajectory(
     Raises ValueError on NaN/inf or bad shapes.
     """
     opts = options or TrajectoryOptions()
+    normalise = Normalisation.parse(opts.normalise)
     alpha = half_angle(alpha)
     lam = float(lam)
     if not (np.isfinite(lam) and lam >= 0):
@@ -515,6 +520,11 @@ def optimize_trajectory(
         geom, norm = _dense_geometry(P, T, fw, opts.distance_weights)
     else:
         geom, norm = _ragged_geometry(pairs, T, opts.distance_weights)
+    chain_smooth_ratio = 1.0
+    if normalise is Normalisation.ATTAINABLE and geom is not None:
+        total, norm = norm, attainable_weights(geom, alpha)
+        has = total > 0  # the chain scores fractions of the total: scale its smoothness by the typical A_i / W_i
+        chain_smooth_ratio = float(np.median(norm[has] / total[has])) if has.any() else 1.0
 
     rad = np.radians
     if warm:
@@ -559,7 +569,8 @@ def optimize_trajectory(
             seed = nodes if linked else None
             node_scores = sub if smooth > 0 or not linked else _ascent.subsample(geom, lengths, opts.active_cap)
             C_init = chain.initial_directions(
-                node_scores.points, node_scores.weights, alpha, smooth, nodes if smooth > 0 else np.arange(N), N,
+                node_scores.points, node_scores.weights, alpha, smooth * chain_smooth_ratio,
+                nodes if smooth > 0 else np.arange(N), N,
                 resolution_deg=opts.chain_resolution_deg, anchor=a_vec,
             )
             R0 = optical_frame_from_direction(C_init)
