@@ -40,6 +40,32 @@ def test_a_run_is_reproducible_from_its_seed():
     assert not np.array_equal(a.errors["forward"][0], c.errors["forward"][0])  # another seed, another scene
 
 
+def test_host_stalls_do_not_change_a_run(rooms_world):
+    """The control loop runs on the simulated clock: a policy that holds the host up for longer than the
+    loop's stall threshold (as a loaded machine does) commands exactly the same stream."""
+    import time
+
+    from pivotd.daemon.control import ControlSettings
+
+    class Stalling:
+        def __init__(self, inner, stalls: int) -> None:
+            self.inner, self.stalls = inner, stalls
+
+        def __getattr__(self, name):
+            return getattr(self.inner, name)
+
+        def update(self, *args):
+            if self.stalls > 0:
+                self.stalls -= 1
+                time.sleep(1.5 * ControlSettings().stall_s)
+            return self.inner.update(*args)
+
+    calm = run_policy(rooms_world, make_policy(PolicyName.PIVOT, rooms_world, seed=2))
+    stalled = run_policy(rooms_world, Stalling(make_policy(PolicyName.PIVOT, rooms_world, seed=2), stalls=3))
+    np.testing.assert_array_equal(calm.setpoints, stalled.setpoints)
+    np.testing.assert_array_equal(calm.directions, stalled.directions)
+
+
 def test_procedural_scenes_depend_on_the_seed_only():
     for name in ("rooms", "corridor", "warehouse"):
         a, b, c = build_scene(name, 1, REPO), build_scene(name, 1, REPO), build_scene(name, 2, REPO)

@@ -85,7 +85,8 @@ def run_policy(world: World, policy: Policy, frame_hz: float = FRAME_HZ) -> Traj
     times = np.arange(n) * dt
     body, quats = world.body_poses(times)
     gimbal = SimulatedGimbal()
-    loop = build_control_loop(cfg, gimbal)
+    now = [0.0]  # the simulated time: the loop never reads the host's clock, so host stalls change nothing
+    loop = build_control_loop(cfg, gimbal, clock=lambda: now[0])
     frame_tick = set(np.round(frames / dt).astype(int).tolist())
     dirs = []
     plan: Plan | None = None
@@ -93,6 +94,7 @@ def run_policy(world: World, policy: Policy, frame_hz: float = FRAME_HZ) -> Traj
     updates = 0
     for k in range(n):
         t = float(times[k])
+        now[0] = t
         pose = PoseSample(t, "map", body[k], quats[k], t)
         if k % ticks_per_replan == 0:
             t0 = time.process_time()
