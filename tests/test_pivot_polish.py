@@ -80,3 +80,39 @@ def test_trajectory_option_polishes_without_losing_smoothness():
     steps = np.degrees(angle_between(polished.directions[1:], polished.directions[:-1]))
     assert steps.max() < 11.0  # the plain plan's largest step: 10.4° (see test_pivot_trajectory)
     assert np.allclose(np.einsum("nij,j->ni", polished.rotations, [0, 0, 1]), polished.directions, atol=1e-12)
+
+
+def _viterbi_reference(val, pen):
+    """The textbook Viterbi (one fancy-indexed step per waypoint), same arithmetic order: (pen + score) + val."""
+    N, K = val.shape
+    back = np.zeros((N, K), dtype=int)
+    score = val[0].copy()
+    for i in range(1, N):
+        tot = pen[i - 1] + score[None, :]
+        back[i] = np.argmax(tot, axis=1)
+        score = tot[np.arange(K), back[i]] + val[i]
+    pick = [int(np.argmax(score))]
+    for i in range(N - 1, 0, -1):
+        pick.append(int(back[i, pick[-1]]))
+    return np.array(pick[::-1])
+
+
+def test_step_limited_dp_equals_the_textbook_viterbi_exactly():
+    from pivotd.pivot.polish import _best_sequence
+
+    rng = np.random.default_rng(7)
+    for trial in range(60):
+        N, K = int(rng.integers(1, 40)), int(rng.choice([1, 2, 5, 17]))
+        if trial % 3 == 0:  # small integers: many exact ties, which must go to the same (lowest) index
+            val = rng.integers(0, 3, (N, K)).astype(float)
+            pen = rng.integers(-2, 1, (max(N - 1, 0), K, K)).astype(float)
+        else:
+            val = rng.random((N, K))
+            pen = rng.normal(size=(max(N - 1, 0), K, K))
+        pen[rng.random(pen.shape) < 0.3] = -np.inf  # forbidden steps
+        if N > 1:
+            pen[:, 0, 0] = 0.0  # as in the polish: staying on the current plan is always allowed
+        if trial % 5 == 0:
+            val[rng.random(val.shape) < 0.2] = -np.inf  # unreachable candidates
+            val[:, 0] = 0.0
+        assert np.array_equal(_best_sequence(val, pen), _viterbi_reference(val, pen))

@@ -136,22 +136,30 @@ def _best_sequence(val: np.ndarray, pen: np.ndarray) -> np.ndarray:
     """Candidate index per waypoint (N,) maximising Σ_i val[i, k_i] + Σ_i pen[i − 1, k_i, k_{i−1}] (Viterbi).
 
     val (N, K) candidate values, pen (N − 1, K to, K from) transition values (−inf: forbidden). Ties go
-    to the lowest index (candidate 0, the current axis). One small (K, K) step per waypoint; the
-    backtrack runs on Python lists.
+    to the lowest index (candidate 0, the current axis). The forward pass is three numpy calls per waypoint
+    into preallocated buffers (the sum, its argmax per row, and the row maxima gathered through the flat
+    index of the argmax); the backtrack walks the argmax table as a list.
     """
     N, K = val.shape
     back = np.empty((N, K), dtype=np.intp)
-    cols = np.arange(K)
-    score = val[0]
+    tot = np.empty((K, K))
+    flat = tot.reshape(-1)
+    row_start = np.arange(K) * K
+    idx = np.empty(K, dtype=np.intp)
+    score = np.array(val[0], dtype=float)
+    add, take = np.add, flat.take
     for i in range(1, N):
-        tot = pen[i - 1] + score  # (to, from)
-        b = tot.argmax(axis=1)
-        back[i] = b
-        score = tot[cols, b] + val[i]
-    pick = [int(score.argmax())]
+        add(pen[i - 1], score, out=tot)  # (to, from)
+        b = back[i]
+        tot.argmax(axis=1, out=b)
+        add(row_start, b, out=idx)
+        add(take(idx), val[i], out=score)
+    k = int(score.argmax())
+    pick = [k]
     rows = back.tolist()
     for i in range(N - 1, 0, -1):
-        pick.append(rows[i][pick[-1]])
+        k = rows[i][k]
+        pick.append(k)
     return np.array(pick[::-1], dtype=np.intp)
 
 
