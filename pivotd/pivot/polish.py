@@ -125,11 +125,16 @@ def polish_trajectory(
 
 
 def _ring_candidates(C: np.ndarray, radius: float) -> np.ndarray:
-    """Candidates (N, 17, 3) per unit axis C (N, 3): the axis, then 8 directions at ``radius`` and 8 at radius/2."""
+    """Candidates (N, 17, 3) per unit axis C (N, 3): the axis, then 8 directions at ``radius`` and 8 at radius/2.
+
+    Each candidate is a fixed combination of the axis and its two tangents, so all of them come from one
+    (17, 3) @ (3, 3N) product."""
     cos_r, sin_r, ca, sa = ring_offsets(radius, 0.5 * radius)
+    coef = np.vstack([[1.0, 0.0, 0.0], np.hstack([cos_r, sin_r * ca, sin_r * sa])])  # (17, 3): c, t1, t2
     t1, t2 = _tangents(C)
-    ring = cos_r[None] * C[:, None, :] + sin_r[None] * (ca[None] * t1[:, None, :] + sa[None] * t2[:, None, :])
-    return np.concatenate([C[:, None, :], ring], axis=1)
+    basis = np.stack([C, t1, t2])  # (3, N, 3)
+    N = C.shape[0]
+    return (coef @ basis.reshape(3, 3 * N)).reshape(-1, N, 3).transpose(1, 0, 2)
 
 
 def _best_sequence(val: np.ndarray, pen: np.ndarray) -> np.ndarray:
@@ -163,16 +168,28 @@ def _best_sequence(val: np.ndarray, pen: np.ndarray) -> np.ndarray:
     return np.array(pick[::-1], dtype=np.intp)
 
 
-def _narrow(B: np.ndarray, Wa: np.ndarray, C: np.ndarray, alpha: float, reach: float) -> tuple[np.ndarray, np.ndarray]:
-    """The part of a band (B (N, L, 3) unit bearings, Wa (N, L)) within α ± reach [rad] of the axes C (N, 3)."""
-    geom = _ascent.Geometry(B, np.zeros((B.shape[0], 3), np.float32), None, Wa, _no_exact)
-    cos_lo = float(np.cos(min(np.pi, alpha + reach)))
-    cos_hi = float(np.cos(alpha - reach)) if alpha > reach else 2.0
-    return _ascent._active(geom, C, cos_lo, cos_hi, max(B.shape[1], 1))
+def _within(x: np.ndarray, alpha: float, reach: float) -> np.ndarray:
+    """Mask (N, L) of the cosines x (N, L) to the axes whose angle is within α ± reach [rad]."""
+    mask = x >= np.float32(np.cos(min(np.pi, alpha + reach)))
+    if alpha > reach:
+        mask &= x <= np.float32(np.cos(alpha - reach))
+    return mask
 
 
-def _no_exact(rows: np.ndarray, cols: np.ndarray, C: np.ndarray) -> np.ndarray:
-    raise AssertionError("band geometries are never evaluated exactly")
+def _take(B: np.ndarray, Wa: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The band entries (B (N, L, 3) float32, Wa (N, L)) under ``mask`` (N, L), packed to the left of
+    (N, L', 3) and (N, L') with L' the largest row count (at least 1); padding has weight 0."""
+    N = mask.shape[0]
+    counts = np.count_nonzero(mask, axis=1)
+    Lk = max(int(counts.max(initial=0)), 1)
+    flat = np.flatnonzero(mask)
+    starts = np.cumsum(counts) - counts
+    dest = np.arange(flat.size) + np.repeat(np.arange(N) * Lk - starts, counts)
+    Bk = np.zeros((N * Lk, 3), np.float32)
+    Wk = np.zeros(N * Lk, np.float32)
+    Bk.view(_ascent._ROW3).ravel()[dest] = np.ascontiguousarray(B).reshape(-1, 3).view(_ascent._ROW3).ravel().take(flat)
+    Wk[dest] = Wa.reshape(-1).take(flat)
+    return Bk.reshape(N, Lk, 3), Wk.reshape(N, Lk)
 
 
 def _score(cand: np.ndarray, B: np.ndarray, Wa: np.ndarray, cos_a: np.float32) -> np.ndarray:
@@ -204,7 +221,8 @@ def step_limited_polish(
     rings r and r/2, recentred on each result. ``band`` is called once, with the reach 2.02 × radius of
     all levels together (the axes move by < 2 × radius in all); each level narrows the previous level's
     band to α ± 2.02 r around its axes (it held α ± 4.04 r around axes that have moved ≤ 2 r since) and
-    scores all waypoints × candidates in one batched product. ``reachable`` as in
+    scores all waypoints × candidates in one batched product on the part within α ± 1.01 r (the landmarks
+    whose state a move of ≤ r can change). ``reachable`` as in
     :func:`polish_trajectory`. With ``smooth`` = λκ > 0 it maximises Φ_hard (visible weight / ``norm``
     (N,) plus λκ Σ c_{i+1}·c_i) within the limit instead of the visible weight alone.
     """
@@ -218,12 +236,16 @@ def step_limited_polish(
     B, Wa = band(C, 2.02 * radius)
     r = radius
     while r >= tol:
-        if r < radius:
-            B, Wa = _narrow(B, Wa, C, alpha, 2.02 * r)
         if B.shape[1] == 0:
             break
+        x = np.matmul(B, C.astype(np.float32)[:, :, None])[..., 0]  # (N, L) cosines to the axes, once per level
+        # only landmarks within α ± r of the axes can change state under a move of ≤ r; the others add the same
+        # to every candidate of their waypoint, which leaves the best sequence unchanged
+        Bs, Ws = _take(B, Wa, _within(x, alpha, 1.01 * r))
+        if r < radius and 0.5 * r >= tol:  # the next level's band: the axes move by ≤ r in this level
+            B, Wa = _take(B, Wa, _within(x, alpha, 2.02 * r))
         cand = _ring_candidates(C, r)  # (N, K, 3)
-        val = _score(cand, B, Wa, cos_a)  # (N, K)
+        val = _score(cand, Bs, Ws, cos_a)  # (N, K)
         if inv is not None:
             val *= inv[:, None]
         if reachable is not None:
