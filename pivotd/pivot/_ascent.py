@@ -91,6 +91,7 @@ class AscentSettings:
     narrow_last: bool = True  # False: every stage (also the last) is run as a widened stage
     settle_frac: float = 0.0  # converged when at most this fraction of rows still takes steps ≥ tol
     lam_boost: float = 1.0  # smoothness weight multiplier, decaying geometrically over the stages to 1 at α
+    freeze_settled: bool = False  # final stage: rows whose bound fell below tol rest until a neighbour moves
 
 
 def _nonzero2d(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -315,37 +316,70 @@ def ascend(
         B, Wa = _active(g_stage, C, cos_lo, cos_hi, cap)
         C_ref = C.copy()
         cos_drift = np.cos(settings.drift)
+        freeze = final and settings.freeze_settled
+        rows = None  # rows evaluated in this iteration (None: all)
         for _ in range(iters):
             total += 1
-            t = np.matmul(B, C.astype(np.float32)[:, :, None])[..., 0]  # cos θ (K, L)
+            if rows is None:
+                Bq, Wq, Cq, inv_q = B, Wa, C, inv_norm
+            else:
+                Bq, Wq, Cq, inv_q = B[rows], Wa[rows], C[rows], inv_norm[rows]
+            t = np.matmul(Bq, Cq.astype(np.float32)[:, :, None])[..., 0]  # cos θ (n, L)
             t -= cos_a
             t *= half_ks
             np.tanh(t, out=t)
             t *= t
             g = np.subtract(np.float32(1.0), t, out=t)
-            g *= Wa  # ∝ s_j v (1 − v): the k_s/4 factor is applied to the (K, 3) sum
-            S = np.matmul(g[:, None, :], B)[:, 0, :].astype(float)
-            S *= (float(quarter_ks) * inv_norm)[:, None]
+            g *= Wq  # ∝ s_j v (1 − v): the k_s/4 factor is applied to the (n, 3) sum
+            S = np.matmul(g[:, None, :], Bq)[:, 0, :].astype(float)
+            S *= (float(quarter_ks) * inv_q)[:, None]
             if coupled:  # J = c × (S_vis / W + λ (c_prev + c_next)): one cross product for both terms
-                S[1:] += lam_q * C[:-1]
-                S[:-1] += lam_q * C[1:]
-                if anchor is not None:
-                    S[0] += lam_q * anchor
-            J = _cross(C, S)
+                if rows is None:
+                    S[1:] += lam_q * C[:-1]
+                    S[:-1] += lam_q * C[1:]
+                    if anchor is not None:
+                        S[0] += lam_q * anchor
+                else:
+                    nb = np.zeros_like(S)
+                    has_prev, has_next = rows > 0, rows < K - 1
+                    nb[has_prev] += C[rows[has_prev] - 1]
+                    nb[has_next] += C[rows[has_next] + 1]
+                    if anchor is not None and rows[0] == 0:
+                        nb[0] += anchor
+                    S += lam_q * nb
+            J = _cross(Cq, S)
             nJ = np.sqrt(np.einsum("ij,ij->i", J, J))
-            agree = np.einsum("ij,ij->i", J, J_prev)
-            h = np.where(agree < 0, 0.5 * h, np.where(agree > 0, np.minimum(1.2 * h, settings.step_max), h))
-            J_prev = np.where((agree < 0)[:, None], 0.0, J)  # after a reversal the next step neither grows nor shrinks
-            live = nJ > 1e-12
-            if np.count_nonzero(live & (h >= settings.tol)) <= settings.settle_frac * K:
-                break
-            hs = np.where(live, h, 0.0)
-            u = J / np.where(live, nJ, 1.0)[:, None]
-            C = C * np.cos(hs)[:, None] + _cross(u, C) * np.sin(hs)[:, None]
-            if project is not None:
-                C = project(C)  # returns unit rows
+            Jp = J_prev if rows is None else J_prev[rows]
+            hq = h if rows is None else h[rows]
+            agree = np.einsum("ij,ij->i", J, Jp)
+            hq = np.where(agree < 0, 0.5 * hq, np.where(agree > 0, np.minimum(1.2 * hq, settings.step_max), hq))
+            Jp = np.where((agree < 0)[:, None], 0.0, J)  # after a reversal the next step neither grows nor shrinks
+            if rows is None:
+                h, J_prev = hq, Jp
             else:
-                C /= np.sqrt(np.einsum("ij,ij->i", C, C))[:, None]
+                h[rows], J_prev[rows] = hq, Jp
+            live = nJ > 1e-12
+            moving = live & (hq >= settings.tol)
+            if np.count_nonzero(moving) <= settings.settle_frac * K:  # rows at rest have bounds below tol
+                break
+            hs = np.where(live, hq, 0.0)
+            u = J / np.where(live, nJ, 1.0)[:, None]
+            Cn = Cq * np.cos(hs)[:, None] + _cross(u, Cq) * np.sin(hs)[:, None]
+            if project is None:
+                Cn /= np.sqrt(np.einsum("ij,ij->i", Cn, Cn))[:, None]
+            if rows is None:
+                C = Cn
+            else:
+                C[rows] = Cn
+            if project is not None:
+                C = project(C)  # returns unit rows (rows at rest are reachable already and stay as they are)
+            if freeze:  # next: the rows still taking steps ≥ tol and their neighbours (their smoothness term moved)
+                mov = np.flatnonzero(moving) if rows is None else rows[moving]
+                nxt = np.zeros(K, dtype=bool)
+                nxt[mov] = True
+                nxt[mov[mov > 0] - 1] = True
+                nxt[mov[mov < K - 1] + 1] = True
+                rows = None if nxt.all() else np.flatnonzero(nxt)
             if cos_lo > -1.0:
                 moved = np.flatnonzero(np.einsum("ij,ij->i", C, C_ref) < cos_drift)
                 if moved.size:
