@@ -137,15 +137,16 @@ def _active(
         scale = (counts / np.maximum(kept, 1)).astype(np.float32)
         counts = kept
     flat = np.flatnonzero(mask)
-    rows = np.repeat(np.arange(K), counts)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    pos = np.arange(rows.size) - starts[rows]
     L = max(int(counts.max()) if counts.size else 0, 1)
     B = np.zeros((K * L, 3), dtype=np.float32)
     Wa = np.zeros(K * L, dtype=np.float32)
     if flat.size:
-        dest = rows * L + pos
-        cols = flat - rows * Lfull
+        starts = np.cumsum(counts) - counts
+        # entry j of row k goes to k·L + (j − starts[k]); it came from k·Lfull + its column
+        dest = np.arange(flat.size) + np.repeat(np.arange(K) * L - starts, counts)
+        need_rows = scale is not None or geom.inv_dist is not None or geom.shared or geom.weights.ndim == 1
+        rows = np.repeat(np.arange(K), counts) if need_rows else None
+        cols = flat - rows * Lfull if rows is not None else None
         if geom.inv_dist is None and not geom.shared and geom.points.flags.c_contiguous:
             # unit bearings per row: move whole 12-byte rows (much faster than indexing (n, 3) arrays)
             B.view(_ROW3).ravel()[dest] = geom.points.reshape(-1, 3).view(_ROW3).ravel().take(flat)
