@@ -540,6 +540,7 @@ def optimize_trajectory(
         lam_boost=opts.lam_boost,
         settle_frac=opts.settle_frac,
         freeze_settled=opts.rest_settled,
+        strict_cap=True,
     )
     project = None if constraint is None else constraint.project
     if geom is None:
