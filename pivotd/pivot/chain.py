@@ -38,8 +38,9 @@ def grid_scores(bearings: np.ndarray, weights: np.ndarray, grid: np.ndarray, alp
     cos_a = np.float32(np.cos(alpha))
     chunk = max(1, int(4_000_000 // max(bearings.shape[1] * grid.shape[0], 1)))
     for s in range(0, K, chunk):
-        inside = (bearings[s : s + chunk] @ g32) >= cos_a  # (k, L, G)
-        out[s : s + chunk] = np.matmul(weights[s : s + chunk, None, :], inside.astype(np.float32))[:, 0, :]
+        x = bearings[s : s + chunk] @ g32  # (k, L, G) cosines
+        np.greater_equal(x, cos_a, out=x, casting="unsafe")  # 1.0 inside, 0.0 outside, in place
+        out[s : s + chunk] = np.matmul(weights[s : s + chunk, None, :], x)[:, 0, :]
     return out / np.where(total > 0, total, 1.0)[:, None].astype(np.float32)
 
 
