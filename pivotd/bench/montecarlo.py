@@ -316,7 +316,9 @@ def interleaved_grid_speed(
     """Scoring the grid at every waypoint against plans, side by side on a shared machine.
 
     The grid is scored in ``chunks`` slices of waypoints, and every plan in ``plans`` runs once after each
-    slice (after one warm-up call), so both see the same load. Times are CPU seconds of this process.
+    slice (after one warm-up call), so both see the same load; the plans' order is reversed after every other
+    slice, so none is always the first to run after the grid has filled the caches. Times are CPU seconds of
+    this process.
     Returns (V (N, G) grid visibility, total grid seconds, median seconds per plan, last result per plan).
     """
     from pivotd.pivot.brute import grid_visibility
@@ -324,13 +326,15 @@ def interleaved_grid_speed(
     results = {name: fn() for name, fn in plans.items()}  # warm-up
     times: dict[str, list[float]] = {name: [] for name in plans}
     parts, grid_s = [], 0.0
-    for sl in np.array_split(np.arange(waypoints.shape[0]), chunks):
+    names = list(plans)
+    for i, sl in enumerate(np.array_split(np.arange(waypoints.shape[0]), chunks)):
         if sl.size == 0:
             continue
         t0 = time.process_time()
         parts.append(grid_visibility(points, waypoints[sl], alpha, grid))
         grid_s += time.process_time() - t0
-        for name, fn in plans.items():
+        for name in names if i % 2 == 0 else names[::-1]:
+            fn = plans[name]
             t0 = time.process_time()
             results[name] = fn()
             times[name].append(time.process_time() - t0)
