@@ -46,7 +46,7 @@ def test_resting_waypoints_leave_the_plan_within_the_tolerance():
     cc = competing_clusters_path()
     alpha = np.radians(30.0)
     base = dict(distance_weights=False, step_polish_deg=0.0)
-    rest = optimize_trajectory(cc.points, cc.path, alpha, 0.6, options=TrajectoryOptions(**base))
+    rest = optimize_trajectory(cc.points, cc.path, alpha, 0.6, options=TrajectoryOptions(rest_settled=True, **base))
     full = optimize_trajectory(cc.points, cc.path, alpha, 0.6, options=TrajectoryOptions(rest_settled=False, **base))
     assert abs(rest.visible.sum() - full.visible.sum()) <= 0.005 * full.visible.sum()
     assert abs(rest.objective - full.objective) <= 1e-3 * abs(full.objective)
