@@ -1,4 +1,4 @@
-"""The batched ascent's active sets (pivotd.pivot._ascent): strict caps, resting waypoints."""
+"""The batched ascent (pivotd.pivot._ascent): resting waypoints."""
 
 import numpy as np
 
@@ -13,31 +13,6 @@ def _rows_geometry(rng, K=6, L=900):
     W = rng.uniform(0.5, 2.0, (K, L)).astype(np.float32)
     W[:, L - 50:] = 0.0  # padding
     return _ascent.Geometry(B, np.zeros((K, 3), np.float32), None, W, lambda r, c, C: None)
-
-
-def test_strict_cap_keeps_at_most_cap_evenly_spread_and_the_row_weight():
-    rng = np.random.default_rng(4)
-    geom = _rows_geometry(rng)
-    C = normalize(np.array([0.0, 0.0, 1.0]) + 0.1 * rng.normal(size=(geom.rows, 3)))
-    lo, hi = np.cos(np.radians(35.0)), np.cos(np.radians(5.0))
-    cos = geom.cos_all(C)
-    band = (cos >= np.float32(lo)) & (cos <= np.float32(hi))
-    for cap in (40, 128, 10_000):
-        B, Wa = _ascent._active(geom, C, lo, hi, cap, strict=True)
-        for k in range(geom.rows):
-            cols = np.flatnonzero(band[k])
-            n = min(cols.size, cap)
-            assert np.count_nonzero(np.any(B[k] != 0, axis=1)) == n <= cap
-            # the kept landmarks are the band's, evenly spread in order, weights scaled by count / kept
-            picked = cols[(np.arange(n) * cols.size) // n]
-            assert np.array_equal(B[k, :n], geom.points[k, picked])
-            np.testing.assert_allclose(Wa[k, :n], geom.weights[k, picked] * (cols.size / n), rtol=1e-6)
-            assert not Wa[k, n:].any()
-    # the column stride (not strict) keeps more than the cap where a row holds 1–2 caps (here 374–422 > 256)
-    counts = band.sum(axis=1)
-    assert (counts > 256).all() and (counts < 512).all()
-    B, _ = _ascent._active(geom, C, lo, hi, 256)
-    assert B.shape[1] > 256
 
 
 def test_resting_waypoints_leave_the_plan_within_the_tolerance():

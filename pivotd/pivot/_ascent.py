@@ -92,7 +92,6 @@ class AscentSettings:
     settle_frac: float = 0.0  # converged when at most this fraction of rows still takes steps ≥ tol
     lam_boost: float = 1.0  # smoothness weight multiplier, decaying geometrically over the stages to 1 at α
     freeze_settled: bool = False  # final stage: rows whose bound fell below tol rest until a neighbour moves
-    strict_cap: bool = False  # final stage: at most final_cap landmarks per row (else up to 2 final_cap − 1)
 
 
 def _nonzero2d(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -102,15 +101,14 @@ def _nonzero2d(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _active(
-    geom: Geometry, C: np.ndarray, cos_lo: float, cos_hi: float, cap: int, strict: bool = False
+    geom: Geometry, C: np.ndarray, cos_lo: float, cos_hi: float, cap: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """Padded active bearings (K, L, 3) and weights (K, L): landmarks with cos_lo ≤ cos θ ≤ cos_hi.
 
-    Rows with more than ``cap`` such landmarks keep an evenly strided subset whose weights are scaled
-    up so that each row's total active weight is preserved: a column stride of ⌊count / cap⌋ (up to
-    2 cap − 1 kept), or with ``strict`` exactly ``cap`` of them, evenly spread over the row's active
-    landmarks (in column order). With cos_lo ≤ −1 ≤ 1 ≤ cos_hi and unit bearings (inv_dist None) within
-    the cap, the stored arrays are returned as they are.
+    Rows with more than ``cap`` such landmarks keep an evenly strided subset (a column stride of
+    ⌊count / cap⌋, so up to 2 cap − 1 are kept) whose weights are scaled up by count / kept. With
+    cos_lo ≤ −1 ≤ 1 ≤ cos_hi and unit bearings (inv_dist None) within the cap, the stored arrays are
+    returned as they are.
     """
     everything = cos_lo <= -1.0 and cos_hi >= 1.0
     if everything and geom.inv_dist is None and geom.points.shape[-2] <= cap:
@@ -128,19 +126,7 @@ def _active(
     K, Lfull = mask.shape
     counts = np.count_nonzero(mask, axis=1)
     scale = None
-    flat = None
-    if strict and counts.size and counts.max() > cap:  # exactly cap per crowded row, evenly spread
-        flat = np.flatnonzero(mask)
-        crowded = counts > cap
-        keep = ~np.repeat(crowded, counts)
-        starts = np.cumsum(counts) - counts
-        nc = counts[crowded]
-        keep[(starts[crowded][:, None] + (np.arange(cap)[None, :] * nc[:, None]) // cap).ravel()] = True
-        flat = flat[keep]
-        kept = np.minimum(counts, cap)
-        scale = (counts / np.maximum(kept, 1)).astype(np.float32)
-        counts = kept
-    elif counts.size and counts.max() > cap:  # thin crowded rows with a column stride before extracting
+    if counts.size and counts.max() > cap:  # thin crowded rows with a column stride before extracting
         stride = np.maximum(1, counts // cap)
         crowded = np.flatnonzero(stride > 1)
         for st in np.unique(stride[crowded]):  # rows sharing a stride are thinned together
@@ -151,8 +137,7 @@ def _active(
         kept = np.count_nonzero(mask, axis=1)
         scale = (counts / np.maximum(kept, 1)).astype(np.float32)
         counts = kept
-    if flat is None:
-        flat = np.flatnonzero(mask)
+    flat = np.flatnonzero(mask)
     L = max(int(counts.max()) if counts.size else 0, 1)
     B = np.zeros((K * L, 3), dtype=np.float32)
     Wa = np.zeros(K * L, dtype=np.float32)
@@ -186,12 +171,11 @@ def _refresh_rows(
     cos_lo: float,
     cos_hi: float,
     cap: int,
-    strict: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Rebuild the active set of the given rows only, widening the padded arrays when needed."""
     if rows.size > geom.rows // 2:
-        return _active(geom, C, cos_lo, cos_hi, cap, strict)
-    Br, Wr = _active(geom.take_rows(rows), C[rows], cos_lo, cos_hi, cap, strict)
+        return _active(geom, C, cos_lo, cos_hi, cap)
+    Br, Wr = _active(geom.take_rows(rows), C[rows], cos_lo, cos_hi, cap)
     L, Lr = B.shape[1], Br.shape[1]
     if Lr > L:
         B = np.concatenate([B, np.zeros((B.shape[0], Lr - L, 3), np.float32)], axis=1)
@@ -331,8 +315,7 @@ def ascend(
         h = np.full(K, h0)
         J_prev = np.zeros((K, 3))
         g_stage = geom if final or coarse is None else coarse
-        strict = final and settings.strict_cap
-        B, Wa = _active(g_stage, C, cos_lo, cos_hi, cap, strict)
+        B, Wa = _active(g_stage, C, cos_lo, cos_hi, cap)
         C_ref = C.copy()
         cos_drift = np.cos(settings.drift)
         freeze = final and settings.freeze_settled
@@ -402,7 +385,7 @@ def ascend(
             if cos_lo > -1.0:
                 moved = np.flatnonzero(np.einsum("ij,ij->i", C, C_ref) < cos_drift)
                 if moved.size:
-                    B, Wa = _refresh_rows(g_stage, C, moved, B, Wa, cos_lo, cos_hi, cap, strict)
+                    B, Wa = _refresh_rows(g_stage, C, moved, B, Wa, cos_lo, cos_hi, cap)
                     C_ref[moved] = C[moved]
     return _turn_to(R, C), total
 

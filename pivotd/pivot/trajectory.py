@@ -542,7 +542,6 @@ def optimize_trajectory(
         lam_boost=opts.lam_boost,
         settle_frac=opts.settle_frac,
         freeze_settled=opts.rest_settled and not warm,
-        strict_cap=not warm,
     )
     project = None if constraint is None else constraint.project
     if geom is None:
