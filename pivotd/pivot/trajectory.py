@@ -48,8 +48,8 @@ class TrajectoryOptions:
     warm_drift_deg: float = 5.0  # warm start: the same (tighter: warm bands are crowded, thinning hurts)
     settle_frac: float = 0.03  # stop once at most 3 % of the waypoints still move by ≥ tol per step
     rest_settled: bool = False  # cold start at α: a waypoint whose step bound fell below tol rests until a
-    # neighbour moves (only the others are evaluated); off: ~8 % faster on FIF, but where the ascent runs out of
-    # budget (the blob path) the waypoints still creeping below tol matter
+    # neighbour moves (only the others are evaluated): 7–10 % faster on FIF, but off by default because where the
+    # ascent runs out of budget (the blob path) the waypoints still creeping below tol matter
     lam_boost: float = 1.0  # widened stages use λ × boost (geometric decay to λ at α): a smoothness homotopy
     smooth_scale: float = 25.0  # κ: the smoothness term is λκ Σ c_{i+1}·c_i against per-waypoint visible fractions
     chain_init: bool = True  # cold start: dynamic programming over a direction grid (pivotd.pivot.chain)
