@@ -54,3 +54,38 @@ def test_best_chain_trades_visibility_against_turning():
     span = np.ones(3)
     assert list(best_chain(scores, grid, span, 0.0)) == [x, y, x]
     assert list(best_chain(scores, grid, span, 1.0)) == [x, x, x]  # two 180° turns cost 2·2 > 0.2
+
+
+def _best_chain_reference(scores, grid, span, smooth, anchor=None):
+    """The textbook Viterbi of best_chain, one fancy-indexed step per node, same float32 arithmetic."""
+    K, G = scores.shape
+    scores = scores.astype(np.float32)
+    value = scores[0] * np.float32(span[0])
+    ang = np.arccos(np.clip(grid @ grid.T, -1.0, 1.0))
+    if anchor is not None:
+        value = value + (smooth * (grid @ anchor - 1.0)).astype(np.float32)
+    back = np.zeros((K, G), dtype=int)
+    for k in range(1, K):
+        s = max(round(span[k]), 1)
+        trans = ((s * smooth) * (np.cos(ang / s) - 1.0)).astype(np.float32).T
+        total = trans + value[None, :]
+        back[k] = np.argmax(total, axis=1)
+        value = total[np.arange(G), back[k]] + scores[k] * np.float32(span[k])
+    path = [int(np.argmax(value))]
+    for k in range(K - 1, 0, -1):
+        path.append(int(back[k, path[-1]]))
+    return np.array(path[::-1])
+
+
+def test_best_chain_equals_the_textbook_viterbi_exactly():
+    rng = np.random.default_rng(3)
+    grid = sphere_grid(30.0)
+    for trial in range(12):
+        K = int(rng.integers(2, 12))
+        # coarse scores (multiples of 1/8) make exact ties common
+        scores = (rng.integers(0, 9, (K, grid.shape[0])) / 8.0) if trial % 2 else rng.random((K, grid.shape[0]))
+        span = rng.integers(1, 5, K).astype(float)
+        anchor = _unit(rng.normal(size=3)) if trial % 3 == 0 else None
+        smooth = float(rng.choice([0.05, 0.6, 15.0]))
+        assert np.array_equal(best_chain(scores, grid, span, smooth, anchor),
+                              _best_chain_reference(scores, grid, span, smooth, anchor))

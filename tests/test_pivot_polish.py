@@ -80,3 +80,63 @@ def test_trajectory_option_polishes_without_losing_smoothness():
     steps = np.degrees(angle_between(polished.directions[1:], polished.directions[:-1]))
     assert steps.max() < 11.0  # the plain plan's largest step: 10.4° (see test_pivot_trajectory)
     assert np.allclose(np.einsum("nij,j->ni", polished.rotations, [0, 0, 1]), polished.directions, atol=1e-12)
+
+
+def _viterbi_reference(val, pen):
+    """The textbook Viterbi (one fancy-indexed step per waypoint), same arithmetic order: (pen + score) + val."""
+    N, K = val.shape
+    back = np.zeros((N, K), dtype=int)
+    score = val[0].copy()
+    for i in range(1, N):
+        tot = pen[i - 1] + score[None, :]
+        back[i] = np.argmax(tot, axis=1)
+        score = tot[np.arange(K), back[i]] + val[i]
+    pick = [int(np.argmax(score))]
+    for i in range(N - 1, 0, -1):
+        pick.append(int(back[i, pick[-1]]))
+    return np.array(pick[::-1])
+
+
+def test_step_limited_dp_equals_the_textbook_viterbi_exactly():
+    from pivotd.pivot.polish import _best_sequence
+
+    rng = np.random.default_rng(7)
+    for trial in range(60):
+        N, K = int(rng.integers(1, 40)), int(rng.choice([1, 2, 5, 17]))
+        if trial % 3 == 0:  # small integers: many exact ties, which must go to the same (lowest) index
+            val = rng.integers(0, 3, (N, K)).astype(float)
+            pen = rng.integers(-2, 1, (max(N - 1, 0), K, K)).astype(float)
+        else:
+            val = rng.random((N, K))
+            pen = rng.normal(size=(max(N - 1, 0), K, K))
+        pen[rng.random(pen.shape) < 0.3] = -np.inf  # forbidden steps
+        if N > 1:
+            pen[:, 0, 0] = 0.0  # as in the polish: staying on the current plan is always allowed
+        if trial % 5 == 0:
+            val[rng.random(val.shape) < 0.2] = -np.inf  # unreachable candidates
+            val[:, 0] = 0.0
+        assert np.array_equal(_best_sequence(val, pen), _viterbi_reference(val, pen))
+
+
+def test_polish_scores_only_the_landmarks_a_move_can_change():
+    # on the landmarks within α ± 1.01 r of the axes (packed by _take) every candidate of a waypoint scores the
+    # full band's value minus the same constant: the DP's choice cannot change
+    from pivotd.pivot.polish import _ring_candidates, _score, _take, _within
+
+    rng = np.random.default_rng(5)
+    B, W, C, _ = _scene(rng, n=10, L=400)
+    alpha, cos_a = np.radians(20.0), np.float32(np.cos(np.radians(20.0)) - 1e-7)
+    for r in np.radians([4.0, 1.0, 0.25]):
+        x = np.matmul(B, C.astype(np.float32)[:, :, None])[..., 0]
+        mask = _within(x, alpha, 1.01 * r)
+        Bs, Ws = _take(B, W, mask)
+        assert Bs.shape[1] == max(int(mask.sum(axis=1).max()), 1)
+        for k in range(B.shape[0]):  # packed in order, padding weighs nothing
+            n = int(mask[k].sum())
+            assert np.array_equal(Bs[k, :n], B[k, mask[k]]) and not Ws[k, n:].any()
+        cand = _ring_candidates(C, r)
+        assert np.allclose(np.linalg.norm(cand, axis=2), 1.0) and np.allclose(cand[:, 0], C)
+        assert np.allclose(np.degrees(np.arccos(np.clip(np.sum(cand[:, 1:] * C[:, None], axis=2), -1, 1))),
+                           np.degrees(np.repeat([r, r / 2], 8)), atol=1e-6)
+        diff = _score(cand, B, W, cos_a) - _score(cand, Bs, Ws, cos_a)
+        assert np.array_equal(diff, np.repeat(diff[:, :1], diff.shape[1], axis=1))

@@ -63,7 +63,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--compare-with", metavar="PKG",
         help="also time optimize_view of PKG (a renamed copy of another pivotd version on PYTHONPATH) "
-             "next to this tree's on the same poses (Monte Carlo levels and hard scenes) and report both",
+             "next to this tree's on the same poses (Monte Carlo levels and hard scenes) and report both; "
+             "with --pareto, PKG's optimize_trajectory is timed in the same interleaved run",
     )
     parser.add_argument(
         "--narrow", action="store_true",
@@ -333,7 +334,9 @@ def interleaved_grid_speed(
     """Scoring the grid at every waypoint against plans, side by side on a shared machine.
 
     The grid is scored in ``chunks`` slices of waypoints, and every plan in ``plans`` runs once after each
-    slice (after one warm-up call), so both see the same load. Times are CPU seconds of this process.
+    slice (after one warm-up call), so both see the same load; the plans' order is reversed after every other
+    slice, so none is always the first to run after the grid has filled the caches. Times are CPU seconds of
+    this process.
     Returns (V (N, G) grid visibility, total grid seconds, median seconds per plan, last result per plan).
     """
     from pivotd.pivot.brute import grid_visibility
@@ -341,27 +344,33 @@ def interleaved_grid_speed(
     results = {name: fn() for name, fn in plans.items()}  # warm-up
     times: dict[str, list[float]] = {name: [] for name in plans}
     parts, grid_s = [], 0.0
-    for sl in np.array_split(np.arange(waypoints.shape[0]), chunks):
+    names = list(plans)
+    for i, sl in enumerate(np.array_split(np.arange(waypoints.shape[0]), chunks)):
         if sl.size == 0:
             continue
         t0 = time.process_time()
         parts.append(grid_visibility(points, waypoints[sl], alpha, grid))
         grid_s += time.process_time() - t0
-        for name, fn in plans.items():
+        for name in names if i % 2 == 0 else names[::-1]:
+            fn = plans[name]
             t0 = time.process_time()
             results[name] = fn()
             times[name].append(time.process_time() - t0)
     return np.concatenate(parts), grid_s, {k: median(v) for k, v in times.items()}, results
 
 
-def pareto_rows(limits_deg: tuple[float, ...] = (5.0, 10.0), families: bool = True,
-                normalise: str = "total") -> list[dict]:
+def pareto_rows(
+    limits_deg: tuple[float, ...] = (5.0, 10.0), families: bool = True, compare_with: str | None = None,
+    only: tuple[str, ...] | None = None, normalise: str = "total",
+) -> list[dict]:
     """Trajectory plans against the exact step-limited plan on the 2° grid (hard counts, `pivotd plan`'s
     objective): the λ = 0.6 plan against the best grid plan with its own largest step, and plans with a hard
     step limit S (``max_step``) against the best grid plan with steps ≤ S. Scenes: the FIF corridor (30°
     FoV), the competing-clusters path (60° FoV) and a 40-waypoint path through each hard scene family
     (30° FoV). Also the CPU time of the λ = 0.6 plan, with and without the step-limited polish, next to
-    scoring the 2° grid at every waypoint, interleaved (:func:`interleaved_grid_speed`)."""
+    scoring the 2° grid at every waypoint, interleaved (:func:`interleaved_grid_speed`). ``compare_with``: a
+    renamed copy of another pivotd version whose λ = 0.6 plan (its default options, no distance weights) is
+    timed in the same interleaved run and judged the same way. ``only``: just the scenes with these names."""
     from pivotd.maps.formats import load_landmarks
     from pivotd.pivot.brute import best_grid_chain, sphere_grid
     from pivotd.pivot.scenes import HARD_FAMILIES, competing_clusters_path, hard_path
@@ -378,8 +387,15 @@ def pareto_rows(limits_deg: tuple[float, ...] = (5.0, 10.0), families: bool = Tr
         for fam in HARD_FAMILIES:
             hp = hard_path(fam, 0)
             scenes.append((f"path_{fam}", hp.points, hp.path, 15.0))
+    if only is not None:
+        scenes = [sc for sc in scenes if sc[0] in only]
     grid = sphere_grid(2.0)
     opts = TrajectoryOptions(distance_weights=False, normalise=normalise)
+    other = None
+    if compare_with:
+        from pivotd.bench.horizon import _module
+
+        other = _module(compare_with, "pivot.trajectory")
     rows = []
     for name, pts, way, half_deg in with_progress(scenes, "trajectory scenes"):
         alpha = math.radians(half_deg)
@@ -388,6 +404,9 @@ def pareto_rows(limits_deg: tuple[float, ...] = (5.0, 10.0), families: bool = Tr
             "bare": lambda pts=pts, way=way, alpha=alpha: optimize_trajectory(
                 pts, way, alpha, 0.6, options=replace(opts, step_polish_deg=0.0)),
         }
+        if other is not None:
+            variants["other"] = lambda pts=pts, way=way, alpha=alpha: other.optimize_trajectory(
+                pts, way, alpha, 0.6, options=other.TrajectoryOptions(distance_weights=False))
         V, grid_s, plan_s, plans = interleaved_grid_speed(pts, way, alpha, grid, variants)
         plan, bare = plans["polish"], plans["bare"]
         idx = np.arange(V.shape[0])
@@ -407,6 +426,16 @@ def pareto_rows(limits_deg: tuple[float, ...] = (5.0, 10.0), families: bool = Tr
         row["no_polish_max_step_deg"] = bare_step
         row["no_polish_own_step_pct"] = 100.0 * float(bare.visible.sum()) / max(
             float(V[idx, best_grid_chain(V, grid, bare_step)].sum()), 1e-12)
+        if other is not None:
+            prev = plans["other"]
+            prev_step = float(_steps_deg(prev.directions).max()) if len(way) > 1 else 0.0
+            row["other"] = compare_with
+            row["other_ms"] = 1e3 * plan_s["other"]
+            row["other_speedup_vs_grid"] = grid_s / plan_s["other"]
+            row["other_max_step_deg"] = prev_step
+            row["other_own_step_pct"] = 100.0 * float(prev.visible.sum()) / max(
+                float(V[idx, best_grid_chain(V, grid, prev_step)].sum()), 1e-12)
+            row["speedup_vs_other"] = plan_s["other"] / plan_s["polish"]
         for lim in limits_deg:
             hard = optimize_trajectory(pts, way, alpha, 0.6, max_step=math.radians(lim), options=opts)
             ref = float(V[idx, best_grid_chain(V, grid, lim)].sum())
@@ -421,6 +450,10 @@ def pareto_rows(limits_deg: tuple[float, ...] = (5.0, 10.0), families: bool = Tr
               f"{row['own_step_pct']:.2f} % of the grid optimum at that step;  {lims};  without the polish "
               f"{row['no_polish_ms']:.1f} ms ({row['no_polish_speedup_vs_grid']:.1f}x), "
               f"{row['no_polish_own_step_pct']:.2f} % at {row['no_polish_max_step_deg']:.2f} deg", flush=True)
+        if other is not None:
+            print(f"{'':>20} {compare_with}: {row['other_ms']:.1f} CPU ms ({row['other_speedup_vs_grid']:.1f}x the "
+                  f"grid), max step {row['other_max_step_deg']:.2f} deg, {row['other_own_step_pct']:.2f} % at that "
+                  f"step; this tree is {row['speedup_vs_other']:.2f}x faster", flush=True)
     return rows
 
 
@@ -494,7 +527,7 @@ def run(args: argparse.Namespace) -> int:
     if not steady_heap():
         log.warning("could not fix the allocator's thresholds (not glibc?): timings include page faults")
     if args.pareto:
-        rows = pareto_rows(families=not args.quick, normalise=args.normalise)
+        rows = pareto_rows(families=not args.quick, compare_with=args.compare_with, normalise=args.normalise)
         if args.json:
             Path(args.json).write_text(json.dumps({"pareto": rows}, indent=2) + "\n")
         return 0

@@ -91,6 +91,7 @@ class AscentSettings:
     narrow_last: bool = True  # False: every stage (also the last) is run as a widened stage
     settle_frac: float = 0.0  # converged when at most this fraction of rows still takes steps ≥ tol
     lam_boost: float = 1.0  # smoothness weight multiplier, decaying geometrically over the stages to 1 at α
+    freeze_settled: bool = False  # final stage: rows whose bound fell below tol rest until a neighbour moves
 
 
 def _nonzero2d(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -104,9 +105,10 @@ def _active(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Padded active bearings (K, L, 3) and weights (K, L): landmarks with cos_lo ≤ cos θ ≤ cos_hi.
 
-    Rows with more than ``cap`` such landmarks keep an evenly strided subset whose weights are scaled
-    up so that each row's total active weight is preserved. With cos_lo ≤ −1 ≤ 1 ≤ cos_hi and unit
-    bearings (inv_dist None) within the cap, the stored arrays are returned as they are.
+    Rows with more than ``cap`` such landmarks keep an evenly strided subset (a column stride of
+    ⌊count / cap⌋, so up to 2 cap − 1 are kept) whose weights are scaled up by count / kept. With
+    cos_lo ≤ −1 ≤ 1 ≤ cos_hi and unit bearings (inv_dist None) within the cap, the stored arrays are
+    returned as they are.
     """
     everything = cos_lo <= -1.0 and cos_hi >= 1.0
     if everything and geom.inv_dist is None and geom.points.shape[-2] <= cap:
@@ -136,15 +138,16 @@ def _active(
         scale = (counts / np.maximum(kept, 1)).astype(np.float32)
         counts = kept
     flat = np.flatnonzero(mask)
-    rows = np.repeat(np.arange(K), counts)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    pos = np.arange(rows.size) - starts[rows]
     L = max(int(counts.max()) if counts.size else 0, 1)
     B = np.zeros((K * L, 3), dtype=np.float32)
     Wa = np.zeros(K * L, dtype=np.float32)
     if flat.size:
-        dest = rows * L + pos
-        cols = flat - rows * Lfull
+        starts = np.cumsum(counts) - counts
+        # entry j of row k goes to k·L + (j − starts[k]); it came from k·Lfull + its column
+        dest = np.arange(flat.size) + np.repeat(np.arange(K) * L - starts, counts)
+        need_rows = scale is not None or geom.inv_dist is not None or geom.shared or geom.weights.ndim == 1
+        rows = np.repeat(np.arange(K), counts) if need_rows else None
+        cols = flat - rows * Lfull if rows is not None else None
         if geom.inv_dist is None and not geom.shared and geom.points.flags.c_contiguous:
             # unit bearings per row: move whole 12-byte rows (much faster than indexing (n, 3) arrays)
             B.view(_ROW3).ravel()[dest] = geom.points.reshape(-1, 3).view(_ROW3).ravel().take(flat)
@@ -315,37 +318,70 @@ def ascend(
         B, Wa = _active(g_stage, C, cos_lo, cos_hi, cap)
         C_ref = C.copy()
         cos_drift = np.cos(settings.drift)
+        freeze = final and settings.freeze_settled
+        rows = None  # rows evaluated in this iteration (None: all)
         for _ in range(iters):
             total += 1
-            t = np.matmul(B, C.astype(np.float32)[:, :, None])[..., 0]  # cos θ (K, L)
+            if rows is None:
+                Bq, Wq, Cq, inv_q = B, Wa, C, inv_norm
+            else:
+                Bq, Wq, Cq, inv_q = B[rows], Wa[rows], C[rows], inv_norm[rows]
+            t = np.matmul(Bq, Cq.astype(np.float32)[:, :, None])[..., 0]  # cos θ (n, L)
             t -= cos_a
             t *= half_ks
             np.tanh(t, out=t)
             t *= t
             g = np.subtract(np.float32(1.0), t, out=t)
-            g *= Wa  # ∝ s_j v (1 − v): the k_s/4 factor is applied to the (K, 3) sum
-            S = np.matmul(g[:, None, :], B)[:, 0, :].astype(float)
-            S *= (float(quarter_ks) * inv_norm)[:, None]
+            g *= Wq  # ∝ s_j v (1 − v): the k_s/4 factor is applied to the (n, 3) sum
+            S = np.matmul(g[:, None, :], Bq)[:, 0, :].astype(float)
+            S *= (float(quarter_ks) * inv_q)[:, None]
             if coupled:  # J = c × (S_vis / W + λ (c_prev + c_next)): one cross product for both terms
-                S[1:] += lam_q * C[:-1]
-                S[:-1] += lam_q * C[1:]
-                if anchor is not None:
-                    S[0] += lam_q * anchor
-            J = _cross(C, S)
+                if rows is None:
+                    S[1:] += lam_q * C[:-1]
+                    S[:-1] += lam_q * C[1:]
+                    if anchor is not None:
+                        S[0] += lam_q * anchor
+                else:
+                    nb = np.zeros_like(S)
+                    has_prev, has_next = rows > 0, rows < K - 1
+                    nb[has_prev] += C[rows[has_prev] - 1]
+                    nb[has_next] += C[rows[has_next] + 1]
+                    if anchor is not None and rows[0] == 0:
+                        nb[0] += anchor
+                    S += lam_q * nb
+            J = _cross(Cq, S)
             nJ = np.sqrt(np.einsum("ij,ij->i", J, J))
-            agree = np.einsum("ij,ij->i", J, J_prev)
-            h = np.where(agree < 0, 0.5 * h, np.where(agree > 0, np.minimum(1.2 * h, settings.step_max), h))
-            J_prev = np.where((agree < 0)[:, None], 0.0, J)  # after a reversal the next step neither grows nor shrinks
-            live = nJ > 1e-12
-            if np.count_nonzero(live & (h >= settings.tol)) <= settings.settle_frac * K:
-                break
-            hs = np.where(live, h, 0.0)
-            u = J / np.where(live, nJ, 1.0)[:, None]
-            C = C * np.cos(hs)[:, None] + _cross(u, C) * np.sin(hs)[:, None]
-            if project is not None:
-                C = project(C)  # returns unit rows
+            Jp = J_prev if rows is None else J_prev[rows]
+            hq = h if rows is None else h[rows]
+            agree = np.einsum("ij,ij->i", J, Jp)
+            hq = np.where(agree < 0, 0.5 * hq, np.where(agree > 0, np.minimum(1.2 * hq, settings.step_max), hq))
+            Jp = np.where((agree < 0)[:, None], 0.0, J)  # after a reversal the next step neither grows nor shrinks
+            if rows is None:
+                h, J_prev = hq, Jp
             else:
-                C /= np.sqrt(np.einsum("ij,ij->i", C, C))[:, None]
+                h[rows], J_prev[rows] = hq, Jp
+            live = nJ > 1e-12
+            moving = live & (hq >= settings.tol)
+            if np.count_nonzero(moving) <= settings.settle_frac * K:  # rows at rest have bounds below tol
+                break
+            hs = np.where(live, hq, 0.0)
+            u = J / np.where(live, nJ, 1.0)[:, None]
+            Cn = Cq * np.cos(hs)[:, None] + _cross(u, Cq) * np.sin(hs)[:, None]
+            if project is None:
+                Cn /= np.sqrt(np.einsum("ij,ij->i", Cn, Cn))[:, None]
+            if rows is None:
+                C = Cn
+            else:
+                C[rows] = Cn
+            if project is not None:
+                C = project(C)  # returns unit rows (rows at rest are reachable already and stay as they are)
+            if freeze:  # next: the rows still taking steps ≥ tol and their neighbours (their smoothness term moved)
+                mov = np.flatnonzero(moving) if rows is None else rows[moving]
+                nxt = np.zeros(K, dtype=bool)
+                nxt[mov] = True
+                nxt[mov[mov > 0] - 1] = True
+                nxt[mov[mov < K - 1] + 1] = True
+                rows = None if nxt.all() else np.flatnonzero(nxt)
             if cos_lo > -1.0:
                 moved = np.flatnonzero(np.einsum("ij,ij->i", C, C_ref) < cos_drift)
                 if moved.size:

@@ -38,8 +38,9 @@ def grid_scores(bearings: np.ndarray, weights: np.ndarray, grid: np.ndarray, alp
     cos_a = np.float32(np.cos(alpha))
     chunk = max(1, int(4_000_000 // max(bearings.shape[1] * grid.shape[0], 1)))
     for s in range(0, K, chunk):
-        inside = (bearings[s : s + chunk] @ g32) >= cos_a  # (k, L, G)
-        out[s : s + chunk] = np.matmul(weights[s : s + chunk, None, :], inside.astype(np.float32))[:, 0, :]
+        x = bearings[s : s + chunk] @ g32  # (k, L, G) cosines
+        np.greater_equal(x, cos_a, out=x, casting="unsafe")  # 1.0 inside, 0.0 outside, in place
+        out[s : s + chunk] = np.matmul(weights[s : s + chunk, None, :], x)[:, 0, :]
     return out / np.where(total > 0, total, 1.0)[:, None].astype(np.float32)
 
 
@@ -64,7 +65,11 @@ def best_chain(
     if anchor is not None:
         value = value + (smooth * (grid @ anchor - 1.0)).astype(np.float32)
     back = np.zeros((K, G), dtype=np.intp)
-    cols = np.arange(G)
+    gain = scores * span.astype(np.float32)[:, None]
+    total = np.empty((G, G), dtype=np.float32)  # (to, from), reused: three numpy calls per node
+    take = total.reshape(-1).take
+    row_start = np.arange(G) * G
+    idx = np.empty(G, dtype=np.intp)
     cache: dict[int, np.ndarray] = {}
     for k in range(1, K):
         s = max(round(span[k]), 1)
@@ -72,9 +77,10 @@ def best_chain(
         if trans is None:  # indexed (to, from): the argmax runs along contiguous rows
             trans = np.ascontiguousarray(((s * smooth) * (np.cos(ang / s) - 1.0)).astype(np.float32).T)
             cache[s] = trans
-        total = trans + value[None, :]  # (to, from)
-        back[k] = np.argmax(total, axis=1)
-        value = total[cols, back[k]] + scores[k] * np.float32(span[k])
+        np.add(trans, value, out=total)
+        total.argmax(axis=1, out=back[k])
+        np.add(row_start, back[k], out=idx)
+        value = take(idx) + gain[k]
     path = np.empty(K, dtype=np.intp)
     path[-1] = int(np.argmax(value))
     for k in range(K - 1, 0, -1):

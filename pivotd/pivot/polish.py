@@ -125,46 +125,71 @@ def polish_trajectory(
 
 
 def _ring_candidates(C: np.ndarray, radius: float) -> np.ndarray:
-    """Candidates (N, 17, 3) per unit axis C (N, 3): the axis, then 8 directions at ``radius`` and 8 at radius/2."""
+    """Candidates (N, 17, 3) per unit axis C (N, 3): the axis, then 8 directions at ``radius`` and 8 at radius/2.
+
+    Each candidate is a fixed combination of the axis and its two tangents, so all of them come from one
+    (17, 3) @ (3, 3N) product."""
     cos_r, sin_r, ca, sa = ring_offsets(radius, 0.5 * radius)
+    coef = np.vstack([[1.0, 0.0, 0.0], np.hstack([cos_r, sin_r * ca, sin_r * sa])])  # (17, 3): c, t1, t2
     t1, t2 = _tangents(C)
-    ring = cos_r[None] * C[:, None, :] + sin_r[None] * (ca[None] * t1[:, None, :] + sa[None] * t2[:, None, :])
-    return np.concatenate([C[:, None, :], ring], axis=1)
+    basis = np.stack([C, t1, t2])  # (3, N, 3)
+    N = C.shape[0]
+    return (coef @ basis.reshape(3, 3 * N)).reshape(-1, N, 3).transpose(1, 0, 2)
 
 
 def _best_sequence(val: np.ndarray, pen: np.ndarray) -> np.ndarray:
     """Candidate index per waypoint (N,) maximising Σ_i val[i, k_i] + Σ_i pen[i − 1, k_i, k_{i−1}] (Viterbi).
 
     val (N, K) candidate values, pen (N − 1, K to, K from) transition values (−inf: forbidden). Ties go
-    to the lowest index (candidate 0, the current axis). One small (K, K) step per waypoint; the
-    backtrack runs on Python lists.
+    to the lowest index (candidate 0, the current axis). The forward pass is three numpy calls per waypoint
+    into preallocated buffers (the sum, its argmax per row, and the row maxima gathered through the flat
+    index of the argmax); the backtrack walks the argmax table as a list.
     """
     N, K = val.shape
     back = np.empty((N, K), dtype=np.intp)
-    cols = np.arange(K)
-    score = val[0]
+    tot = np.empty((K, K))
+    flat = tot.reshape(-1)
+    row_start = np.arange(K) * K
+    idx = np.empty(K, dtype=np.intp)
+    score = np.array(val[0], dtype=float)
+    add, take = np.add, flat.take
     for i in range(1, N):
-        tot = pen[i - 1] + score  # (to, from)
-        b = tot.argmax(axis=1)
-        back[i] = b
-        score = tot[cols, b] + val[i]
-    pick = [int(score.argmax())]
+        add(pen[i - 1], score, out=tot)  # (to, from)
+        b = back[i]
+        tot.argmax(axis=1, out=b)
+        add(row_start, b, out=idx)
+        add(take(idx), val[i], out=score)
+    k = int(score.argmax())
+    pick = [k]
     rows = back.tolist()
     for i in range(N - 1, 0, -1):
-        pick.append(rows[i][pick[-1]])
+        k = rows[i][k]
+        pick.append(k)
     return np.array(pick[::-1], dtype=np.intp)
 
 
-def _narrow(B: np.ndarray, Wa: np.ndarray, C: np.ndarray, alpha: float, reach: float) -> tuple[np.ndarray, np.ndarray]:
-    """The part of a band (B (N, L, 3) unit bearings, Wa (N, L)) within α ± reach [rad] of the axes C (N, 3)."""
-    geom = _ascent.Geometry(B, np.zeros((B.shape[0], 3), np.float32), None, Wa, _no_exact)
-    cos_lo = float(np.cos(min(np.pi, alpha + reach)))
-    cos_hi = float(np.cos(alpha - reach)) if alpha > reach else 2.0
-    return _ascent._active(geom, C, cos_lo, cos_hi, max(B.shape[1], 1))
+def _within(x: np.ndarray, alpha: float, reach: float) -> np.ndarray:
+    """Mask (N, L) of the cosines x (N, L) to the axes whose angle is within α ± reach [rad]."""
+    mask = x >= np.float32(np.cos(min(np.pi, alpha + reach)))
+    if alpha > reach:
+        mask &= x <= np.float32(np.cos(alpha - reach))
+    return mask
 
 
-def _no_exact(rows: np.ndarray, cols: np.ndarray, C: np.ndarray) -> np.ndarray:
-    raise AssertionError("band geometries are never evaluated exactly")
+def _take(B: np.ndarray, Wa: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The band entries (B (N, L, 3) float32, Wa (N, L)) under ``mask`` (N, L), packed to the left of
+    (N, L', 3) and (N, L') with L' the largest row count (at least 1); padding has weight 0."""
+    N = mask.shape[0]
+    counts = np.count_nonzero(mask, axis=1)
+    Lk = max(int(counts.max(initial=0)), 1)
+    flat = np.flatnonzero(mask)
+    starts = np.cumsum(counts) - counts
+    dest = np.arange(flat.size) + np.repeat(np.arange(N) * Lk - starts, counts)
+    Bk = np.zeros((N * Lk, 3), np.float32)
+    Wk = np.zeros(N * Lk, np.float32)
+    Bk.view(_ascent._ROW3).ravel()[dest] = np.ascontiguousarray(B).reshape(-1, 3).view(_ascent._ROW3).ravel().take(flat)
+    Wk[dest] = Wa.reshape(-1).take(flat)
+    return Bk.reshape(N, Lk, 3), Wk.reshape(N, Lk)
 
 
 def _score(cand: np.ndarray, B: np.ndarray, Wa: np.ndarray, cos_a: np.float32) -> np.ndarray:
@@ -196,7 +221,8 @@ def step_limited_polish(
     rings r and r/2, recentred on each result. ``band`` is called once, with the reach 2.02 × radius of
     all levels together (the axes move by < 2 × radius in all); each level narrows the previous level's
     band to α ± 2.02 r around its axes (it held α ± 4.04 r around axes that have moved ≤ 2 r since) and
-    scores all waypoints × candidates in one batched product. ``reachable`` as in
+    scores all waypoints × candidates in one batched product on the part within α ± 1.01 r (the landmarks
+    whose state a move of ≤ r can change). ``reachable`` as in
     :func:`polish_trajectory`. With ``smooth`` = λκ > 0 it maximises Φ_hard (visible weight / ``norm``
     (N,) plus λκ Σ c_{i+1}·c_i) within the limit instead of the visible weight alone.
     """
@@ -210,12 +236,16 @@ def step_limited_polish(
     B, Wa = band(C, 2.02 * radius)
     r = radius
     while r >= tol:
-        if r < radius:
-            B, Wa = _narrow(B, Wa, C, alpha, 2.02 * r)
         if B.shape[1] == 0:
             break
+        x = np.matmul(B, C.astype(np.float32)[:, :, None])[..., 0]  # (N, L) cosines to the axes, once per level
+        # only landmarks within α ± r of the axes can change state under a move of ≤ r; the others add the same
+        # to every candidate of their waypoint, which leaves the best sequence unchanged
+        Bs, Ws = _take(B, Wa, _within(x, alpha, 1.01 * r))
+        if r < radius and 0.5 * r >= tol:  # the next level's band: the axes move by ≤ r in this level
+            B, Wa = _take(B, Wa, _within(x, alpha, 2.02 * r))
         cand = _ring_candidates(C, r)  # (N, K, 3)
-        val = _score(cand, B, Wa, cos_a)  # (N, K)
+        val = _score(cand, Bs, Ws, cos_a)  # (N, K)
         if inv is not None:
             val *= inv[:, None]
         if reachable is not None:
@@ -224,10 +254,14 @@ def step_limited_polish(
             far = cand[0] @ anchor < cos_s
             far[0] = False  # the current axis stays a choice whatever the rounding
             val[0, far] = -np.inf
-        cos_pairs = np.matmul(cand[1:], cand[:-1].transpose(0, 2, 1))  # (N − 1, K to, K from)
-        ok = cos_pairs >= cos_s
-        ok[:, 0, 0] = True  # the current plan is always feasible
-        pen = np.where(ok, smooth * cos_pairs if smooth > 0 else 0.0, -np.inf)
+        pen = np.matmul(cand[1:], cand[:-1].transpose(0, 2, 1))  # (N − 1, K to, K from) cosines
+        too_far = pen < cos_s
+        too_far[:, 0, 0] = False  # the current plan is always feasible
+        if smooth > 0:
+            pen *= smooth
+        else:
+            pen[...] = 0.0
+        pen[too_far] = -np.inf  # in place: np.where over the (N − 1, K, K) array took 4× as long
         if smooth > 0 and anchor is not None:
             val[0] += smooth * (cand[0] @ anchor)
         C = cand[np.arange(N), _best_sequence(val, pen)]

@@ -50,6 +50,9 @@ class TrajectoryOptions:
     drift_deg: float = 12.0  # cold start: rebuild a waypoint's active set after its axis moved this far
     warm_drift_deg: float = 5.0  # warm start: the same (tighter: warm bands are crowded, thinning hurts)
     settle_frac: float = 0.03  # stop once at most 3 % of the waypoints still move by ≥ tol per step
+    rest_settled: bool = False  # cold start at α: a waypoint whose step bound fell below tol rests until a
+    # neighbour moves (only the others are evaluated): 7–10 % faster on FIF, but off by default because where the
+    # ascent runs out of budget (the blob path) the waypoints still creeping below tol matter
     lam_boost: float = 1.0  # widened stages use λ × boost (geometric decay to λ at α): a smoothness homotopy
     smooth_scale: float = 25.0  # κ: the smoothness term is λκ Σ c_{i+1}·c_i against per-waypoint visible fractions
     chain_init: bool = True  # cold start: dynamic programming over a direction grid (pivotd.pivot.chain)
@@ -548,6 +551,7 @@ def optimize_trajectory(
         drift=rad(opts.warm_drift_deg if warm else opts.drift_deg),
         lam_boost=opts.lam_boost,
         settle_frac=opts.settle_frac,
+        freeze_settled=opts.rest_settled and not warm,
     )
     project = None if constraint is None else constraint.project
     if geom is None:
