@@ -92,7 +92,8 @@ def plan_rows(half_angles: tuple[float, ...], scale: float, waypoints: int = 40,
               lam: float = 0.6) -> list[dict]:
     """Smooth plans (λ = ``lam``, no distance weights, ``TrajectoryOptions.normalise``) on a path through each hard
     family at ``scale``: the visible sum as a share [%] of the independent λ = 0 plan's, with and without the
-    narrow-cone seed of cold starts (``TrajectoryOptions.narrow_seed_nodes``), and the plan's largest step [deg]."""
+    cold starts' extra candidates (the narrow-cone seed ``TrajectoryOptions.narrow_seed_nodes`` and the fixed
+    direction ``fixed_nodes``), and the plan's largest step [deg]."""
     from dataclasses import replace
 
     from pivotd.pivot.scenes import HARD_FAMILIES, hard_path
@@ -107,7 +108,8 @@ def plan_rows(half_angles: tuple[float, ...], scale: float, waypoints: int = 40,
             hp = hard_path(family, 0, waypoints=waypoints, scale=scale)
             free = float(optimize_trajectory(hp.points, hp.path, alpha, 0.0, options=opts).visible.sum())
             plan = optimize_trajectory(hp.points, hp.path, alpha, lam, options=opts)
-            bare = optimize_trajectory(hp.points, hp.path, alpha, lam, options=replace(opts, narrow_seed_nodes=0))
+            bare = optimize_trajectory(hp.points, hp.path, alpha, lam,
+                                       options=replace(opts, narrow_seed_nodes=0, fixed_nodes=0))
             rows.append({"half_angle_deg": h, "family": family,
                          "seeded_pct": round(100.0 * float(plan.visible.sum()) / max(free, 1.0), 1),
                          "unseeded_pct": round(100.0 * float(bare.visible.sum()) / max(free, 1.0), 1),

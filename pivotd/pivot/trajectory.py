@@ -66,6 +66,10 @@ class TrajectoryOptions:
     step_polish_deg: float = 4.0  # step-limited DP polish of the visible count (pivotd.pivot.polish): radius (0: off)
     seed_cap: int = 512  # landmarks per node waypoint scoring the step-limited grid chain (a second candidate; 0: off)
     normalise: Normalisation = Normalisation.TOTAL  # W_i: total retained weight, or the attainable one (normalise.py)
+    fixed_nodes: int = 16  # cold start of a plan staying within α of one direction: the best single direction for
+    # this many node waypoints (0: off) is a candidate, solved when it already sees more or scores higher than the
+    # plan; the higher objective is kept
+    fixed_cap: int = 8192  # ... scored on at most this many strided landmarks per node waypoint
     narrow_seed_nodes: int = 16  # cold start, α below ViewOptions.narrow_deg: a candidate through this many node
     # waypoints' single-view optima (optimize_view), kept when its objective is higher (0: off)
 
@@ -353,6 +357,48 @@ def _independent_views(
     return TrajectoryResult(dirs, rots, visible, iters, obj)
 
 
+def _judge(
+    geom: _ascent.Geometry | None, C: np.ndarray, norm: np.ndarray, alpha: float, width: float, smooth: float,
+    anchor: np.ndarray | None,
+) -> tuple[np.ndarray, float]:
+    """Hard visible counts (N,) int and the trajectory objective (module docstring) of the axes C (N, 3)."""
+    N = C.shape[0]
+    if geom is None:
+        return np.zeros(N, dtype=int), 0.0
+    visible, F = _ascent.evaluate(geom, C, alpha, width)
+    obj = float(np.sum(F / np.maximum(norm, 1e-12)))
+    if smooth > 0:
+        obj += smooth * float(np.sum(C[1:] * C[:-1]))
+        if anchor is not None:
+            obj += smooth * float(anchor @ C[0])
+    return visible.astype(int), obj
+
+
+def _spread(C: np.ndarray) -> float:
+    """Largest angle [rad] between the axes C (N, 3) and their mean direction (π when they cancel out)."""
+    m = C.sum(axis=0)
+    norm = float(np.linalg.norm(m))
+    if norm < 1e-9:
+        return math.pi
+    return float(np.arccos(np.clip((C @ m).min() / norm, -1.0, 1.0)))
+
+
+def _fixed_direction(geom: _ascent.Geometry, lengths: np.ndarray, norm: np.ndarray, alpha: float,
+                     cap: int) -> np.ndarray:
+    """The single direction (3,) seeing the most of the rows' landmarks together, each row's weights divided
+    by its W_i (``norm`` (K,)) as in the objective: :func:`optimize_view` on at most ``cap`` strided bearings
+    per row."""
+    sub = _ascent.subsample(geom, lengths, cap)
+    w = sub.weights / np.maximum(norm, 1e-12)[:, None].astype(np.float32)
+    keep = w > 0
+    B = sub.points[keep].astype(np.float64)
+    if B.shape[0] == 0:
+        return np.array([1.0, 0.0, 0.0])
+    kernel = cone_kernel(alpha) if B.shape[0] > ViewOptions.sample and alpha >= math.radians(
+        ViewOptions.narrow_deg) else None
+    return optimize_view(B, w[keep].astype(np.float64), alpha, kernel=kernel).direction
+
+
 def _band(geom: _ascent.Geometry, C: np.ndarray, alpha: float, reach: float, cap: int):
     """Bearings (N, L, 3) and weights (N, L) of the landmarks within α ± reach of each axis C (N, 3):
     the only ones whose state a search moving the axes by at most ``reach`` [rad] can change."""
@@ -617,17 +663,31 @@ def optimize_trajectory(
             C = limit_steps(C, max_step, anchor=a_vec, constraint=constraint)  # a no-op: the guarantee
     R = _ascent._turn_to(R, C)
     C = R[:, :, 2].copy()
-    if geom is None:
-        visible = np.zeros(N, dtype=int)
-        F = np.zeros(N)
-    else:
-        visible, F = _ascent.evaluate(geom, C, alpha, rad(opts.width_deg))
-    obj = float(np.sum(F / np.maximum(norm, 1e-12)))
-    if smooth > 0:
-        obj += smooth * float(np.sum(C[1:] * C[:-1]))
-        if a_vec is not None:
-            obj += smooth * float(a_vec @ C[0])
-    result = TrajectoryResult(C, R, visible.astype(int), iters, obj)
+    visible, obj = _judge(geom, C, norm, alpha, rad(opts.width_deg), smooth, a_vec)
+    result = TrajectoryResult(C, R, visible, iters, obj)
+    if not warm and geom is not None and smooth > 0 and opts.fixed_nodes > 0 and _spread(C) <= alpha:
+        # A plan that stays within one cone's half-angle of a single direction is, in effect, a fixed view; on
+        # flat landscapes (a sensor inside a cloud or a ring, where every view sees about as much) the cold solve
+        # can settle in a worse basin than the best fixed direction. That direction over node waypoints is a
+        # candidate, solved only when it already sees more or scores higher than the plan.
+        nodes = chain.node_indices(N, opts.fixed_nodes)
+        C_fix = np.tile(_fixed_direction(geom.take_rows(nodes), lengths[nodes], norm[nodes], alpha, opts.fixed_cap),
+                        (N, 1))
+        if constraint is not None:
+            C_fix = constraint.project(C_fix)
+        vis_fix, obj_fix = _judge(geom, C_fix, norm, alpha, rad(opts.width_deg), smooth, a_vec)
+        if obj_fix > result.objective or vis_fix.sum() > result.visible.sum():
+            alt = optimize_trajectory(
+                points, waypoints, alpha, lam, weights=weights, retained=retained, init_directions=C_fix,
+                anchor=anchor, constraint=constraint, max_step=max_step, pair_weights=pair_weights,
+                options=replace(opts, warm_polish=True, warm_iterations=opts.max_iterations),
+            )
+            # under a hard step limit the plan maximises what it sees (as the step-limited seed above is judged)
+            better = (alt.objective > result.objective if max_step is None
+                      else int(alt.visible.sum()) > int(result.visible.sum()))
+            if better:
+                result = TrajectoryResult(alt.directions, alt.rotations, alt.visible, iters + alt.iterations,
+                                          alt.objective)
     if (not warm and geom is not None and smooth > 0 and opts.narrow_seed_nodes > 0
             and alpha < math.radians(ViewOptions.narrow_deg)):
         # a narrow cone sees a few degrees: the chain's grid and the widened stages of a cold start cannot find
