@@ -1,6 +1,7 @@
 """Chain initialisation (pivotd.pivot.chain): node spacing, Viterbi choice, spherical fill."""
 
 import numpy as np
+from viterbi_reference import viterbi_reference
 
 from pivotd.geometry import angle_between
 from pivotd.pivot.brute import sphere_grid
@@ -57,24 +58,15 @@ def test_best_chain_trades_visibility_against_turning():
 
 
 def _best_chain_reference(scores, grid, span, smooth, anchor=None):
-    """The textbook Viterbi of best_chain, one fancy-indexed step per node, same float32 arithmetic."""
-    K, G = scores.shape
+    """best_chain as the textbook Viterbi (tests/viterbi_reference.py), with the same float32 arithmetic."""
     scores = scores.astype(np.float32)
-    value = scores[0] * np.float32(span[0])
-    ang = np.arccos(np.clip(grid @ grid.T, -1.0, 1.0))
+    val = scores * np.asarray(span, np.float32)[:, None]
     if anchor is not None:
-        value = value + (smooth * (grid @ anchor - 1.0)).astype(np.float32)
-    back = np.zeros((K, G), dtype=int)
-    for k in range(1, K):
-        s = max(round(span[k]), 1)
-        trans = ((s * smooth) * (np.cos(ang / s) - 1.0)).astype(np.float32).T
-        total = trans + value[None, :]
-        back[k] = np.argmax(total, axis=1)
-        value = total[np.arange(G), back[k]] + scores[k] * np.float32(span[k])
-    path = [int(np.argmax(value))]
-    for k in range(K - 1, 0, -1):
-        path.append(int(back[k, path[-1]]))
-    return np.array(path[::-1])
+        val[0] = val[0] + (smooth * (grid @ anchor - 1.0)).astype(np.float32)
+    ang = np.arccos(np.clip(grid @ grid.T, -1.0, 1.0))
+    pen = np.stack([((max(round(s), 1) * smooth) * (np.cos(ang / max(round(s), 1)) - 1.0)).astype(np.float32).T
+                    for s in span[1:]])
+    return viterbi_reference(val, pen)
 
 
 def test_best_chain_equals_the_textbook_viterbi_exactly():

@@ -1,6 +1,7 @@
 """Hard-count polish of trajectories: monotone in the discrete objective, constraint-aware, wired into the optimizer."""
 
 import numpy as np
+from viterbi_reference import viterbi_reference
 
 from pivotd.geometry import angle_between, normalize
 from pivotd.pivot.polish import polish_trajectory, ring_offsets
@@ -82,21 +83,6 @@ def test_trajectory_option_polishes_without_losing_smoothness():
     assert np.allclose(np.einsum("nij,j->ni", polished.rotations, [0, 0, 1]), polished.directions, atol=1e-12)
 
 
-def _viterbi_reference(val, pen):
-    """The textbook Viterbi (one fancy-indexed step per waypoint), same arithmetic order: (pen + score) + val."""
-    N, K = val.shape
-    back = np.zeros((N, K), dtype=int)
-    score = val[0].copy()
-    for i in range(1, N):
-        tot = pen[i - 1] + score[None, :]
-        back[i] = np.argmax(tot, axis=1)
-        score = tot[np.arange(K), back[i]] + val[i]
-    pick = [int(np.argmax(score))]
-    for i in range(N - 1, 0, -1):
-        pick.append(int(back[i, pick[-1]]))
-    return np.array(pick[::-1])
-
-
 def test_step_limited_dp_equals_the_textbook_viterbi_exactly():
     from pivotd.pivot.polish import _best_sequence
 
@@ -115,7 +101,7 @@ def test_step_limited_dp_equals_the_textbook_viterbi_exactly():
         if trial % 5 == 0:
             val[rng.random(val.shape) < 0.2] = -np.inf  # unreachable candidates
             val[:, 0] = 0.0
-        assert np.array_equal(_best_sequence(val, pen), _viterbi_reference(val, pen))
+        assert np.array_equal(_best_sequence(val, pen), viterbi_reference(val, pen))
 
 
 def test_polish_scores_only_the_landmarks_a_move_can_change():
