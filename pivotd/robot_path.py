@@ -15,7 +15,7 @@ import numpy as np
 
 from pivotd.errors import InputError
 from pivotd.geometry import MAX_COORDINATE, matrix_to_quat, normalize, safe_unit_quats, yaw_to_matrix
-from pivotd.maps.formats import read_numeric_text
+from pivotd.maps.formats import read_numeric_text, xyz_columns
 
 
 @dataclass(frozen=True)
@@ -36,17 +36,12 @@ _STAMP_NAMES = ("timestamp", "time", "t", "stamp", "time_s", "t_s", "__time")
 def path_columns(names: list[str]) -> list[int]:
     """Columns of a path CSV with a header row: timestamp, x, y, z, qw, qx, qy, qz when it names a timestamp
     and the four quaternion components, else x, y, z (other columns are ignored)."""
-    index: dict[str, int] = {}
-    for k, name in enumerate(names):
-        index.setdefault(name, k)
-    missing = [c for c in ("x", "y", "z") if c not in index]
-    if missing:
-        raise ValueError(f"header row has no {'/'.join(missing)} column (columns: {', '.join(names[:12])})")
+    index, xyz, _ = xyz_columns(names, "header row")
     stamp = next((index[n] for n in _STAMP_NAMES if n in index), None)
     quat = [index.get(n) for n in ("qw", "qx", "qy", "qz")]
     if stamp is not None and None not in quat:
-        return [stamp, index["x"], index["y"], index["z"], *quat]
-    return [index["x"], index["y"], index["z"]]
+        return [stamp, *xyz, *quat]
+    return xyz
 
 
 def load_path(path: str | Path) -> PathData:

@@ -97,6 +97,14 @@ def test_weights_from_column(tmp_path):
     np.savetxt(m3, pts)
     code, _, err = _plan("--map", m3, "--path", p, "--weights-from", "w")
     assert code == 2 and "m3.txt" in err and len(err.strip().splitlines()) == 1
+    named = tmp_path / "named.csv"  # a header naming the weight column: the column --weight-property names
+    named.write_text("x,y,z,score\n" + "".join(f"{a},{b},{c},{e}\n" for (a, b, c), e in zip(pts, w, strict=True)))
+    code, _, err = _plan("--map", named, "--path", p, "--lambda", "0", "--weights-from", "w",
+                         "--weight-property", "score", "--out", out)
+    assert code == 0, err
+    assert float(out.read_text().splitlines()[1].split(",")[4]) < 0  # weighted: the 10 heavy landmarks win
+    code, _, err = _plan("--map", named, "--path", p, "--weights-from", "w")
+    assert code == 2 and "needs a weight column" in err
 
 
 def _bad(tmp_path, name, text):

@@ -91,7 +91,7 @@ def _weights(args: argparse.Namespace, cloud) -> np.ndarray | None:
     if mode == "none":
         return None
     if mode in ("4", "w"):
-        raw = _column_count(Path(args.map))
+        raw = _column_count(Path(args.map), args.weight_property)
         if raw is not None and raw < 4:
             raise InputError(
                 f"{args.map}: --weights-from {args.weights_from} needs a weight column (a 4th column, or one named "
@@ -101,7 +101,7 @@ def _weights(args: argparse.Namespace, cloud) -> np.ndarray | None:
     return cloud.weights if has_column else None
 
 
-def _column_count(path: Path) -> int | None:
+def _column_count(path: Path, weight_property: str | None) -> int | None:
     """Columns of a .npy map; 4 or 3 for a text map with or without a weight column (None when the format
     does not say)."""
     suffix = path.suffix.lower()
@@ -111,7 +111,7 @@ def _column_count(path: Path) -> int | None:
         except (ValueError, OSError, IndexError):
             return None
     if suffix in TEXT_SUFFIXES:
-        has_weight = text_map_weight_column(path)
+        has_weight = text_map_weight_column(path, weight_property)
         return None if has_weight is None else 4 if has_weight else 3
     return None
 

@@ -18,7 +18,7 @@ import logging
 import os
 import re
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from tokenize import TokenError
@@ -115,6 +115,20 @@ def load_landmarks(
 WEIGHT_NAMES = ("weight", "w")  # header names taken as the feature weight when no weight property is named
 
 
+def xyz_columns(names: Sequence[str], where: str, noun: str = "column") -> tuple[dict[str, int], list[int], str]:
+    """(index of each name's first occurrence, the indices of x, y, z, the names as error messages list them) of a
+    header's or a file's column names; ValueError ``"{where} has no x/… {noun} ({noun}s: …)"`` when x, y or z is
+    missing."""
+    index: dict[str, int] = {}
+    for k, name in enumerate(names):
+        index.setdefault(name, k)
+    shown = ", ".join(n or "(unnamed)" for n in names[:12]) + (", …" if len(names) > 12 else "")
+    missing = [c for c in ("x", "y", "z") if c not in index]
+    if missing:
+        raise ValueError(f"{where} has no {'/'.join(missing)} {noun} ({noun}s: {shown})")
+    return index, [index["x"], index["y"], index["z"]], shown
+
+
 class TextMapColumns:
     """:data:`HeaderSelect` for text maps: x, y, z and the weight column (``weight_property``, else ``weight``
     or ``w`` when present) of a header row; other columns (colours, intensity, …) are ignored.
@@ -126,14 +140,7 @@ class TextMapColumns:
 
     def __call__(self, names: list[str]) -> list[int]:
         self.header = True
-        index: dict[str, int] = {}
-        for k, name in enumerate(names):
-            index.setdefault(name, k)
-        shown = ", ".join(n or "(unnamed)" for n in names[:12]) + (", …" if len(names) > 12 else "")
-        missing = [c for c in ("x", "y", "z") if c not in index]
-        if missing:
-            raise ValueError(f"header row has no {'/'.join(missing)} column (columns: {shown})")
-        keep = [index["x"], index["y"], index["z"]]
+        index, keep, shown = xyz_columns(names, "header row")
         if self.weight_property is not None:
             key = self.weight_property.strip().lower()
             if key not in index:
@@ -144,9 +151,10 @@ class TextMapColumns:
         return keep
 
 
-def text_map_weight_column(path: Path) -> bool | None:
-    """Whether a text map carries a weight column (a 4th field, or a named one in its header row); None when
-    the file has no data line or cannot be read."""
+def text_map_weight_column(path: Path, weight_property: str | None = None) -> bool | None:
+    """Whether a text map carries a weight column (a 4th field, or the one its header row or column-naming
+    comment names: ``weight_property``, else ``weight`` or ``w``), as :func:`load_landmarks` reads it; None when
+    the file has no data line, cannot be read, or has a header row the loader refuses."""
     try:
         with open(path, encoding="utf-8-sig") as fh:
             found = _first_data_line(fh.read(_TEXT_BLOCK))
@@ -154,11 +162,15 @@ def text_map_weight_column(path: Path) -> bool | None:
         return None
     if found is None:
         return None
+    columns = TextMapColumns(weight_property)
     names = header_names(found[1])
     if names is not None:
-        return any(n in names for n in WEIGHT_NAMES)
-    keep, _ = _comment_header(found[2], found[1], TextMapColumns())
-    return len(keep) == 4 if keep is not None else len([f for f in _SPLIT.split(found[1].strip()) if f]) >= 4
+        try:
+            return len(columns(names)) == 4
+        except ValueError:  # the loader reports the header's problem
+            return None
+    keep, _ = _comment_header(found[2], found[1], columns)
+    return len(keep) == 4 if keep is not None else _field_count(found[1]) >= 4
 
 
 def _no_weight_property(path: Path, weight_property: str | None, what: str) -> None:
@@ -373,7 +385,7 @@ def read_numeric_text(
         if ncols is None:
             found = _first_data_line(block)
             names = header_names(found[1]) if found is not None and select is not None else None
-            if found is not None and names is not None and select is not None:
+            if names is not None:
                 try:
                     keep = select(names)
                 except ValueError as exc:
@@ -442,7 +454,7 @@ def _comment_header(comment: str | None, line: str, select: HeaderSelect | None)
     if comment is None or select is None:
         return None, 0
     names = header_names(comment.lstrip("#"))
-    if names is None or len(names) != len([f for f in _SPLIT.split(line.strip()) if f]):
+    if names is None or len(names) != _field_count(line):
         return None, 0
     try:
         return select(names), len(names)
@@ -450,8 +462,13 @@ def _comment_header(comment: str | None, line: str, select: HeaderSelect | None)
         return None, 0
 
 
+def _field_count(line: str) -> int:
+    """Fields of a data line (separated by spaces, tabs or commas)."""
+    return len([f for f in _SPLIT.split(line.strip()) if f])
+
+
 def _column_count(path: Path, lineno: int, line: str, columns: tuple[int, ...], what: str) -> int:
-    n = len([f for f in _SPLIT.split(line.strip()) if f])
+    n = _field_count(line)
     if n not in columns:
         raise InputError(
             f"{path}:{lineno}: expected {' or '.join(map(str, columns))} columns in a {what} row, got {n}"

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from pivotd.errors import InputError
-from pivotd.maps.formats import CappedReader, LandmarkCloud, make_cloud
+from pivotd.maps.formats import CappedReader, LandmarkCloud, make_cloud, xyz_columns
 from pivotd.progress import Progress
 
 log = logging.getLogger(__name__)
@@ -68,10 +68,6 @@ class PcdHeader:
         """Bytes per point record."""
         return sum(self.field_bytes)
 
-    def column(self, name: str) -> int:
-        """Index of field ``name`` (its first occurrence)."""
-        return self.fields.index(name)
-
 
 def load_pcd(path: Path, *, weight_property: str | None = None) -> LandmarkCloud:
     """Read x, y, z (and a weight) from a PCD file; errors name the file and the header line or point."""
@@ -103,6 +99,7 @@ def load_pcd(path: Path, *, weight_property: str | None = None) -> LandmarkCloud
 def read_header(path: Path, head: bytes) -> PcdHeader:
     """Parse the header in ``head`` (the file's first bytes) up to and including its DATA line."""
     values: dict[str, list[str]] = {}
+    lines: dict[str, int] = {}  # the line of each key's first occurrence, for error messages
     pos = 0
     lineno = 0
     while True:
@@ -124,28 +121,26 @@ def read_header(path: Path, head: bytes) -> PcdHeader:
         if key not in ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT", "POINTS", "DATA"):
             raise InputError(f"{path}:{lineno}: unknown PCD header key {key[:40]!r}")
         values[key] = rest
-        values.setdefault("_line_" + key, [str(lineno)])
+        lines.setdefault(key, lineno)
         if key == "DATA":
             break
-    return _header(path, values, pos)
+    return _header(path, values, lines, pos)
 
 
-def _header(path: Path, values: dict[str, list[str]], offset: int) -> PcdHeader:
+def _header(path: Path, values: dict[str, list[str]], lines: dict[str, int], offset: int) -> PcdHeader:
     def where(key: str) -> str:
-        return f"{path}:{values['_line_' + key][0]}" if "_line_" + key in values else str(path)
+        return f"{path}:{lines[key]}" if key in lines else str(path)
 
-    def ints(key: str, n: int | None, default: list[int] | None = None) -> list[int]:
+    def ints(key: str, n: int, default: list[int]) -> list[int]:
         if key not in values:
-            if default is None:
-                raise InputError(f"{path}: PCD header has no {key} line")
             return default
         try:
             out = [int(v) for v in values[key]]
         except ValueError:
             got = " ".join(values[key])[:80]
             raise InputError(f"{where(key)}: {key} values must be integers, got {got!r}") from None
-        if (n is not None and len(out) != n) or any(v < 0 for v in out):
-            raise InputError(f"{where(key)}: {key} needs {n or 'one'} non-negative integer(s), got {len(out)}")
+        if len(out) != n or any(v < 0 for v in out):
+            raise InputError(f"{where(key)}: {key} needs {n} non-negative integer(s), got {len(out)}")
         return out
 
     fields = values.get("FIELDS")
@@ -200,14 +195,13 @@ def _floats(path: Path, where: str, items: list[str]) -> list[float]:
 
 def _wanted_fields(path: Path, header: PcdHeader, weight_property: str | None) -> list[int]:
     """Field indices of x, y, z and the weight (when there is one)."""
-    shown = ", ".join(header.fields[:12]) + (", …" if len(header.fields) > 12 else "")
-    missing = [c for c in ("x", "y", "z") if c not in header.fields]
-    if missing:
-        raise InputError(f"{path}: PCD has no {'/'.join(missing)} field (fields: {shown})")
-    wanted = [header.column(c) for c in ("x", "y", "z")]
+    try:
+        index, wanted, shown = xyz_columns(header.fields, "PCD", "field")
+    except ValueError as exc:
+        raise InputError(f"{path}: {exc}") from None
     weight = weight_property if weight_property is not None else DEFAULT_WEIGHT_FIELD
-    if weight in header.fields:
-        wanted.append(header.column(weight))
+    if weight in index:
+        wanted.append(index[weight])
     elif weight_property is not None:
         raise InputError(f"{path}: PCD has no weight field {weight_property!r} (fields: {shown})")
     for k in wanted:
