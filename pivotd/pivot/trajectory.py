@@ -347,14 +347,20 @@ def _independent_views(
         if dist_w and n.size:
             w = np.maximum(_weights(n[None].astype(np.float32), None, w[None], True)[0].astype(float), 0.0)
         uniform = w.size == 0 or bool(np.all(w == w[0]))
-        if kernel is None and B.shape[0] > ViewOptions.sample and alpha >= math.radians(ViewOptions.narrow_deg):
-            kernel = cone_kernel(alpha)
+        if kernel is None:
+            kernel = _view_kernel(alpha, B.shape[0])
         r = optimize_view(B, None if uniform else w, alpha, init=None if init is None else init[i], kernel=kernel)
         dirs[i], rots[i], visible[i] = r.direction, r.rotation, r.visible
         # F_i / W_i: with uniform weights optimize_view counted each landmark as 1
         obj += r.objective / max(float(w.size) if uniform else float(w.sum()), 1e-12)
         iters = max(iters, r.iterations)
     return TrajectoryResult(dirs, rots, visible, iters, obj)
+
+
+def _view_kernel(alpha: float, n: int):
+    """The cone kernel :func:`optimize_view` uses for ``n`` bearings at half-angle α [rad] (its histogram stage:
+    more than ``ViewOptions.sample`` bearings, a cone not narrow), or None when it takes another path."""
+    return cone_kernel(alpha) if n > ViewOptions.sample and alpha >= math.radians(ViewOptions.narrow_deg) else None
 
 
 def _judge(
@@ -394,9 +400,7 @@ def _fixed_direction(geom: _ascent.Geometry, lengths: np.ndarray, norm: np.ndarr
     B = sub.points[keep].astype(np.float64)
     if B.shape[0] == 0:
         return np.array([1.0, 0.0, 0.0])
-    kernel = cone_kernel(alpha) if B.shape[0] > ViewOptions.sample and alpha >= math.radians(
-        ViewOptions.narrow_deg) else None
-    return optimize_view(B, w[keep].astype(np.float64), alpha, kernel=kernel).direction
+    return optimize_view(B, w[keep].astype(np.float64), alpha, kernel=_view_kernel(alpha, B.shape[0])).direction
 
 
 def _band(geom: _ascent.Geometry, C: np.ndarray, alpha: float, reach: float, cap: int):
@@ -665,6 +669,18 @@ def optimize_trajectory(
     C = R[:, :, 2].copy()
     visible, obj = _judge(geom, C, norm, alpha, rad(opts.width_deg), smooth, a_vec)
     result = TrajectoryResult(C, R, visible, iters, obj)
+
+    def solve_from(init: np.ndarray) -> TrajectoryResult:
+        """A second cold-start candidate: the same problem warm-started from ``init`` with the cold budget and
+        the polishes."""
+        return optimize_trajectory(
+            points, waypoints, alpha, lam, weights=weights, retained=retained, init_directions=init,
+            anchor=anchor, constraint=constraint, max_step=max_step, pair_weights=pair_weights,
+            options=replace(opts, warm_polish=True, warm_iterations=opts.max_iterations),
+        )
+
+    def adopted(alt: TrajectoryResult) -> TrajectoryResult:
+        return TrajectoryResult(alt.directions, alt.rotations, alt.visible, iters + alt.iterations, alt.objective)
     if not warm and geom is not None and smooth > 0 and opts.fixed_nodes > 0 and _spread(C) <= alpha:
         # A plan that stays within one cone's half-angle of a single direction is, in effect, a fixed view; on
         # flat landscapes (a sensor inside a cloud or a ring, where every view sees about as much) the cold solve
@@ -677,17 +693,12 @@ def optimize_trajectory(
             C_fix = constraint.project(C_fix)
         vis_fix, obj_fix = _judge(geom, C_fix, norm, alpha, rad(opts.width_deg), smooth, a_vec)
         if obj_fix > result.objective or vis_fix.sum() > result.visible.sum():
-            alt = optimize_trajectory(
-                points, waypoints, alpha, lam, weights=weights, retained=retained, init_directions=C_fix,
-                anchor=anchor, constraint=constraint, max_step=max_step, pair_weights=pair_weights,
-                options=replace(opts, warm_polish=True, warm_iterations=opts.max_iterations),
-            )
+            alt = solve_from(C_fix)
             # under a hard step limit the plan maximises what it sees (as the step-limited seed above is judged)
             better = (alt.objective > result.objective if max_step is None
                       else int(alt.visible.sum()) > int(result.visible.sum()))
             if better:
-                result = TrajectoryResult(alt.directions, alt.rotations, alt.visible, iters + alt.iterations,
-                                          alt.objective)
+                result = adopted(alt)
     if (not warm and geom is not None and smooth > 0 and opts.narrow_seed_nodes > 0
             and alpha < math.radians(ViewOptions.narrow_deg)):
         # a narrow cone sees a few degrees: the chain's grid and the widened stages of a cold start cannot find
@@ -697,13 +708,7 @@ def optimize_trajectory(
         views = (lambda i: (P, fw)) if pairs is None else pairs.waypoint
         peaks = _independent_views(lambda k: views(int(nodes[k])), T[nodes], alpha, None,
                                    opts.distance_weights).directions
-        alt = optimize_trajectory(
-            points, waypoints, alpha, lam, weights=weights, retained=retained,
-            init_directions=chain.slerp_fill(N, nodes, peaks), anchor=anchor, constraint=constraint,
-            max_step=max_step, pair_weights=pair_weights,
-            options=replace(opts, warm_polish=True, warm_iterations=opts.max_iterations),
-        )
+        alt = solve_from(chain.slerp_fill(N, nodes, peaks))
         if alt.objective > result.objective:
-            result = TrajectoryResult(alt.directions, alt.rotations, alt.visible, iters + alt.iterations,
-                                      alt.objective)
+            result = adopted(alt)
     return result
