@@ -282,31 +282,42 @@ def test_late_states_of_the_same_watchdog_hold_do_not_restart_the_stream_again(l
     _assert_jerk_limited(cfg, np.vstack([[0.0, 0.0], np.array(gimbal.setpoints[n:])[:, 2:]]), dt)
 
 
-def test_a_hold_reported_late_from_before_the_restarted_stream_does_not_restart_it_again(lag_rig):
-    """The loop stalls; the device's watchdog holds it. On the loaded host the states of the stall are processed
-    late: a state from just before the hold comes first (the stream restarts from it), then the hold itself. The
-    hold echoes a setpoint from before the restarted stream: the device holds on the old stream, and the restarted
-    one resumes it. Restarting a second time, from the hold, stepped the stream's jerk by 2.9x its limit (soak)."""
+def test_states_queued_during_a_stall_are_not_restarted_from_and_a_late_hold_does_not_restart_again(lag_rig):
+    """The loop stalls; the device's watchdog holds it. After the stall the host reads the states that queued up
+    meanwhile, each with a fresh receive time: a state from just before the hold (moving) and the hold itself.
+    Neither was measured after the stall, so the stream waits for one that was, and restarts from rest there.
+    Restarting from the queued moving state stepped the device's jerk by 1.04x its limit (soak). A hold reported
+    later that echoes the old stream's setpoint is the interruption the stream already restarted from."""
     cfg, clock, gimbal, loop = lag_rig
     dt = cfg.control.dt
     _run(loop, clock, 40, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
     last_old_seq = len(gimbal.setpoints) & 0xFF
     before = gimbal.state
-    gimbal.frozen = True  # the device receives the stream, but no state of it reaches the host for a while
-    clock.t += 2 * loop.settings.stall_s
-    assert _run(loop, clock, 1, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))[0].setpoint is None
-    gimbal.state = replace(before, rx_time=clock.t)  # measured before the hold, received after the stall
+    assert abs(before.pan_rate) > 0.3
+    gimbal.frozen = True  # no state of the restarted stream reaches the host for a while
+    stall_s = loop.settings.stall_s
+    clock.t += 2 * stall_s
     n, restarts = len(gimbal.setpoints), loop.restarts
+    assert _run(loop, clock, 1, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))[0].setpoint is None
+    gimbal.state = replace(before, rx_time=clock.t, measured_at=before.rx_time)  # queued, read late
+    waiting = _run(loop, clock, 2, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    hold = replace(before, pan=before.pan + 0.01, pan_rate=0.0, tilt_rate=0.0, mode=GimbalMode.HOLDING,
+                   faults=1 << 4, last_setpoint_seq=last_old_seq, rx_time=clock.t, measured_at=clock.t - stall_s)
+    gimbal.state = hold  # the hold, measured during the stall
+    waiting += _run(loop, clock, 2, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert all(r.setpoint is None for r in waiting) and len(gimbal.setpoints) == n and loop.restarts == restarts
+    gimbal.state = replace(hold, rx_time=clock.t, measured_at=clock.t)  # measured after the stall
     _run(loop, clock, 2, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
     assert loop.restarts == restarts + 1
-    gimbal.state = replace(before, pan_rate=0.8 * before.pan_rate, tilt_rate=0.8 * before.tilt_rate,
-                           mode=GimbalMode.HOLDING, faults=1 << 4, last_setpoint_seq=last_old_seq, rx_time=clock.t)
+    gimbal.state = replace(hold, rx_time=clock.t, measured_at=clock.t - 0.5 * stall_s)  # a late one of the hold
     _run(loop, clock, 2, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
     gimbal.frozen = False
     _run(loop, clock, 20, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
     assert loop.restarts == restarts + 1
-    start = [[before.pan_rate, before.tilt_rate]]
-    _assert_jerk_limited(cfg, np.vstack([start, start, np.array(gimbal.setpoints[n:])[:, 2:]]), dt)
+    resumed = np.array(gimbal.setpoints[n:])
+    amax, _ = _limits(cfg)
+    assert np.all(np.abs(resumed[0, :2] - [hold.pan, hold.tilt]) <= amax * dt * dt + 1e-9)
+    _assert_jerk_limited(cfg, np.vstack([[0.0, 0.0], [0.0, 0.0], resumed[:, 2:]]), dt)
 
 
 def test_a_hold_on_the_restarted_stream_restarts_it(lag_rig):

@@ -270,7 +270,9 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
     rate covers in ``stall_s`` plus a period; rate within one period of the acceleration limit, and that
     acceleration within one period of the jerk limit from rest) starts the new segment, judged from that state on.
     One stop allows one restart: a second restart from the same stop, or a setpoint continuous with neither the
-    previous setpoint nor a measured state, counts as beyond the limits.
+    previous setpoint nor a measured state, counts as beyond the limits. A restart whose setpoint also continues
+    the previous one by its acceleration, with that pair's jerk unknown (late frames of the old stream resumed the
+    device just before), may be either: the next pair's jerk is judged from the more favourable of the two.
     """
     from firmware_proto.messages import MODE_ENABLED
     from pivotd.daemon.control import ControlSettings
@@ -289,7 +291,7 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
     out = SetpointCheck()
     mode = -1
     prev: tuple[int, int, np.ndarray] | None = None  # (seq, host time [µs], rate) of the previous setpoint
-    prev_acc: np.ndarray | None = None
+    prev_acc: list[np.ndarray] = []  # the acceleration of the previous pair (two candidates at an ambiguous restart)
     last_t = -np.inf
     last_mode = -1
     stop_t: float | None = None  # device time of the latest reported stop within the restart window
@@ -309,7 +311,7 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
         for row in csv.DictReader(fh):
             t = float(row["t_s"])
             if t < last_t - 1.0:  # the device clock restarted: a reboot
-                prev, prev_acc, stop_t, measured, last_mode = None, None, None, [], -1
+                prev, prev_acc, stop_t, measured, last_mode = None, [], None, [], -1
             last_t = t
             if stop_t is not None and t - stop_t > RESTART_WINDOW_S:
                 stop_t, measured = None, []
@@ -318,7 +320,7 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                 state = (np.array([float(row["pan"]), float(row["tilt"])]),
                          np.array([float(row["pan_rate"]), float(row["tilt_rate"])]))
                 if mode != MODE_ENABLED:
-                    prev, prev_acc = None, None
+                    prev, prev_acc = None, []
                 if mode != MODE_ENABLED and mode != last_mode:  # it stopped following
                     stop_t, measured = t, [state]
                 elif stop_t is not None:
@@ -328,7 +330,7 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
             if row["dir"] != "rx":
                 continue
             if row["type"] != "SETPOINT":
-                prev, prev_acc = None, None  # HELLO, CONFIG, ENABLE, CLEAR_FAULT: a new stream follows
+                prev, prev_acc = None, []  # HELLO, CONFIG, ENABLE, CLEAR_FAULT: a new stream follows
                 continue
             out.setpoints += 1
             seq = int(row["seq"])
@@ -345,21 +347,28 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
             if (prev is not None and seq == (prev[0] + 1) & 0xFF and mode == MODE_ENABLED
                     and ((host - prev[1]) & 0xFFFFFFFF) <= MAX_STREAM_GAP_S * 1e6):
                 acc = (rate - prev[2]) / dt
-                jerk = None if prev_acc is None else (acc - prev_acc) / dt
+                # the acceleration before may be one of two: a pair continuous by its acceleration whose jerk was
+                # unknown, at a restart; the jerk is the one of the smaller ratio
+                jerks = [(acc - a) / dt for a in prev_acc]
+                jerk = min(jerks, key=lambda j: float(np.max(np.abs(j) / jmax))) if jerks else None
                 continuous = (np.all(np.abs(acc) <= amax + allow_a)
                               and (jerk is None or np.all(np.abs(jerk) <= jmax + allow_j)))
-                if not continuous and restarted is not None:  # judged from the measured state it starts at
+                nxt = [acc]
+                if restarted is not None and not continuous:  # judged from the measured state it starts at
                     acc, jerk = restarted, restarted / dt
+                    nxt = [acc]
                     out.restarted_steps += 1
+                elif restarted is not None and jerk is None:  # either the stream continued or it restarted here
+                    nxt = [acc, restarted]
                 out.checked_pairs += 1
                 out.worst["acceleration"] = max(out.worst["acceleration"], float(np.max(np.abs(acc) / amax)))
                 out.beyond_acceleration += int(np.any(np.abs(acc) > amax + allow_a))
                 if jerk is not None:
                     out.worst["jerk"] = max(out.worst["jerk"], float(np.max(np.abs(jerk) / jmax)))
                     out.beyond_jerk += int(np.any(np.abs(jerk) > jmax + allow_j))
-                prev_acc = acc
+                prev_acc = nxt
             else:
-                prev_acc = restarted
+                prev_acc = [] if restarted is None else [restarted]
             prev = (seq, host, rate)
     out.worst = {k: round(v, 3) for k, v in out.worst.items()}
     return out

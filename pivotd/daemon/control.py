@@ -8,7 +8,9 @@ and hold; a lost link or a faulted gimbal means no motion at all.
 
 The setpoint stream is continuous while the device follows it. Whenever it did not (link down, fault,
 device disabled (no setpoints are sent then), its watchdog stopped it, or a stall of the loop longer than
-``stall_s``) the generator restarts from a measured state received after the interruption, so motion resumes
+``stall_s``) the generator restarts from a state the device measured after the interruption (by its own clock,
+:class:`pivotd.gimbal.device_clock.DeviceClock`: states queued during a stall of the host are read late but were
+measured before it, while the device may have held since), so motion resumes
 from where the gimbal really is, jerk-limited, instead of where the stream left off. A restart requested while the
 device kept following (e.g. after clearing a latched fault bit) keeps the stream as it is: a restart
 from the measured state would only add the device's tracking lag as a step.
@@ -90,7 +92,7 @@ class ControlLoop:
         self.override_target: tuple[float, float] | None = None  # e.g. the park pose
         self._need_reset = True
         self._hard_reset = True  # the device did not follow the stream: restart even if it now follows again
-        self._reset_after = -np.inf  # a restart needs a measured state received at or after this time [s]
+        self._reset_after = -np.inf  # a restart needs a state measured at or after this time [s]
         self._seen_mode: int | None = None  # device mode in the newest state seen by a tick
         self._seen_rx = -np.inf  # its receive time [s]
         self._last_tick: float | None = None
@@ -120,7 +122,7 @@ class ControlLoop:
         pos = np.array([state.pan, state.tilt])
         rate = np.array([state.pan_rate, state.tilt_rate])
         if state.mode == GimbalMode.ENABLED:
-            pos = pos + rate * float(np.clip(now - state.rx_time, 0.0, self.settings.stall_s))
+            pos = pos + rate * float(np.clip(now - state.measured_time, 0.0, self.settings.stall_s))
         self.motion.reset(pos, rate)
         self._need_reset = self._hard_reset = False
         self._segment_first = self._last_send = None
@@ -146,11 +148,11 @@ class ControlLoop:
                     and self._held_on_this_stream(state)):
                 # Its watchdog stopped it: restart once, from this state. Later states of the same hold were
                 # sent before the device got the restarted stream (which resumes it) and are not followed.
-                self._request_reset(state.rx_time, hard=True)
+                self._request_reset(state.measured_time, hard=True)
             self._seen_mode, self._seen_rx = state.mode, state.rx_time
         if not self._need_reset:
             return True
-        if state.rx_time < self._reset_after:
+        if state.measured_time < self._reset_after:
             return False
         if not self._hard_reset and streaming and state.mode == GimbalMode.ENABLED:
             self._need_reset = False  # the device followed the stream all along: keep it continuous

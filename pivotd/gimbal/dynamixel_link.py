@@ -290,6 +290,7 @@ class DynamixelGimbal(SupervisedLink):
         """One Sync Read of Torque Enable … Present Position (64–135) from both servos: torque, hardware errors,
         position and velocity always come from the same answer, so a late answer can only be an older state."""
         start = ct.TORQUE_ENABLE[0]
+        asked = time.monotonic()  # the servos measured the answer after this: a lower bound of its time
         data = self._sync_read(start, ct.PRESENT_POSITION[0] + ct.PRESENT_POSITION[1] - start)
         if data is None:
             return False
@@ -309,7 +310,7 @@ class DynamixelGimbal(SupervisedLink):
         errors = self._hw_errors[0] | self._hw_errors[1]
         mode = GimbalMode.FAULT if errors else GimbalMode.ENABLED if all(self._torque) else GimbalMode.DISABLED
         st = GimbalState(values[0][0], values[1][0], values[0][1], values[1][1], mode, ct.hardware_faults(errors),
-                         0, int(now * 1e6) & 0xFFFFFFFF, now)
+                         0, int(now * 1e6) & 0xFFFFFFFF, now, asked)
         with self._changed:
             self._state = st
             self._changed.notify_all()

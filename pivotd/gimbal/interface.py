@@ -35,7 +35,9 @@ class GimbalMode(enum.IntEnum):
 @dataclass(frozen=True)
 class GimbalState:
     """Latest measured state: joint angles [rad] and rates [rad/s], mode (a :class:`GimbalMode` value), fault
-    bits, echoed setpoint seq, device clock [µs, wraps at 2³²], host receive time (time.monotonic()) [s]."""
+    bits, echoed setpoint seq, device clock [µs, wraps at 2³²], host receive time (time.monotonic()) [s], and the
+    host time the device measured it at [s] (from its clock: :class:`pivotd.gimbal.device_clock.DeviceClock`;
+    None when unknown, then the receive time stands for it)."""
 
     pan: float
     tilt: float
@@ -46,6 +48,12 @@ class GimbalState:
     last_setpoint_seq: int
     device_time_us: int
     rx_time: float
+    measured_at: float | None = None
+
+    @property
+    def measured_time(self) -> float:
+        """Host time [s] the state was measured at (its receive time when the device's clock is not known)."""
+        return self.rx_time if self.measured_at is None else self.measured_at
 
 
 class GimbalInterface(Protocol):

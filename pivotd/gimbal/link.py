@@ -341,7 +341,8 @@ class GimbalLink(SupervisedLink):
         if isinstance(msg, State):
             now = time.monotonic()
             st = GimbalState(msg.pan, msg.tilt, msg.pan_rate, msg.tilt_rate, msg.mode, msg.faults,
-                             msg.last_setpoint_seq, msg.device_time_us, now)
+                             msg.last_setpoint_seq, msg.device_time_us, now,
+                             self._device_clock.measured_at(msg.device_time_us, now))
             sent = self._sent_at[msg.last_setpoint_seq]
             if sent is not None:
                 self._sent_at[msg.last_setpoint_seq] = None

@@ -385,8 +385,9 @@ class MavlinkGimbal(SupervisedLink):
             self._n["rate_unknown"] += 1
             pan_rate = tilt_rate = 0.0
         self._faults = mf.device_faults(msg.failure_flags)
-        st = GimbalState(pan, tilt, pan_rate, tilt_rate, self._mode(), self._faults, 0,
-                         (int(msg.time_boot_ms) * 1000) & 0xFFFFFFFF, now)
+        boot_us = (int(msg.time_boot_ms) * 1000) & 0xFFFFFFFF
+        st = GimbalState(pan, tilt, pan_rate, tilt_rate, self._mode(), self._faults, 0, boot_us, now,
+                         self._device_clock.measured_at(boot_us, now))
         with self._changed:
             self._state = st
             self._last_state_rx = now

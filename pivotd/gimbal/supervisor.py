@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+from pivotd.gimbal.device_clock import DeviceClock
 from pivotd.gimbal.interface import GimbalState, LinkState
 
 log = logging.getLogger(__name__)
@@ -75,6 +76,7 @@ class SupervisedLink:
         self._want_enabled = True
         self._ever_up = False
         self._n: dict[str, int] = dict.fromkeys(counters, 0)
+        self._device_clock = DeviceClock()  # when each state was measured (reset on every connection)
 
     # ------------------------------------------------------------------ GimbalInterface
     @property
@@ -178,6 +180,7 @@ class SupervisedLink:
                 self._set_link_state(LinkState.CONNECTING)
             conn = self._open()
             if conn is not None:
+                self._device_clock.reset()
                 result = self._handshake(conn)
                 if result is LinkState.UP:
                     delay = first
