@@ -51,7 +51,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     abl.add_argument("--spread-saturation", type=float, default=None, metavar="K", help="planner.spread_saturation")
     abl.add_argument("--normalise", choices=("total", "attainable"), default=None,
                      help="planner.normalise (visible term over each waypoint's total or attainable weight)")
+    abl.add_argument("--rescue-blind", choices=("on", "off"), default=None,
+                     help="planner.rescue_blind (a second solve where the warm plan sees little of what one cone "
+                          "could see)")
+    abl.add_argument("--rescue-fraction", type=float, default=None, metavar="F", help="planner.rescue_fraction")
     abl.add_argument("--lambda", dest="lam", type=float, default=None, metavar="L", help="pivot.lambda (smoothness)")
+    abl.add_argument("--smooth-knee-deg", type=float, default=None, metavar="DEG",
+                     help="pivot.smooth_knee_deg (steps beyond about this cost by their size; 0: 1 − cos per step)")
     parser.add_argument("--json", metavar="FILE", help="write all results as JSON")
     parser.add_argument("--plot", metavar="FILE", help="routes coloured by success and success curves (PNG)")
     cam = parser.add_argument_group("camera")
@@ -111,11 +117,21 @@ def _settings(args: argparse.Namespace):
         from pivotd.pivot.normalise import Normalisation
 
         planner = replace(planner, normalise=Normalisation(args.normalise))
+    if args.rescue_blind is not None:
+        planner = replace(planner, rescue_blind=args.rescue_blind == "on")
+    if args.rescue_fraction is not None:
+        if not (math.isfinite(args.rescue_fraction) and 0.0 < args.rescue_fraction <= 1.0):
+            raise InputError(f"--rescue-fraction: must be in (0, 1], got {args.rescue_fraction}")
+        planner = replace(planner, rescue_fraction=args.rescue_fraction)
     cfg = replace(cfg, planner=planner)
     if args.lam is not None:
         if not (math.isfinite(args.lam) and args.lam >= 0):
             raise InputError(f"--lambda: must be ≥ 0, got {args.lam}")
         cfg = replace(cfg, pivot=replace(cfg.pivot, lam=args.lam))
+    if args.smooth_knee_deg is not None:
+        if not (math.isfinite(args.smooth_knee_deg) and 0.0 <= args.smooth_knee_deg <= 180.0):
+            raise InputError(f"--smooth-knee-deg: must be in [0, 180], got {args.smooth_knee_deg}")
+        cfg = replace(cfg, pivot=replace(cfg.pivot, smooth_knee=math.radians(args.smooth_knee_deg)))
     if args.continuous_pan:
         cfg = replace(cfg, gimbal=replace(cfg.gimbal, limits=replace(cfg.gimbal.limits, continuous_pan=True)))
     return BenchSettings(scenes=scenes, policies=tuple(PolicyName(p) for p in names),
@@ -173,6 +189,7 @@ def run(args: argparse.Namespace) -> int:
             + ("" if args.spread_cell_deg is None else f" --spread-cell-deg {args.spread_cell_deg:g}")
             + ("" if args.spread_saturation is None else f" --spread-saturation {args.spread_saturation:g}")
             + ("" if args.lam is None else f" --lambda {args.lam:g}")
+            + ("" if args.smooth_knee_deg is None else f" --smooth-knee-deg {args.smooth_knee_deg:g}")
             + ("" if args.normalise is None else f" --normalise {args.normalise}"),
             "seeds": list(st.seeds),
             "camera": asdict(st.camera),

@@ -35,6 +35,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="smoothness weight λ ≥ 0 (default 0.6); 0 optimises every waypoint independently",
     )
     parser.add_argument(
+        "--smooth-knee-deg", type=float, default=0.0, metavar="DEG",
+        help="steps beyond about DEG cost in proportion to their size, not its square (0–180; default 0: the "
+             "paper's 1 − cos per step; the daemon's pivot.smooth_knee_deg defaults to 1)",
+    )
+    parser.add_argument(
         "--max-step-deg", type=float, default=None, metavar="S",
         help=f"hard limit on the turn between consecutive directions [deg], {MAX_STEP_RANGE_DEG[0]:g}–"
              f"{MAX_STEP_RANGE_DEG[1]:g}; every step of the plan stays within it (default: no limit)",
@@ -68,6 +73,8 @@ def _check_args(args: argparse.Namespace) -> None:
         raise InputError(f"--fov-deg must be in (0, 180) degrees, got {args.fov_deg}")
     if not (math.isfinite(args.lam) and args.lam >= 0.0):
         raise InputError(f"--lambda must be a finite number >= 0, got {args.lam}")
+    if not (math.isfinite(args.smooth_knee_deg) and 0.0 <= args.smooth_knee_deg <= 180.0):
+        raise InputError(f"--smooth-knee-deg must be in [0, 180], got {args.smooth_knee_deg}")
     check_max_step_deg(args.max_step_deg)
     for name in ("min_range", "max_range"):
         v = getattr(args, name)
@@ -168,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
     max_step = None if args.max_step_deg is None else math.radians(args.max_step_deg)
     result = optimize_trajectory(
         points, waypoints, alpha, args.lam, weights=weights, retained=retained, max_step=max_step,
-        options=TrajectoryOptions(distance_weights=False),
+        options=TrajectoryOptions(distance_weights=False, smooth_knee_deg=args.smooth_knee_deg),
     )
     optimize_s = time.perf_counter() - t0 + filter_s
 
@@ -182,6 +189,7 @@ def run(args: argparse.Namespace) -> int:
         "landmarks": int(points.shape[0]),
         "fov_deg": float(args.fov_deg),
         "lambda": float(args.lam),
+        "smooth_knee_deg": float(args.smooth_knee_deg),
         "optimize_s": round(optimize_s, 6),
         "visible_mean": float(np.mean(result.visible)),
         "visible_min": int(np.min(result.visible)),

@@ -103,6 +103,8 @@ class PivotConfig:
     transition_width: float = math.radians(4.0)
     iterations: int = 50
     distance_weights: bool = True
+    smooth_knee: float = math.radians(1.0)  # [rad] steps beyond about this cost in proportion to their size (0: the
+    # paper's 1 − cos per step: a turn spread over many waypoints costs less than the same turn made at once)
 
     @property
     def fov_deg(self) -> float:
@@ -131,6 +133,8 @@ class PlannerConfig:
     spread_saturation: float = 1.0  # most weight one bearing × depth cell contributes
     spread_depth_ratio: float = 2.0  # depth shells of the spread weights: [d, d · ratio)
     normalise: Normalisation = Normalisation.TOTAL  # per-waypoint visible term over total or attainable weight
+    rescue_blind: bool = True  # a second solve where the warm plan sees < rescue_fraction of one cone's best
+    rescue_fraction: float = 0.25  # (0, 1]: a waypoint is blind below this share of its attainable count
 
 
 def _default_limits() -> JointLimits:
@@ -552,6 +556,7 @@ def _pivot(s: Section) -> PivotConfig:
         transition_width=math.radians(width_deg),
         iterations=s.number("iterations", d.iterations, min=1, max=10_000, integer=True),
         distance_weights=s.boolean("distance_weights", d.distance_weights),
+        smooth_knee=math.radians(s.number("smooth_knee_deg", math.degrees(d.smooth_knee), min=0.0, max=180.0)),
     )
     s.finish()
     return out
@@ -584,6 +589,8 @@ def _planner(s: Section, control: ControlConfig) -> PlannerConfig:
         spread_saturation=s.number("spread_saturation", d.spread_saturation, min=0.0, min_open=True, max=1e6),
         spread_depth_ratio=s.number("spread_depth_ratio", d.spread_depth_ratio, min=1.0, min_open=True, max=1e3),
         normalise=Normalisation(s.string("normalise", d.normalise.value, choices=tuple(Normalisation))),
+        rescue_blind=s.boolean("rescue_blind", d.rescue_blind),
+        rescue_fraction=s.number("rescue_fraction", d.rescue_fraction, min=0.0, min_open=True, max=1.0),
     )
     s.finish()
     return out

@@ -39,8 +39,12 @@ from pivotd.gimbal.pan_unwrap import (
 )
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapSnapshot
+from pivotd.pivot._ascent import Geometry
 from pivotd.pivot.constraints import PanTiltConstraint
-from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
+from pivotd.pivot.normalise import attainable_weights
+from pivotd.pivot.rescue import blind_waypoints, rescue_init
+from pivotd.pivot.trajectory import TrajectoryOptions, TrajectoryResult, optimize_trajectory
+from pivotd.pivot.view import optimize_view
 from pivotd.pivot.visibility import hard_count, in_cone
 from pivotd.pivot.weights import SpreadSettings, waypoint_spread_weights
 from pivotd.robot_path import Polyline, project_onto_polyline
@@ -127,6 +131,8 @@ class PlannerSettings:
     max_path_offset: float = 3.0
     cold_polish: bool = False  # step-limited polish of cold starts (the warm replans after them do not polish)
     spread: SpreadSettings | None = None  # per-waypoint spread weights of the retained landmarks (None: off)
+    rescue_fraction: float | None = None  # blind warm starts (None: off): see RecedingHorizonPlanner._rescue
+    rescue_reach: int = 2  # waypoints on either side of a blind run turned towards it in the rescue's start
 
     @property
     def alpha(self) -> float:
@@ -154,6 +160,13 @@ def _cap_retained(retained: Sequence[np.ndarray], cap: int | None) -> list[np.nd
     return out
 
 
+def _scatter(directions: np.ndarray, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """A copy of ``directions`` (N, 3) with ``rows`` (B,) set to ``values`` (B, 3)."""
+    out = directions.copy()
+    out[rows] = values
+    return out
+
+
 def camera_positions(body_positions: np.ndarray, body_quats: np.ndarray, mount: Mount) -> np.ndarray:
     """Sensor centres (N, 3) in the world for body positions (N, 3) and attitudes (N, 4)."""
     return body_positions + np.einsum("nij,j->ni", quat_to_matrix(body_quats), np.asarray(mount.translation, float))
@@ -175,6 +188,11 @@ class RecedingHorizonPlanner:
         self._cache: dict[int, np.ndarray] = {}
         self._spread_cache: dict[int, np.ndarray] = {}
         self.unwind_target: np.ndarray | None = None  # world direction of an unwind slew under way
+        self._attainable_cache: dict[int, float] = {}
+        self._rejected: tuple[int, set[int]] = (0, set())  # horizon length, grid cells of blind waypoints tried
+        self.solves = 0  # optimize_trajectory calls so far
+        self.last_objective = math.nan  # the trajectory objective of the last replan's plan (before the unwinds)
+        self.rescues = 0  # replans whose rescue candidate was kept
 
     def set_path(self, positions: np.ndarray | None, quats: np.ndarray | None, version: int) -> None:
         """Install a new translation path (None clears it); progress restarts from the nearest point."""
@@ -227,7 +245,8 @@ class RecedingHorizonPlanner:
             return [np.zeros(0, np.int64) for _ in range(cams.shape[0])]
         key = (self._path_version, snapshot.version)
         if self._cache_key != key:
-            self._cache_key, self._cache, self._spread_cache = key, {}, {}
+            self._cache_key, self._cache, self._spread_cache, self._attainable_cache = key, {}, {}, {}
+            self._rejected = (0, set())
         cached = {i: self._cache.get(round(float(s[i]) * 1e6)) for i in range(1, s.shape[0])}
         todo = [0] + [i for i, r in cached.items() if r is None]
         # the snapshot's rows are in a spatial order fixed by the landmarks (pivotd.maps.store.spatial_cell_order),
@@ -310,20 +329,19 @@ class RecedingHorizonPlanner:
         if self.unwind_target is not None and (
                 anchor is None or init is None or angle_between(anchor, self.unwind_target) <= 0.5 * st.alpha):
             self.unwind_target = None  # the camera got there (or the plan restarts)
-        result = optimize_trajectory(
-            snapshot.points,
-            cams,
-            st.alpha,
-            st.lam,
+        solve = dict(
             weights=snapshot.weights,
             retained=retained,
-            init_directions=init,
             anchor=anchor if self.unwind_target is None else None,  # an unwind slew is not pulled back
             constraint=self._constraint(quats),
             max_step=st.max_step,
             options=st.options if st.cold_polish else replace(st.options or TrajectoryOptions(), step_polish_deg=0.0),
             pair_weights=pair_weights,
         )
+        result = self._solve(snapshot, cams, init, solve)
+        if init is not None and st.rescue_fraction is not None:
+            result = self._rescue(snapshot, cams, s, retained, result, solve)
+        self.last_objective = result.objective
         directions, visible, pans = self._joint_plan(snapshot, cams, retained, quats, result.directions,
                                                      np.asarray(result.visible), anchor)
         plan = Plan(
@@ -342,6 +360,90 @@ class RecedingHorizonPlanner:
         )
         self.last_plan = plan
         return plan
+
+    def _solve(self, snapshot: MapSnapshot, cams: np.ndarray, init: np.ndarray | None,
+               solve: dict) -> TrajectoryResult:
+        """One :func:`optimize_trajectory` call from ``init`` (N, 3) (None: cold) with the keyword arguments
+        ``solve``; counted in :attr:`solves`."""
+        self.solves += 1
+        return optimize_trajectory(snapshot.points, cams, self.settings.alpha, self.settings.lam,
+                                   init_directions=init, **solve)
+
+    def _attainable(self, snapshot: MapSnapshot, cams: np.ndarray, s: np.ndarray,
+                    retained: list[np.ndarray]) -> np.ndarray:
+        """Estimated most retained landmarks (N,) one cone holds at each waypoint
+        (:func:`pivotd.pivot.normalise.attainable_weights`, unit weights); grid waypoints reuse theirs while the
+        retained cache's key holds, so a replan estimates only the ones entering the horizon. The first waypoint
+        (the robot's position, new at every replan) takes the estimate of the next one, less than ``spacing`` ahead.
+        """
+        keys = [round(float(x) * 1e6) for x in s]
+        out = np.array([np.nan if i == 0 else self._attainable_cache.get(k, np.nan) for i, k in enumerate(keys)])
+        todo = np.flatnonzero(np.isnan(out))
+        if s.shape[0] > 1:
+            todo = todo[todo > 0]
+        L = max((retained[i].shape[0] for i in todo), default=0)
+        if todo.size and L:
+            B = np.zeros((todo.size, L, 3), np.float32)
+            W = np.zeros((todo.size, L), np.float32)
+            for r, i in enumerate(todo):
+                rel = snapshot.points[retained[i]] - cams[i]
+                n = np.linalg.norm(rel, axis=1)
+                ok = n > 1e-9
+                B[r, :rel.shape[0]][ok] = rel[ok] / n[ok, None]
+                W[r, :rel.shape[0]] = ok
+            geom = Geometry(B, np.zeros((todo.size, 3), np.float32), None, W, lambda r, c, C: np.zeros(0))
+            out[todo] = attainable_weights(geom, self.settings.alpha)
+        if s.shape[0] > 1:
+            out[0] = out[1]
+        out[np.isnan(out)] = 0.0
+        self._attainable_cache = {k: float(out[i]) for i, k in enumerate(keys) if i > 0}
+        return out
+
+    def _rescue(self, snapshot: MapSnapshot, cams: np.ndarray, s: np.ndarray, retained: list[np.ndarray],
+                result: TrajectoryResult, solve: dict) -> TrajectoryResult:
+        """The warm plan ``result``, or a second solve from a start where its blind waypoints look at their best
+        single-cone axis when that one reaches the higher objective (both solved with the same options).
+
+        Blind: the plan sees fewer than ``rescue_fraction`` × the landmarks one cone could see there
+        (:func:`pivotd.pivot.rescue.blind_waypoints`). A cone without landmarks has no gradient, so a warm start
+        cannot leave a blank view for a rich one far away; the second start can. Nothing blind: no second solve.
+        Blind waypoints whose best axis is out of the joint limits count with the nearest reachable one.
+        A rescue that lost is not tried again while the problem stays the same: same path and map, same number
+        of waypoints, and no blind waypoint outside the path's grid cells (``spacing`` long) already tried.
+        """
+        st = self.settings
+        blind = blind_waypoints(result.visible, self._attainable(snapshot, cams, s, retained), st.rescue_fraction)
+        if blind.size == 0:
+            return result
+        cells = {math.floor(float(x) / st.spacing + 1e-9) for x in s[blind]}
+        size, tried = self._rejected
+        if size == s.shape[0] and cells <= tried:
+            return result
+        axes = np.empty((blind.size, 3))
+        for k, i in enumerate(blind):
+            idx = retained[i]
+            w = None if snapshot.weights is None else snapshot.weights[idx]
+            axes[k] = optimize_view(snapshot.points[idx] - cams[i], w, st.alpha,
+                                    init=result.directions[i]).direction
+        constraint = solve["constraint"]
+        if constraint is not None:  # the best reachable axis: blind only if it still sees the share asked for
+            axes = constraint.project(_scatter(result.directions, blind, axes))[blind]
+            reach = np.array([self._count(snapshot, cams[i], retained[i], a) for i, a in zip(blind, axes, strict=True)])
+            still = result.visible[blind] < st.rescue_fraction * reach
+            if not still.any():
+                self._rejected = (s.shape[0], (tried if size == s.shape[0] else set()) | cells)
+                return result
+            blind, axes = blind[still], axes[still]
+        init = rescue_init(result.directions, blind, axes, st.rescue_reach)
+        if constraint is not None:
+            init = constraint.project(init)
+        alt = self._solve(snapshot, cams, init, solve)
+        if alt.objective > result.objective:
+            self.rescues += 1
+            self._rejected = (0, set())
+            return alt
+        self._rejected = (s.shape[0], (tried if size == s.shape[0] else set()) | cells)
+        return result
 
     def _joint_plan(self, snapshot: MapSnapshot, cams: np.ndarray, retained: list[np.ndarray], quats: np.ndarray,
                     directions: np.ndarray, visible: np.ndarray,

@@ -99,7 +99,9 @@ def build_planner(cfg: Config) -> RecedingHorizonPlanner:
                                                                   pl.spread_saturation),
         options=TrajectoryOptions(width_deg=math.degrees(p.transition_width), max_iterations=p.iterations,
                                   warm_iterations=min(p.iterations, TrajectoryOptions.warm_iterations),
-                                  distance_weights=p.distance_weights, normalise=pl.normalise),
+                                  distance_weights=p.distance_weights, normalise=pl.normalise,
+                                  smooth_knee_deg=math.degrees(p.smooth_knee)),
+        rescue_fraction=pl.rescue_fraction if pl.rescue_blind else None,
     )
     return RecedingHorizonPlanner(settings, cfg.gimbal.mount, cfg.gimbal.limits)
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pivotd.pivot.smoothness import pair_slope
 from pivotd.pivot.visibility import ks_from_width
 
 Projector = Callable[[np.ndarray], np.ndarray]
@@ -268,8 +269,10 @@ def ascend(
     anchor: np.ndarray | None = None,
     project: Projector | None = None,
     coarse: Geometry | None = None,
+    knee: float = 0.0,
 ) -> tuple[np.ndarray, int]:
-    """Maximise Σ_k F_k(R_k)/norm_k + λ Σ_k c_{k+1}·c_k (+ λ anchor·c_0) over rotations R (K, 3, 3).
+    """Maximise Σ_k F_k(R_k)/norm_k + λ Σ_k v(c_{k+1}·c_k) (+ λ v(anchor·c_0)) over rotations R (K, 3, 3), with
+    the pair value v of :mod:`pivotd.pivot.smoothness` at ``knee`` [rad] (0: v(x) = x, the paper's term).
 
     With λ = 0 the rows are independent. Step control: the step direction is the combined gradient
     (eqs. 12, 18, 19) normalised by each row's feature weight ``norm`` (K,); its length is clipped to a
@@ -335,7 +338,21 @@ def ascend(
             g *= Wq  # ∝ s_j v (1 − v): the k_s/4 factor is applied to the (n, 3) sum
             S = np.matmul(g[:, None, :], Bq)[:, 0, :].astype(float)
             S *= (float(quarter_ks) * inv_q)[:, None]
-            if coupled:  # J = c × (S_vis / W + λ (c_prev + c_next)): one cross product for both terms
+            if coupled and knee > 0:  # J = c × (S_vis / W + λ Σ_neighbours slope · c_nb)
+                pair_w = lam_q * pair_slope(np.einsum("ij,ij->i", C[1:], C[:-1]), knee)  # (K − 1,)
+                anchor_w = lam_q * float(pair_slope(float(anchor @ C[0]), knee)) if anchor is not None else 0.0
+                if rows is None:
+                    S[1:] += pair_w[:, None] * C[:-1]
+                    S[:-1] += pair_w[:, None] * C[1:]
+                    if anchor is not None:
+                        S[0] += anchor_w * anchor
+                else:
+                    has_prev, has_next = rows > 0, rows < K - 1
+                    S[has_prev] += pair_w[rows[has_prev] - 1, None] * C[rows[has_prev] - 1]
+                    S[has_next] += pair_w[rows[has_next], None] * C[rows[has_next] + 1]
+                    if anchor is not None and rows[0] == 0:
+                        S[0] += anchor_w * anchor
+            elif coupled:  # J = c × (S_vis / W + λ (c_prev + c_next)): one cross product for both terms
                 if rows is None:
                     S[1:] += lam_q * C[:-1]
                     S[:-1] += lam_q * C[1:]

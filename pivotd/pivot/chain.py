@@ -5,9 +5,10 @@ competing feature clusters that leaves a jump (a local optimum the smoothness gr
 c × (c_prev + c_next) vanishes for antipodal neighbours). This module picks, for a subset of "node"
 waypoints, one grid direction each maximising
 
-    Σ_nodes s_n · V_n(d_n)  +  λκ Σ_transitions s · (cos(Δ_n / s) − 1)
+    Σ_nodes s_n · V_n(d_n)  +  λκ Σ_transitions s · (v(cos(Δ_n / s)) − 1)
 
-where V_n is the hard visible fraction of the node's (subsampled) landmarks, s the number of waypoints a
+where v is the smoothness term's pair value (:mod:`pivotd.pivot.smoothness`; v(x) = x without a knee),
+V_n is the hard visible fraction of the node's (subsampled) landmarks, s the number of waypoints a
 node stands for and Δ_n the angle between consecutive node directions (a turn of Δ spread evenly over s
 waypoints). The result, interpolated along the path by slerp, seeds the gradient ascent.
 """
@@ -20,6 +21,7 @@ from collections.abc import Callable
 import numpy as np
 
 from pivotd.pivot.brute import best_grid_chain, sphere_grid
+from pivotd.pivot.smoothness import pair_value
 
 
 def node_indices(n: int, max_nodes: int) -> np.ndarray:
@@ -50,11 +52,13 @@ def best_chain(
     span: np.ndarray,
     smooth: float,
     anchor: np.ndarray | None = None,
+    knee: float = 0.0,
 ) -> np.ndarray:
     """Grid index per node (K,) maximising the module's objective (Viterbi).
 
     scores (K, G): visible fractions; span (K,): waypoints each node stands for (≥ 1); smooth: λκ ≥ 0;
-    anchor (3,): a fixed direction before node 0 (cost of turning from it counts once).
+    anchor (3,): a fixed direction before node 0 (cost of turning from it counts once); knee [rad]: the
+    smoothness term's knee (:mod:`pivotd.pivot.smoothness`).
     """
     K, G = scores.shape
     if smooth <= 0:
@@ -63,7 +67,7 @@ def best_chain(
     value = scores[0] * np.float32(span[0])
     ang = np.arccos(np.clip(grid @ grid.T, -1.0, 1.0))
     if anchor is not None:
-        value = value + (smooth * (grid @ anchor - 1.0)).astype(np.float32)
+        value = value + (smooth * (pair_value(grid @ anchor, knee) - 1.0)).astype(np.float32)
     back = np.zeros((K, G), dtype=np.intp)
     gain = scores * span.astype(np.float32)[:, None]
     total = np.empty((G, G), dtype=np.float32)  # (to, from), reused: three numpy calls per node
@@ -75,7 +79,8 @@ def best_chain(
         s = max(round(span[k]), 1)
         trans = cache.get(s)
         if trans is None:  # indexed (to, from): the argmax runs along contiguous rows
-            trans = np.ascontiguousarray(((s * smooth) * (np.cos(ang / s) - 1.0)).astype(np.float32).T)
+            trans = np.ascontiguousarray(((s * smooth) * (pair_value(np.cos(ang / s), knee) - 1.0))
+                                         .astype(np.float32).T)
             cache[s] = trans
         np.add(trans, value, out=total)
         total.argmax(axis=1, out=back[k])
@@ -136,6 +141,7 @@ def initial_directions(
     *,
     resolution_deg: float = 12.0,
     anchor: np.ndarray | None = None,
+    knee: float = 0.0,
 ) -> np.ndarray:
     """Chain initialisation (n, 3) from unit ``bearings`` (K, L, 3) and ``weights`` (K, L) of the node
     waypoints ``nodes`` (K,) (increasing indices into the n waypoints, see :func:`node_indices`).
@@ -146,7 +152,7 @@ def initial_directions(
     nodes = np.asarray(nodes, dtype=np.intp)
     scores = grid_scores(bearings, weights, grid, alpha)
     span = np.diff(nodes, prepend=nodes[0] - 1).astype(float) if nodes.size > 1 else np.ones(1)
-    choice = best_chain(scores, grid, span, smooth, anchor)
+    choice = best_chain(scores, grid, span, smooth, anchor, knee)
     return slerp_fill(n, nodes, grid[choice])
 
 

@@ -27,6 +27,7 @@ from collections.abc import Callable
 import numpy as np
 
 from pivotd.pivot import _ascent
+from pivotd.pivot.smoothness import pair_value
 
 Reachable = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -64,6 +65,7 @@ def polish_trajectory(
     sweeps: int = 4,
     anchor: np.ndarray | None = None,
     reachable: Reachable | None = None,
+    knee: float = 0.0,
 ) -> tuple[np.ndarray, int]:
     """Red-black pattern search on Φ_hard (module docstring); returns the new axes (N, 3) and the moves made.
 
@@ -96,7 +98,18 @@ def polish_trajectory(
             cand = np.concatenate([c[:, None, :], ring], axis=1)  # (n, K + 1, 3); column 0: stay
             inside = np.matmul(cand.astype(np.float32), B[rows].transpose(0, 2, 1)) >= cos_a  # (n, K + 1, L)
             val = np.matmul(inside.astype(np.float32), Wa[rows][:, :, None])[..., 0].astype(float) * inv[rows, None]
-            if coupled:
+            if coupled and knee > 0:  # each neighbour's pair value separately
+                prev, nxt = rows - 1, rows + 1
+                has_prev, has_next = prev >= 0, nxt < N
+                if np.any(has_prev):
+                    cos_p = np.einsum("nkj,nj->nk", cand[has_prev], C[prev[has_prev]])
+                    val[has_prev] += smooth * pair_value(cos_p, knee)
+                if np.any(has_next):
+                    cos_n = np.einsum("nkj,nj->nk", cand[has_next], C[nxt[has_next]])
+                    val[has_next] += smooth * pair_value(cos_n, knee)
+                if anchor is not None and rows[0] == 0:
+                    val[0] += smooth * pair_value(cand[0] @ anchor, knee)
+            elif coupled:
                 nb = np.zeros_like(c)
                 prev, nxt = rows - 1, rows + 1
                 has_prev, has_next = prev >= 0, nxt < N
@@ -211,6 +224,7 @@ def step_limited_polish(
     reachable: Reachable | None = None,
     smooth: float = 0.0,
     norm: np.ndarray | None = None,
+    knee: float = 0.0,
 ) -> np.ndarray:
     """Step-limited dynamic-programming polish (module docstring); returns the new unit axes (N, 3).
 
@@ -258,12 +272,14 @@ def step_limited_polish(
         too_far = pen < cos_s
         too_far[:, 0, 0] = False  # the current plan is always feasible
         if smooth > 0:
+            if knee > 0:
+                pen[...] = pair_value(pen, knee)
             pen *= smooth
         else:
             pen[...] = 0.0
         pen[too_far] = -np.inf  # in place: np.where over the (N − 1, K, K) array took 4× as long
         if smooth > 0 and anchor is not None:
-            val[0] += smooth * (cand[0] @ anchor)
+            val[0] += smooth * pair_value(cand[0] @ anchor, knee)
         C = cand[np.arange(N), _best_sequence(val, pen)]
         C /= np.linalg.norm(C, axis=1, keepdims=True)
         r *= 0.5

@@ -5,8 +5,11 @@ F_i = Σ_j s_ij v(θ_ij) (eq. 6) over waypoint i's retained landmarks, s_ij = fe
 weight (eq. 15) and W_i = Σ_j s_ij normalises each waypoint by its local feature weight (the paper's
 ε = 1/(nπ)). All waypoints are updated together with padded arrays: R_i ← exp((h_i Ĵ_i)^) R_i with
 J_i = J_vis,i/W_i + λ c_i × (c_{i−1} + c_{i+1}) (eqs. 12, 18–20; one neighbour at the ends).
-With ``TrajectoryOptions.normalise`` = attainable, W_i is instead the most weight one cone of the FoV holds at
-that waypoint (:mod:`pivotd.pivot.normalise`), so each visible term is a share of what the waypoint could see.
+With ``TrajectoryOptions.smooth_knee_deg`` > 0 each pair enters as v(c_{i+1}·c_i) instead
+(:mod:`pivotd.pivot.smoothness`: a step beyond the knee costs in proportion to its size, not its square), and
+its gradient term is weighted by v' at the current step. With ``TrajectoryOptions.normalise`` = attainable, W_i
+is instead the most weight one cone of the FoV holds at that waypoint (:mod:`pivotd.pivot.normalise`), so each
+visible term is a share of what the waypoint could see.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from pivotd.pivot.cone_kernel import cone_kernel
 from pivotd.pivot.constraints import PanTiltConstraint
 from pivotd.pivot.morton import morton_keys
 from pivotd.pivot.normalise import Normalisation, attainable_weights
+from pivotd.pivot.smoothness import path_value
 from pivotd.pivot.steps import limit_steps, step_angles
 from pivotd.pivot.view import ViewOptions, optimize_view, schedule
 
@@ -55,6 +59,8 @@ class TrajectoryOptions:
     # ascent runs out of budget (the blob path) the waypoints still creeping below tol matter
     lam_boost: float = 1.0  # widened stages use λ × boost (geometric decay to λ at α): a smoothness homotopy
     smooth_scale: float = 25.0  # κ: the smoothness term is λκ Σ c_{i+1}·c_i against per-waypoint visible fractions
+    smooth_knee_deg: float = 0.0  # > 0: a step beyond about this angle costs in proportion to its size, not its
+    # square (pseudo-Huber of the chord, pivotd.pivot.smoothness); 0: the paper's 1 − cos per step
     chain_init: bool = True  # cold start: dynamic programming over a direction grid (pivotd.pivot.chain)
     chain_resolution_deg: float = 12.0
     chain_nodes: int = 64
@@ -365,7 +371,7 @@ def _view_kernel(alpha: float, n: int):
 
 def _judge(
     geom: _ascent.Geometry | None, C: np.ndarray, norm: np.ndarray, alpha: float, width: float, smooth: float,
-    anchor: np.ndarray | None,
+    anchor: np.ndarray | None, knee: float = 0.0,
 ) -> tuple[np.ndarray, float]:
     """Hard visible counts (N,) int and the trajectory objective (module docstring) of the axes C (N, 3)."""
     N = C.shape[0]
@@ -374,9 +380,7 @@ def _judge(
     visible, F = _ascent.evaluate(geom, C, alpha, width)
     obj = float(np.sum(F / np.maximum(norm, 1e-12)))
     if smooth > 0:
-        obj += smooth * float(np.sum(C[1:] * C[:-1]))
-        if anchor is not None:
-            obj += smooth * float(anchor @ C[0])
+        obj += smooth * path_value(C, knee, anchor)
     return visible.astype(int), obj
 
 
@@ -442,7 +446,7 @@ def _polish(
     B, Wa = _band(geom, C, alpha, (opts.polish_sweeps + 1) * radius, opts.polish_cap)
     C_new, _ = polish.polish_trajectory(
         B, Wa, C, norm, alpha, smooth, radius, tol, sweeps=opts.polish_sweeps, anchor=anchor,
-        reachable=_reachable_fn(constraint),
+        reachable=_reachable_fn(constraint), knee=float(np.radians(opts.smooth_knee_deg)),
     )
     return C_new
 
@@ -487,7 +491,7 @@ def _step_polish(
     return polish.step_limited_polish(
         lambda C_, reach: _band(geom, C_, alpha, reach, opts.polish_cap),
         C, alpha, max_step, radius, tol, anchor=anchor, reachable=_reachable_fn(constraint),
-        smooth=smooth, norm=norm,
+        smooth=smooth, norm=norm, knee=float(np.radians(opts.smooth_knee_deg)),
     )
 
 
@@ -615,6 +619,7 @@ def optimize_trajectory(
     coarse = None
     seed = None  # node waypoints of the chain initialisation, for the step-limited seed
     smooth = lam * opts.smooth_scale
+    knee = rad(opts.smooth_knee_deg)
     if geom is not None and (len(stages) > 1 or (opts.chain_init and not warm)):
         if opts.chain_init and not warm:  # the chain scores its node waypoints only
             linked = smooth > 0 or max_step is not None
@@ -625,14 +630,15 @@ def optimize_trajectory(
             C_init = chain.initial_directions(
                 node_scores.points, node_scores.weights, alpha, smooth * chain_smooth_ratio,
                 nodes if smooth > 0 else np.arange(N), N,
-                resolution_deg=opts.chain_resolution_deg, anchor=a_vec,
+                resolution_deg=opts.chain_resolution_deg, anchor=a_vec, knee=knee,
             )
             R0 = optical_frame_from_direction(C_init)
             settings.stages = [alpha]
             settings.step_init = rad(opts.chain_resolution_deg) / 2
         else:
             coarse = _ascent.subsample(geom, lengths, opts.active_cap)
-    R, iters = _ascent.ascend(geom_run, R0, norm, settings, lam=smooth, anchor=a_vec, project=project, coarse=coarse)
+    R, iters = _ascent.ascend(geom_run, R0, norm, settings, lam=smooth, anchor=a_vec, project=project, coarse=coarse,
+                              knee=knee)
     C = R[:, :, 2].copy()
     cold_or_allowed = opts.warm_polish or not warm
     if geom is not None and opts.polish_deg > 0 and cold_or_allowed:
@@ -667,7 +673,7 @@ def optimize_trajectory(
             C = limit_steps(C, max_step, anchor=a_vec, constraint=constraint)  # a no-op: the guarantee
     R = _ascent._turn_to(R, C)
     C = R[:, :, 2].copy()
-    visible, obj = _judge(geom, C, norm, alpha, rad(opts.width_deg), smooth, a_vec)
+    visible, obj = _judge(geom, C, norm, alpha, rad(opts.width_deg), smooth, a_vec, knee)
     result = TrajectoryResult(C, R, visible, iters, obj)
 
     def solve_from(init: np.ndarray) -> TrajectoryResult:
@@ -691,7 +697,7 @@ def optimize_trajectory(
                         (N, 1))
         if constraint is not None:
             C_fix = constraint.project(C_fix)
-        vis_fix, obj_fix = _judge(geom, C_fix, norm, alpha, rad(opts.width_deg), smooth, a_vec)
+        vis_fix, obj_fix = _judge(geom, C_fix, norm, alpha, rad(opts.width_deg), smooth, a_vec, knee)
         if obj_fix > result.objective or vis_fix.sum() > result.visible.sum():
             alt = solve_from(C_fix)
             # under a hard step limit the plan maximises what it sees (as the step-limited seed above is judged)
