@@ -30,3 +30,16 @@ def test_compare_with_the_same_version_plans_the_same(tmp_path):
 def test_compare_with_a_missing_package_is_a_clear_error(tmp_path):
     with pytest.raises(InputError, match="--compare-with no_such_pivotd_copy"):
         horizon.run(_args(tmp_path, compare_with="no_such_pivotd_copy"))
+
+
+def test_the_daemons_defaults_replan_interleaved_and_count_the_rescues(tmp_path):
+    assert horizon.run(_args(tmp_path, rescue_fraction=0.25, smooth_knee_deg=1.0)) == 0
+    out = json.loads((tmp_path / "h.json").read_text())
+    assert out["compare_with"] == "rescue_blind at 0.25, smooth_knee_deg 1"
+    assert 0 <= out["rescue_kept"] <= out["rescue_second_solves"] <= out["replans"]
+    assert out["other_replan_cpu_ms_p50"] > 0 and out["visible_vs_other"] > 0
+
+
+def test_a_knee_out_of_range_is_a_clear_error(tmp_path):
+    with pytest.raises(InputError, match="--smooth-knee-deg"):
+        horizon.run(_args(tmp_path, rescue_fraction=0.25, smooth_knee_deg=-1.0))

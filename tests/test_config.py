@@ -117,6 +117,7 @@ def test_relative_paths_resolve_against_config_directory(tmp_path, monkeypatch):
         # out of range
         (MINIMAL + "pivot:\n  fov_deg: 180\n", r":5: pivot\.fov_deg: must be < 180, got 180"),
         (MINIMAL + "pivot:\n  lambda: -0.1\n", r":5: pivot\.lambda: must be ≥ 0, got -0\.1"),
+        (MINIMAL + "pivot:\n  smooth_knee_deg: 200\n", r":5: pivot\.smooth_knee_deg: must be ≤ 180, got 200"),
         (MINIMAL + "control:\n  rate_hz: 50\n", r":5: control\.rate_hz: must be ≥ 100, got 50"),
         (MINIMAL + "pivot:\n  fov_deg: .nan\n", r":5: pivot\.fov_deg: must be finite"),
         (MINIMAL + "motion:\n  tilt:\n    max_jerk_deg_s3: 0\n", r":6: motion\.tilt\.max_jerk_deg_s3: must be > 0"),

@@ -50,8 +50,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="also replan, interleaved, with the planner of PKG (a renamed copy of another pivotd "
                              "version on PYTHONPATH) and report CPU-time ratios")
     parser.add_argument("--rescue-fraction", type=float, metavar="F",
-                        help="also replan, interleaved, with planner.rescue_blind on at rescue_fraction F and report "
+                        help="also replan, interleaved, with planner.rescue_blind on at rescue_fraction F (and "
+                             "--smooth-knee-deg) and report "
                              "CPU-time ratios and how many replans took a second solve")
+    parser.add_argument("--smooth-knee-deg", type=float, default=0.0, metavar="K",
+                        help="with --rescue-fraction: the interleaved planner's pivot.smooth_knee_deg (the daemon's "
+                             "defaults: --rescue-fraction 0.25 --smooth-knee-deg 1; default 0)")
     parser.add_argument("--json", type=Path)
 
 
@@ -143,7 +147,14 @@ def run(args: argparse.Namespace) -> int:
 
         if args.compare_with or not (math.isfinite(args.rescue_fraction) and 0 < args.rescue_fraction <= 1):
             raise InputError("--rescue-fraction: needs a value in (0, 1] and no --compare-with")
-        rescue = RecedingHorizonPlanner(replace(settings, rescue_fraction=args.rescue_fraction), Mount(), limits)
+        if not (math.isfinite(args.smooth_knee_deg) and 0.0 <= args.smooth_knee_deg <= 180.0):
+            raise InputError(f"--smooth-knee-deg: must be in [0, 180], got {args.smooth_knee_deg}")
+        from pivotd.pivot.trajectory import TrajectoryOptions
+
+        rescue = RecedingHorizonPlanner(
+            replace(settings, rescue_fraction=args.rescue_fraction,
+                    options=replace(settings.options or TrajectoryOptions(), smooth_knee_deg=args.smooth_knee_deg)),
+            Mount(), limits)
         rescue.set_path(sc.path, None, 1)
         other = {"planner": rescue, "snap": snap, "cpu": [], "wall": [], "visible": []}
     elif args.compare_with:
@@ -235,7 +246,8 @@ def run(args: argparse.Namespace) -> int:
         result["far_p99_ratio"] = round(result["far_replan_ms_p99"] / result["replan_ms_p99"], 3)
     if other:
         ours_vis = float(np.mean(visible_sums))
-        result["compare_with"] = args.compare_with or f"rescue_blind at {args.rescue_fraction}"
+        result["compare_with"] = args.compare_with or (f"rescue_blind at {args.rescue_fraction}, smooth_knee_deg "
+                                                       f"{args.smooth_knee_deg:g}")
         if args.rescue_fraction is not None:
             result["rescue_second_solves"] = other["planner"].solves - 1 - replans
             result["rescue_kept"] = other["planner"].rescues
