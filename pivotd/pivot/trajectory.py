@@ -379,8 +379,12 @@ def _judge(
         return np.zeros(N, dtype=int), 0.0
     visible, F = _ascent.evaluate(geom, C, alpha, width)
     obj = float(np.sum(F / np.maximum(norm, 1e-12)))
-    if smooth > 0:
+    if smooth > 0 and knee > 0:
         obj += smooth * path_value(C, knee, anchor)
+    elif smooth > 0:  # the paper's term, summed as it always was (ties between candidates stay decided alike)
+        obj += smooth * float(np.sum(C[1:] * C[:-1]))
+        if anchor is not None:
+            obj += smooth * float(anchor @ C[0])
     return visible.astype(int), obj
 
 
