@@ -220,7 +220,8 @@ def _print_table(st, summaries: dict, labels: list[str]) -> None:
     print(f"pivotd bench localization — {len(st.seeds)} seeds, camera {st.camera.width}x{st.camera.height} "
           f"fx={st.camera.fx:g}, means with 95 % bootstrap intervals")
     head = (f"{'scene':15s} {'policy':8s} " + " ".join(f"{'ok ' + lb + ' %':>20s}" for lb in labels)
-            + f" {'med t [m]':>10s} {'med r [°]':>10s} {'no pose %':>9s} {'streak s':>9s} {'ms/frame':>9s}"
+            + f" {'med t [m]':>10s} {'med r [°]':>10s} {'no pose %':>9s} {'turning %':>9s} {'streak s':>9s}"
+            + f" {'ms/frame':>9s}"
             + f" {'ms/dec':>8s}")
     print(head)
     for scene, by_policy in summaries.items():
@@ -228,6 +229,7 @@ def _print_table(st, summaries: dict, labels: list[str]) -> None:
             ok = " ".join(f"{_fmt(s['success_' + lb]):>20s}" for lb in labels)
             mt, mr = s["median_t_m"]["mean"], s["median_r_deg"]["mean"]
             print(f"{scene:15s} {policy:8s} {ok} {mt:10.3f} {mr:10.2f} {100 * s['no_pose']['mean']:9.1f} "
+                  f"{100 * s['failure_turning']['mean']:9.1f} "
                   f"{s['longest_failure_s']['mean']:9.1f} {s['compute_ms_per_frame']['mean']:9.2f} "
                   f"{s['compute_ms_per_decision']['mean']:8.2f}")
 

@@ -14,7 +14,15 @@ import numpy as np
 
 from pivotd.localization.camera import CameraModel
 from pivotd.localization.estimator import require_poselib
-from pivotd.localization.metrics import PRIMARY, THRESHOLDS, RunMetrics, aggregate, run_metrics, threshold_label
+from pivotd.localization.metrics import (
+    PRIMARY,
+    THRESHOLDS,
+    RunMetrics,
+    aggregate,
+    run_metrics,
+    threshold_label,
+    turning_frames,
+)
 from pivotd.localization.policies import PolicyName, make_policy
 from pivotd.localization.scenes import FIF_SCENES, LocScene, build_scene
 from pivotd.localization.simulate import FRAME_HZ, Trajectory, localize, run_policy
@@ -84,7 +92,7 @@ def run_scene(st: BenchSettings, scene_name: str) -> SceneResult:
                     cache[p.value] = traj
             err = localize(world, traj, seed)
             out.runs[p.value].append(run_metrics(err.translation, err.rotation, 1.0 / st.frame_hz, traj.compute_s,
-                                                     traj.decisions))
+                                                 traj.decisions, turning_frames(traj.times, traj.directions)))
             if n == 0:
                 m, d = THRESHOLDS[PRIMARY]
                 out.frame_ok[p.value] = (err.translation <= m) & (err.rotation <= d)

@@ -3,7 +3,9 @@
 Per run (one scene instance, one seed, one policy): the share of frames within each (translation,
 rotation) threshold of the visual-localization literature, median errors (a frame without a pose counts
 as an infinite error), the share of frames without a pose, the longest run of consecutive frames outside
-the (0.25 m, 2°) threshold in seconds, and the policy's compute time per frame.
+the (0.25 m, 2°) threshold in seconds, the share of frames outside it while the camera turns faster than
+``TURNING_DEG_S`` (a slew between views, which a policy bound by the gimbal's speed pays and a teleporting one
+does not), and the policy's compute time per frame.
 
 Across seeds: the mean of the per-run values with a 95 % percentile bootstrap interval that resamples
 whole runs (frames of one run are correlated, runs are independent).
@@ -18,6 +20,7 @@ import numpy as np
 
 THRESHOLDS: tuple[tuple[float, float], ...] = ((0.05, 0.4), (0.25, 2.0), (0.5, 5.0))  # (m, deg)
 PRIMARY = 1  # index of (0.25 m, 2°), the threshold the goals use
+TURNING_DEG_S = 45.0  # [deg/s] a frame whose camera axis turns faster than this is in a slew
 BOOTSTRAP_RESAMPLES = 2000
 
 
@@ -39,6 +42,7 @@ class RunMetrics:
     compute_ms: float
     frames: int
     compute_ms_decision: float = float("nan")
+    failure_turning: float = float("nan")  # share of frames outside the primary threshold while in a slew
 
     @property
     def failure(self) -> float:
@@ -55,10 +59,27 @@ def longest_streak(mask: np.ndarray) -> int:
     return best
 
 
+def turning_frames(times: np.ndarray, directions: np.ndarray, deg_s: float = TURNING_DEG_S) -> np.ndarray:
+    """Frames (F,) bool whose camera axis turns faster than ``deg_s`` [deg/s] towards the frame before or after
+    it; times (F,) [s], directions (F, 3) unit optical axes."""
+    d = np.asarray(directions, float)
+    t = np.asarray(times, float)
+    n = d.shape[0]
+    if n < 2:
+        return np.zeros(n, bool)
+    ang = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", d[1:], d[:-1]), -1.0, 1.0)))
+    fast = ang > deg_s * np.maximum(np.diff(t), 1e-9)
+    out = np.zeros(n, bool)
+    out[1:] |= fast
+    out[:-1] |= fast
+    return out
+
+
 def run_metrics(translation: np.ndarray, rotation: np.ndarray, frame_dt: float, compute_s: float,
-                decisions: int = 0) -> RunMetrics:
-    """Metrics of one run from per-frame errors (F,) [m], (F,) [deg], frame period [s], policy compute [s]
-    and the number of decisions it took."""
+                decisions: int = 0, turning: np.ndarray | None = None) -> RunMetrics:
+    """Metrics of one run from per-frame errors (F,) [m], (F,) [deg], frame period [s], policy compute [s],
+    the number of decisions it took and the frames in a slew (F,) bool (:func:`turning_frames`; None: not
+    known)."""
     t = np.asarray(translation, float)
     r = np.asarray(rotation, float)
     n = t.shape[0]
@@ -74,6 +95,7 @@ def run_metrics(translation: np.ndarray, rotation: np.ndarray, frame_dt: float, 
         compute_ms=1e3 * compute_s / max(n, 1),
         frames=n,
         compute_ms_decision=1e3 * compute_s / decisions if decisions else float("nan"),
+        failure_turning=float(np.mean(fail & np.asarray(turning, bool))) if turning is not None and n else float("nan"),
     )
 
 
@@ -112,6 +134,7 @@ def aggregate(runs: Sequence[RunMetrics], seed: int = 0) -> dict[str, Interval]:
     for i in range(len(THRESHOLDS)):
         out[f"success_{threshold_label(i)}"] = bootstrap([r.success[i] for r in runs], rng)
     out["failure"] = bootstrap([r.failure for r in runs], rng)
+    out["failure_turning"] = bootstrap([r.failure_turning for r in runs], rng)
     out["median_t_m"] = bootstrap([r.median_t for r in runs], rng)
     out["median_r_deg"] = bootstrap([r.median_r for r in runs], rng)
     out["no_pose"] = bootstrap([r.no_pose for r in runs], rng)
