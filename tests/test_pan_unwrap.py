@@ -147,3 +147,28 @@ def test_sweep_measures_the_blind_arc_to_the_far_side():
     assert sweep(grid, counts, D(100), up=True) == (np.inf, None)
     blind_down, target_down = sweep(grid, counts, D(100), up=False)
     assert blind_down == pytest.approx(blind, abs=2 * PROFILE_STEP) and target_down <= D(-100)
+
+
+@pytest.mark.parametrize("half_fov_deg", [2.0, 30.0, 100.0])
+def test_profile_equals_the_window_of_shifted_histograms(half_fov_deg):
+    """The profile against its definition: per tilt band, the landmarks whose pan falls in each window of
+    2w + 1 cells, summed from shifted copies of the band's histogram (random bearings, any tilt)."""
+    from pivotd.geometry import direction_to_pan_tilt
+
+    rng = np.random.default_rng(4)
+    b = rng.normal(size=(3000, 3))
+    half = D(half_fov_deg)
+    grid, counts, tilts = pan_profile(b, half, DEMO)
+    pan, tl = direction_to_pan_tilt(b / np.linalg.norm(b, axis=1, keepdims=True))
+    bins = round(2 * np.pi / PROFILE_STEP)
+    cell = np.floor(np.remainder(pan + np.pi, 2 * np.pi) / PROFILE_STEP).astype(int) % bins
+    cells = np.floor(np.remainder(grid + np.pi, 2 * np.pi) / PROFILE_STEP).astype(int) % bins
+    w = int(np.floor(half / PROFILE_STEP))
+    bands = np.arange(max(DEMO.tilt_min, -np.pi / 2), min(DEMO.tilt_max, np.pi / 2) + 1e-9, 2 * PROFILE_STEP)
+    table = []
+    for tilt in bands:
+        hist = np.bincount(cell[np.abs(tl - tilt) <= half], minlength=bins).astype(float)
+        table.append(sum(np.roll(hist, -k) for k in range(-w, w + 1))[cells])
+    table = np.array(table)
+    assert np.array_equal(counts, table.max(axis=0))
+    assert np.array_equal(tilts, bands[np.argmax(table, axis=0)])

@@ -189,6 +189,7 @@ class RecedingHorizonPlanner:
         self._spread_cache: dict[int, np.ndarray] = {}
         self.unwind_target: np.ndarray | None = None  # world direction of an unwind slew under way
         self._attainable_cache: dict[int, float] = {}
+        self._profile_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # pan profiles by grid key
         self._rejected: tuple[int, set[int]] = (0, set())  # horizon length, grid cells of blind waypoints tried
         self.solves = 0  # optimize_trajectory calls so far
         self.last_objective = math.nan  # the trajectory objective of the last replan's plan (before the unwinds)
@@ -246,6 +247,7 @@ class RecedingHorizonPlanner:
         key = (self._path_version, snapshot.version)
         if self._cache_key != key:
             self._cache_key, self._cache, self._spread_cache, self._attainable_cache = key, {}, {}, {}
+            self._profile_cache = {}
             self._rejected = (0, set())
         cached = {i: self._cache.get(round(float(s[i]) * 1e6)) for i in range(1, s.shape[0])}
         todo = [0] + [i for i, r in cached.items() if r is None]
@@ -342,7 +344,7 @@ class RecedingHorizonPlanner:
         if init is not None and st.rescue_fraction is not None:
             result = self._rescue(snapshot, cams, s, retained, result, solve)
         self.last_objective = result.objective
-        directions, visible, pans = self._joint_plan(snapshot, cams, retained, quats, result.directions,
+        directions, visible, pans = self._joint_plan(snapshot, cams, s, retained, quats, result.directions,
                                                      np.asarray(result.visible), anchor)
         plan = Plan(
             created=time.monotonic(),
@@ -445,7 +447,8 @@ class RecedingHorizonPlanner:
         self._rejected = (s.shape[0], (tried if size == s.shape[0] else set()) | cells)
         return result
 
-    def _joint_plan(self, snapshot: MapSnapshot, cams: np.ndarray, retained: list[np.ndarray], quats: np.ndarray,
+    def _joint_plan(self, snapshot: MapSnapshot, cams: np.ndarray, s: np.ndarray, retained: list[np.ndarray],
+                    quats: np.ndarray,
                     directions: np.ndarray, visible: np.ndarray,
                     anchor: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Joint pans for the optimised ``directions`` (N, 3) over the whole horizon (pivotd.gimbal.pan_unwrap),
@@ -474,7 +477,7 @@ class RecedingHorizonPlanner:
         take = np.arange(directions.shape[0])
         if slews.size:
             k = int(slews[0])
-            early = self._early_unwind(snapshot, cams, retained, quats, pans, k,
+            early = self._early_unwind(snapshot, cams, s, retained, quats, pans, k,
                                        pans[k] > (pans[k - 1] if k else start))
             if early is not None:
                 directions = np.repeat(early[None, :], directions.shape[0], axis=0)
@@ -499,22 +502,31 @@ class RecedingHorizonPlanner:
         rel = rel / np.maximum(np.linalg.norm(rel, axis=1, keepdims=True), 1e-12)
         return hard_count(direction, rel, self.settings.alpha)
 
-    def _early_unwind(self, snapshot: MapSnapshot, cams: np.ndarray, retained: list[np.ndarray], quats: np.ndarray,
-                      pans: np.ndarray, k: int, up: bool) -> np.ndarray | None:
+    def _early_unwind(self, snapshot: MapSnapshot, cams: np.ndarray, s: np.ndarray, retained: list[np.ndarray],
+                      quats: np.ndarray, pans: np.ndarray, k: int, up: bool) -> np.ndarray | None:
         """World direction (3,) of an unwind to start now, when the sweep from here across the landmark-free
         sector is shorter than from any later waypoint before the limit at waypoint ``k`` (the unwind moves
-        pan ``up`` or down); None otherwise."""
+        pan ``up`` or down); None otherwise. The pan profiles of grid waypoints (all but the first) are kept
+        while the path and map versions hold (their retained sets and attitudes do not change)."""
         if k < 2 or len(snapshot) == 0:
             return None
         R = base_from_world(quats[:k], self.mount)
         blind = np.full(k, np.inf)
         target: tuple[float, float] | None = None
+        keys = [round(float(x) * 1e6) for x in s[:k]]
+        profiles = {key: self._profile_cache[key] for key in keys[1:] if key in self._profile_cache}
         for j in range(k):
-            rel = (snapshot.points[retained[j]] - cams[j]) @ R[j].T
-            grid, counts, tilts = pan_profile(rel, self.settings.alpha, self.limits)
+            prof = profiles.get(keys[j]) if j > 0 else None
+            if prof is None:
+                rel = (snapshot.points[retained[j]] - cams[j]) @ R[j].T
+                prof = pan_profile(rel, self.settings.alpha, self.limits)
+                if j > 0:
+                    profiles[keys[j]] = prof
+            grid, counts, tilts = prof
             blind[j], pan = sweep(grid, counts, float(pans[j]), up)
             if j == 0 and pan is not None:
                 target = pan, float(tilts[int(np.argmin(np.abs(grid - pan)))])
+        self._profile_cache = profiles
         if target is None or not blind[0] < np.min(blind[1:]) - PROFILE_STEP:
             return None
         return joints_to_world_direction(target[0], target[1], quats[0], self.mount)

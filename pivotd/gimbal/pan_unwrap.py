@@ -163,13 +163,15 @@ def pan_profile(bearings: np.ndarray, half_fov: float,
     cell = np.floor(np.remainder(pan + np.pi, TWO_PI) / PROFILE_STEP).astype(np.int64) % bins
     w = int(np.floor(half_fov / PROFILE_STEP))
     cells = np.floor(np.remainder(grid + np.pi, TWO_PI) / PROFILE_STEP).astype(np.int64) % bins
-    table = np.empty((tilts.shape[0], grid.shape[0]))
-    for t, tilt in enumerate(tilts):
-        hist = np.bincount(cell[np.abs(tl - tilt) <= half_fov], minlength=bins).astype(float)
-        window = np.zeros(bins)
-        for k in range(-w, w + 1):
-            window += np.roll(hist, -k)
-        table[t] = window[cells]
+    T = tilts.shape[0]
+    rows, cols = np.nonzero(np.abs(tl[None, :] - tilts[:, None]) <= half_fov)  # (band, landmark) memberships
+    hist = np.bincount(rows * bins + cell[cols], minlength=T * bins).reshape(T, bins).astype(float)
+    # the window of pan cells c − w … c + w (circular) of every band: differences of a running sum over the
+    # histogram wrapped by w cells on both sides (integer counts: the same sums as adding the shifted copies)
+    wrapped = np.concatenate([hist[:, bins - w:], hist, hist[:, :w]], axis=1) if w else hist
+    run = np.concatenate([np.zeros((T, 1)), np.cumsum(wrapped, axis=1)], axis=1)
+    window = run[:, 2 * w + 1:2 * w + 1 + bins] - run[:, :bins]
+    table = window[:, cells]
     best = np.argmax(table, axis=0)
     return grid, table[best, np.arange(grid.shape[0])], tilts[best]
 
