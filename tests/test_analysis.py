@@ -23,6 +23,10 @@ def test_dynamics_of_a_known_cubic():
     assert not setpoint_dynamics(pos, dt, tight, tight, rates=rates).within_limits
     # From positions alone the same figures come out (exact data: no rounding here).
     np.testing.assert_allclose(setpoint_dynamics(pos, dt, lim, lim).max_jerk, [2.0, 1.0], rtol=1e-6)
+    # travel: p(0.99) per axis (monotone); near top speed: rate > 0.9 rad/s, i.e. t > √0.9 for pan only
+    np.testing.assert_allclose(rep.travel, np.abs(pos[-1]), rtol=1e-9)
+    assert rep.near_top_speed[1] == 0.0
+    assert rep.near_top_speed[0] == np.mean(rates[:, 0] > 0.9)
 
 
 def test_wire_rounding_is_within_the_allowance():

@@ -77,7 +77,8 @@ WIRE_RESOLUTION = 1e-6  # [rad]: SETPOINT angles are int32 micro-radians on the 
 @dataclass(frozen=True)
 class DynamicsReport:
     """Worst |velocity|, |acceleration|, |jerk| per axis (2,) of a setpoint stream, their ratio to the limits,
-    and the finite-difference error that the wire's angle resolution alone can cause (``allowance_*``)."""
+    and the finite-difference error that the wire's angle resolution alone can cause (``allowance_*``); how far
+    each axis travelled (2,) [rad] and the share of setpoints (2,) at more than 90 % of its velocity limit."""
 
     max_velocity: np.ndarray
     max_acceleration: np.ndarray
@@ -91,6 +92,8 @@ class DynamicsReport:
     allowance_acceleration: float = 0.0
     allowance_jerk: float = 0.0
     limits: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    travel: np.ndarray | None = None
+    near_top_speed: np.ndarray | None = None
 
     @property
     def worst_ratio(self) -> float:
@@ -139,9 +142,11 @@ def setpoint_dynamics(positions: np.ndarray, dt: float, pan: AxisLimits, tilt: A
     lim_a = np.array([pan.max_acceleration, tilt.max_acceleration])
     lim_j = np.array([pan.max_jerk, tilt.max_jerk])
     ma, mj = peak(a), peak(j)
+    speed = np.abs(np.asarray(rates, float)) if rates is not None else np.abs(v_pos)
+    near = (speed > 0.9 * lim_v).mean(axis=0) if speed.shape[0] else np.zeros(2)
     return DynamicsReport(mv, ma, mj, mv / lim_v, ma / lim_a, mj / lim_j,
                           p.min(axis=0) if p.size else np.zeros(2), p.max(axis=0) if p.size else np.zeros(2),
-                          *allow, (lim_v, lim_a, lim_j))
+                          *allow, (lim_v, lim_a, lim_j), travel=np.abs(v_pos).sum(axis=0) * dt, near_top_speed=near)
 
 
 def device_setpoint_dynamics(cfg: Config, dev: DeviceLog) -> DynamicsReport:
@@ -215,6 +220,8 @@ def analyse_run(cfg: Config, obs: Observations, device_log: Path) -> tuple[dict,
         "jerk_ratio": dyn.jerk_ratio.round(3).tolist(),
         "within_limits": dyn.within_limits,
         "jerk_allowance_deg_s3": round(float(np.degrees(dyn.allowance_jerk)), 2),
+        "travel_deg": np.degrees(dyn.travel).round(1).tolist(),
+        "near_top_speed_share": np.round(dyn.near_top_speed, 4).tolist(),
         "pan_range_deg": np.degrees([dyn.position_min[0], dyn.position_max[0]]).round(2).tolist(),
         "tilt_range_deg": np.degrees([dyn.position_min[1], dyn.position_max[1]]).round(2).tolist(),
         "joint_limits_deg": np.degrees([lim.pan_min, lim.pan_max, lim.tilt_min, lim.tilt_max]).round(1).tolist(),

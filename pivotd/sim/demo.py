@@ -147,6 +147,8 @@ def _print_summary(r: dict, cfg: Config, png: Path) -> None:
               else "acceleration and jerk from the setpoint rates")
     print(f"  within limits ({source}; the wire's resolution allows ±{r['jerk_allowance_deg_s3']} deg/s³): "
           f"{'yes' if r['within_limits'] else 'NO'}")
+    print(f"  travel: pan {r['travel_deg'][0]:.0f} deg, tilt {r['travel_deg'][1]:.0f} deg; setpoints above 90 % of the "
+          f"velocity limit: pan {r['near_top_speed_share'][0]:.1%}, tilt {r['near_top_speed_share'][1]:.1%}")
     print(f"  pan range {r['pan_range_deg']} deg, tilt range {r['tilt_range_deg']} deg "
           f"(limits pan/tilt {r['joint_limits_deg']})")
     print(f"  daemon exit code after SIGTERM: {r['daemon_exit_code']}")
