@@ -43,13 +43,12 @@ def test_slope_is_the_derivative_of_the_value(knee_deg):
     assert np.all((pair_slope(x, knee) > 0) & (pair_slope(x, knee) <= 1))
 
 
-def test_path_value_sums_the_pairs_and_the_anchor():
+def test_path_value_sums_the_pairs():
     rng = np.random.default_rng(0)
     C = normalize(rng.normal(size=(6, 3)))
-    anchor = normalize(rng.normal(size=3))
     knee = np.radians(2.0)
-    want = sum(pair_value(float(C[i] @ C[i + 1]), knee) for i in range(5)) + pair_value(float(anchor @ C[0]), knee)
-    assert path_value(C, knee, anchor) == pytest.approx(want, rel=1e-12)
+    want = sum(pair_value(float(C[i] @ C[i + 1]), knee) for i in range(5))
+    assert path_value(C, knee) == pytest.approx(want, rel=1e-12)
     assert path_value(C, 0.0) == pytest.approx(float(np.sum(C[1:] * C[:-1])), rel=1e-12)
 
 
@@ -81,3 +80,24 @@ def test_with_a_knee_the_plan_turns_at_once_where_the_view_changes_and_sees_more
     assert knee.visible.sum() > 1.05 * plain.visible.sum(), (knee.visible.sum(), plain.visible.sum())
     assert turning(knee.directions) < turning(plain.directions), (turning(knee.directions),
                                                                    turning(plain.directions))
+
+
+@pytest.mark.parametrize("knee_deg", [0.0, 2.0])
+def test_the_objective_adds_the_pairs_and_the_anchor_pair(knee_deg):
+    from pivotd.pivot import _ascent
+    from pivotd.pivot.trajectory import _judge
+
+    rng = np.random.default_rng(0)
+    C = normalize(rng.normal(size=(6, 3)))
+    anchor = normalize(rng.normal(size=3))
+    B = normalize(rng.normal(size=(6, 50, 3))).astype(np.float32)
+    W = np.ones((6, 50), np.float32)
+    geom = _ascent.Geometry(B, np.zeros((6, 3), np.float32), None, W,
+                            lambda r, c, C_: np.einsum("kj,kj->k", B[r, c].astype(float), C_[r]),
+                            valid=np.ones((6, 50), bool))
+    knee, smooth, alpha, width, norm = np.radians(knee_deg), 15.0, np.radians(30), np.radians(4), W.sum(axis=1)
+    _, alone = _judge(geom, C, norm, alpha, width, 0.0, None, knee)
+    _, paired = _judge(geom, C, norm, alpha, width, smooth, None, knee)
+    _, anchored = _judge(geom, C, norm, alpha, width, smooth, anchor, knee)
+    assert paired - alone == pytest.approx(smooth * path_value(C, knee), rel=1e-9)
+    assert anchored - paired == pytest.approx(smooth * pair_value(float(anchor @ C[0]), knee), rel=1e-9)

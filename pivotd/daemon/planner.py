@@ -160,6 +160,11 @@ def _cap_retained(retained: Sequence[np.ndarray], cap: int | None) -> list[np.nd
     return out
 
 
+def _grid_keys(s: np.ndarray) -> list[int]:
+    """Cache keys of waypoints at arc lengths ``s`` (N,) [m] along the path: micrometres, rounded."""
+    return [round(float(x) * 1e6) for x in s]
+
+
 def _scatter(directions: np.ndarray, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
     """A copy of ``directions`` (N, 3) with ``rows`` (B,) set to ``values`` (B, 3)."""
     out = directions.copy()
@@ -249,7 +254,8 @@ class RecedingHorizonPlanner:
             self._cache_key, self._cache, self._spread_cache, self._attainable_cache = key, {}, {}, {}
             self._profile_cache = {}
             self._rejected = (0, set())
-        cached = {i: self._cache.get(round(float(s[i]) * 1e6)) for i in range(1, s.shape[0])}
+        keys = _grid_keys(s)
+        cached = {i: self._cache.get(keys[i]) for i in range(1, s.shape[0])}
         todo = [0] + [i for i, r in cached.items() if r is None]
         # the snapshot's rows are in a spatial order fixed by the landmarks (pivotd.maps.store.spatial_cell_order),
         # so the cap's strided subsample (and the optimizer's) do not depend on the map's landmark order
@@ -260,7 +266,7 @@ class RecedingHorizonPlanner:
         for i, r in cached.items():
             if r is not None:
                 out[i] = r
-        self._cache = {round(float(s[i]) * 1e6): out[i] for i in range(1, s.shape[0])}
+        self._cache = {keys[i]: out[i] for i in range(1, s.shape[0])}
         return out
 
     def _spread_weights(self, snapshot: MapSnapshot, cams: np.ndarray, s: np.ndarray,
@@ -270,7 +276,7 @@ class RecedingHorizonPlanner:
         st = self.settings.spread
         if st is None:
             return None
-        keys = [round(float(x) * 1e6) for x in s]
+        keys = _grid_keys(s)
         out: list[np.ndarray | None] = [None if i == 0 else self._spread_cache.get(k) for i, k in enumerate(keys)]
         todo = [i for i, w in enumerate(out) if w is None or w.shape[0] != retained[i].shape[0]]
         fresh = waypoint_spread_weights(snapshot.points, cams[todo], [retained[i] for i in todo], st)
@@ -378,7 +384,7 @@ class RecedingHorizonPlanner:
         retained cache's key holds, so a replan estimates only the ones entering the horizon. The first waypoint
         (the robot's position, new at every replan) takes the estimate of the next one, less than ``spacing`` ahead.
         """
-        keys = [round(float(x) * 1e6) for x in s]
+        keys = _grid_keys(s)
         out = np.array([np.nan if i == 0 else self._attainable_cache.get(k, np.nan) for i, k in enumerate(keys)])
         todo = np.flatnonzero(np.isnan(out))
         if s.shape[0] > 1:
@@ -421,6 +427,7 @@ class RecedingHorizonPlanner:
         size, tried = self._rejected
         if size == s.shape[0] and cells <= tried:
             return result
+        lost = (s.shape[0], (tried if size == s.shape[0] else set()) | cells)  # what to remember if it loses
         axes = np.empty((blind.size, 3))
         for k, i in enumerate(blind):
             idx = retained[i]
@@ -433,7 +440,7 @@ class RecedingHorizonPlanner:
             reach = np.array([self._count(snapshot, cams[i], retained[i], a) for i, a in zip(blind, axes, strict=True)])
             still = result.visible[blind] < st.rescue_fraction * reach
             if not still.any():
-                self._rejected = (s.shape[0], (tried if size == s.shape[0] else set()) | cells)
+                self._rejected = lost
                 return result
             blind, axes = blind[still], axes[still]
         init = rescue_init(result.directions, blind, axes, st.rescue_reach)
@@ -444,7 +451,7 @@ class RecedingHorizonPlanner:
             self.rescues += 1
             self._rejected = (0, set())
             return alt
-        self._rejected = (s.shape[0], (tried if size == s.shape[0] else set()) | cells)
+        self._rejected = lost
         return result
 
     def _joint_plan(self, snapshot: MapSnapshot, cams: np.ndarray, s: np.ndarray, retained: list[np.ndarray],
@@ -513,7 +520,7 @@ class RecedingHorizonPlanner:
         R = base_from_world(quats[:k], self.mount)
         blind = np.full(k, np.inf)
         target: tuple[float, float] | None = None
-        keys = [round(float(x) * 1e6) for x in s[:k]]
+        keys = _grid_keys(s[:k])
         profiles = {key: self._profile_cache[key] for key in keys[1:] if key in self._profile_cache}
         for j in range(k):
             prof = profiles.get(keys[j]) if j > 0 else None

@@ -338,9 +338,13 @@ def ascend(
             g *= Wq  # ∝ s_j v (1 − v): the k_s/4 factor is applied to the (n, 3) sum
             S = np.matmul(g[:, None, :], Bq)[:, 0, :].astype(float)
             S *= (float(quarter_ks) * inv_q)[:, None]
-            if coupled and knee > 0:  # J = c × (S_vis / W + λ Σ_neighbours slope · c_nb)
-                pair_w = lam_q * pair_slope(np.einsum("ij,ij->i", C[1:], C[:-1]), knee)  # (K − 1,)
-                anchor_w = lam_q * float(pair_slope(float(anchor @ C[0]), knee)) if anchor is not None else 0.0
+            if coupled:  # J = c × (S_vis / W + Σ_neighbours w · c_nb): one cross product for both terms
+                # w = λ × the pair value's slope at the current step (λ itself without a knee)
+                if knee > 0:
+                    pair_w = lam_q * pair_slope(np.einsum("ij,ij->i", C[1:], C[:-1]), knee)  # (K − 1,)
+                    anchor_w = lam_q * float(pair_slope(float(anchor @ C[0]), knee)) if anchor is not None else 0.0
+                else:
+                    pair_w, anchor_w = np.full(K - 1, lam_q), lam_q
                 if rows is None:
                     S[1:] += pair_w[:, None] * C[:-1]
                     S[:-1] += pair_w[:, None] * C[1:]
@@ -352,20 +356,6 @@ def ascend(
                     S[has_next] += pair_w[rows[has_next], None] * C[rows[has_next] + 1]
                     if anchor is not None and rows[0] == 0:
                         S[0] += anchor_w * anchor
-            elif coupled:  # J = c × (S_vis / W + λ (c_prev + c_next)): one cross product for both terms
-                if rows is None:
-                    S[1:] += lam_q * C[:-1]
-                    S[:-1] += lam_q * C[1:]
-                    if anchor is not None:
-                        S[0] += lam_q * anchor
-                else:
-                    nb = np.zeros_like(S)
-                    has_prev, has_next = rows > 0, rows < K - 1
-                    nb[has_prev] += C[rows[has_prev] - 1]
-                    nb[has_next] += C[rows[has_next] + 1]
-                    if anchor is not None and rows[0] == 0:
-                        nb[0] += anchor
-                    S += lam_q * nb
             J = _cross(Cq, S)
             nJ = np.sqrt(np.einsum("ij,ij->i", J, J))
             Jp = J_prev if rows is None else J_prev[rows]

@@ -98,7 +98,7 @@ def polish_trajectory(
             cand = np.concatenate([c[:, None, :], ring], axis=1)  # (n, K + 1, 3); column 0: stay
             inside = np.matmul(cand.astype(np.float32), B[rows].transpose(0, 2, 1)) >= cos_a  # (n, K + 1, L)
             val = np.matmul(inside.astype(np.float32), Wa[rows][:, :, None])[..., 0].astype(float) * inv[rows, None]
-            if coupled and knee > 0:  # each neighbour's pair value separately
+            if coupled:  # each neighbour's pair value (:mod:`pivotd.pivot.smoothness`)
                 prev, nxt = rows - 1, rows + 1
                 has_prev, has_next = prev >= 0, nxt < N
                 if np.any(has_prev):
@@ -109,15 +109,6 @@ def polish_trajectory(
                     val[has_next] += smooth * pair_value(cos_n, knee)
                 if anchor is not None and rows[0] == 0:
                     val[0] += smooth * pair_value(cand[0] @ anchor, knee)
-            elif coupled:
-                nb = np.zeros_like(c)
-                prev, nxt = rows - 1, rows + 1
-                has_prev, has_next = prev >= 0, nxt < N
-                nb[has_prev] += C[prev[has_prev]]
-                nb[has_next] += C[nxt[has_next]]
-                if anchor is not None and rows[0] == 0:
-                    nb[0] += anchor
-                val += smooth * np.einsum("nkj,nj->nk", cand, nb)
             if reachable is not None:
                 val[:, 1:][~reachable(rows, cand[:, 1:])] = -np.inf
             k = np.argmax(val, axis=1)

@@ -35,9 +35,8 @@ def pair_slope(cos: np.ndarray, knee: float) -> np.ndarray | float:
     return 1.0 / np.sqrt(1.0 + chord2 / (knee * knee))
 
 
-def path_value(C: np.ndarray, knee: float, anchor: np.ndarray | None = None) -> float:
-    """Σ pair values along unit axes C (N, 3), plus the pair (anchor, c_0) when an anchor (3,) is given."""
-    total = float(np.sum(pair_value(np.einsum("ij,ij->i", C[1:], C[:-1]), knee)))
-    if anchor is not None and C.shape[0]:
-        total += float(pair_value(float(anchor @ C[0]), knee))
-    return total
+def path_value(C: np.ndarray, knee: float) -> float:
+    """Σ pair values of consecutive unit axes C (N, 3) (without a knee: Σ c_{i+1}·c_i, summed over all products)."""
+    if knee <= 0:
+        return float(np.sum(C[1:] * C[:-1]))
+    return float(np.sum(pair_value(np.einsum("ij,ij->i", C[1:], C[:-1]), knee)))

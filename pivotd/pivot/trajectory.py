@@ -27,7 +27,7 @@ from pivotd.pivot.cone_kernel import cone_kernel
 from pivotd.pivot.constraints import PanTiltConstraint
 from pivotd.pivot.morton import morton_keys
 from pivotd.pivot.normalise import Normalisation, attainable_weights
-from pivotd.pivot.smoothness import path_value
+from pivotd.pivot.smoothness import pair_value, path_value
 from pivotd.pivot.steps import limit_steps, step_angles
 from pivotd.pivot.view import ViewOptions, optimize_view, schedule
 
@@ -379,12 +379,10 @@ def _judge(
         return np.zeros(N, dtype=int), 0.0
     visible, F = _ascent.evaluate(geom, C, alpha, width)
     obj = float(np.sum(F / np.maximum(norm, 1e-12)))
-    if smooth > 0 and knee > 0:
-        obj += smooth * path_value(C, knee, anchor)
-    elif smooth > 0:  # the paper's term, summed as it always was (ties between candidates stay decided alike)
-        obj += smooth * float(np.sum(C[1:] * C[:-1]))
+    if smooth > 0:
+        obj += smooth * path_value(C, knee)
         if anchor is not None:
-            obj += smooth * float(anchor @ C[0])
+            obj += smooth * float(pair_value(float(anchor @ C[0]), knee))
     return visible.astype(int), obj
 
 
