@@ -152,13 +152,16 @@ def test_hostile_poses_and_paths_a_stale_pose_and_a_starved_planner_are_survived
     counted or followed within the limits, never a traceback, never a device watchdog trip. A pose source that
     stops and a planner process that gets no CPU for 3 s: a jerk-limited hold, then tracking again."""
     flood: tuple[float, float] = (0.0, 0.0)  # device clock [s] around the pose flood
+    # the pose inbox keeps the newest only: on a loaded machine the robot's next pose may replace a NaN or garbage
+    # pose before it is decoded; such a kind is sent again until one is judged (its drop counter moves)
+    judged_by = {"nan_pose": "dropped_nonfinite", "garbage": "dropped_malformed"}
     for kind in ("nan_pose", "teleport", "past_pose", "pose_flood", "garbage", "path_empty", "path_single",
                  "path_far", "path_huge", "path_garbage"):
         t0 = stack.device.elapsed()
         stack.inject(kind)
-        if kind == "nan_pose":  # the pose inbox keeps the newest only: on a loaded machine the robot's next pose
-            for _ in range(10):  # may replace a NaN pose before it is decoded; send it again until one is judged
-                if stack.wait(lambda st: st.get("bus", {}).get(stack.cfg.topics.pose, {}).get("dropped_nonfinite"),
+        if kind in judged_by:
+            for _ in range(10):
+                if stack.wait(lambda st, k=kind: st.get("bus", {}).get(stack.cfg.topics.pose, {}).get(judged_by[k]),
                               1.0) is not None:
                     break
                 stack.inject(kind)
