@@ -296,14 +296,17 @@ def _log_row(t, direction, kind, seq="", pan=0.0, rate=0.0, mode="", host=None):
 
 
 @pytest.mark.parametrize("restart", ["from_the_hold", "from_the_hold_after_a_slow_burst", "twice_from_the_hold",
-                                     "from_nowhere"])
+                                     "from_nowhere", "from_a_state_in_motion"])
 def test_check_device_log_judges_a_restart_after_a_hold_from_the_measured_state(tmp_path, restart):
     """The soak's late-burst case (30-minute run, a 31x acceleration step): the device held (its watchdog: the
     stream reached it late on a loaded host), then got the late rest of the old stream at once, then the stream the
     host restarted from the held state. The restart is judged from the measured state it starts at, not from the
     late setpoints; a second restart from the same hold, or a restart from no measured state, still counts. After a
     slow old stream the restart's first setpoint also continues the late one by its acceleration (its jerk unknown):
-    the next pair is judged from the restart, which the host did (a false 7.6x jerk before)."""
+    the next pair is judged from the restart, which the host did (a false 7.6x jerk before). When the late frames
+    resumed the device in time for the host to restart from a state in motion, the restart's first setpoint can
+    continue the old stream within every limit, jerk included: the next pair is still judged from the restart too
+    (a false 1.15x jerk before)."""
     from pivotd.config import load_config
     from pivotd.sim.launch import REPO
 
@@ -317,14 +320,21 @@ def test_check_device_log_judges_a_restart_after_a_hold_from_the_measured_state(
     # the late rest of the old stream, sent 10 ms apart before the host knew of the hold, arriving at once
     log += [_log_row(0.31, "rx", "SETPOINT", seq=k, pan=v * 0.01 * k, rate=v, host=round(0.01 * k * 1e6))
             for k in range(6, 12)]
-    log += [_log_row(0.32, "tx", "STATE", pan=hold + 0.001, rate=0.1, mode=MODE_ENABLED)]  # it resumed
-    # the restarted stream: from the held state at rest, jerk-limited (rates j·dt²/2, 2·j·dt², 4.5·j·dt²)
+    resumed = dict(pan=hold + 0.001, rate=0.1)
+    if restart == "from_a_state_in_motion":  # it resumed early in the burst, and reported moving close to it
+        resumed = dict(pan=hold + 0.05, rate=v - 0.6 * j * dt**2)
+        log.insert(-3, _log_row(0.31, "tx", "STATE", mode=MODE_ENABLED, **resumed))
+    else:
+        log += [_log_row(0.32, "tx", "STATE", mode=MODE_ENABLED, **resumed)]
+    # the restarted stream: from the held state at rest, jerk-limited (rates j·dt²/2, 2·j·dt², 4.5·j·dt²), or
+    # from the state in motion
     host0 = round(0.12 * 1e6)
-    profile = [0.5 * j * dt**2, 2.0 * j * dt**2, 4.5 * j * dt**2]
+    base, start = (resumed["rate"], resumed["pan"]) if restart == "from_a_state_in_motion" else (0.0, hold)
+    profile = [base + 0.5 * j * dt**2, base + 2.0 * j * dt**2, base + 4.5 * j * dt**2]
     if restart == "from_nowhere":
         profile = [0.3, 0.3, 0.3]
     for i, r in enumerate(profile):
-        log += [_log_row(0.33 + 0.01 * i, "rx", "SETPOINT", seq=12 + i, pan=hold + r * dt, rate=r,
+        log += [_log_row(0.33 + 0.01 * i, "rx", "SETPOINT", seq=12 + i, pan=start + r * dt, rate=r,
                          host=host0 + 10_000 * i)]
     if restart == "twice_from_the_hold":  # and once more from the same hold
         log += [_log_row(0.36, "rx", "SETPOINT", seq=15, pan=hold, rate=0.5 * j * dt**2, host=host0 + 30_000)]
@@ -332,8 +342,58 @@ def test_check_device_log_judges_a_restart_after_a_hold_from_the_measured_state(
     if restart.startswith("from_the_hold"):
         assert check.beyond_limits == 0 and check.restarts == 1, check
         assert check.checked_pairs == 4 + 3  # the old stream before the hold; the restart and its stream
+    elif restart == "from_a_state_in_motion":
+        assert check.beyond_limits == 0 and check.restarts == 1, check
+        assert check.checked_pairs == 4 + 3 + 3  # and the late pairs after it resumed
+        assert check.worst["jerk"] == pytest.approx(1.0, abs=0.01)
     else:
         assert check.beyond_limits >= 1, check
+
+
+def test_check_device_log_judges_a_restart_continuing_several_measured_states_from_each(tmp_path):
+    """After a hold the device reported two states in motion that the restart's first setpoint both continues
+    within the limits; the log does not say which one the host restarted from, so the next pair is judged from the
+    more favourable (the first-listed one gave a false 1.4x jerk)."""
+    from pivotd.config import load_config
+    from pivotd.sim.launch import REPO
+
+    cfg = load_config(REPO / "config" / "demo.yaml")
+    dt, j = cfg.control.dt, cfg.motion.pan.max_jerk
+    r_b = 0.1  # [rad/s] the state the host restarted from
+    log = [_log_row(0.0, "tx", "STATE", mode=MODE_ENABLED),
+           _log_row(0.02, "tx", "STATE", pan=0.5, mode=MODE_HOLDING),
+           _log_row(0.04, "tx", "STATE", pan=0.5, rate=r_b + 0.4 * j * dt**2, mode=MODE_ENABLED),
+           _log_row(0.06, "tx", "STATE", pan=0.501, rate=r_b, mode=MODE_ENABLED),
+           _log_row(0.07, "rx", "HEARTBEAT", seq=1)]
+    for k, r in enumerate([0.5, 2.0, 4.5, 8.0]):  # from rest at the jerk limit
+        log += [_log_row(0.08 + 0.01 * k, "rx", "SETPOINT", seq=2 + k, pan=0.501 + 0.001 * k, rate=r_b + r * j * dt**2)]
+    check = check_device_log(cfg, _write_log(tmp_path / "log.csv", log))
+    assert check.restarts == 1 and check.checked_pairs == 3, check
+    assert check.beyond_limits == 0 and check.worst["jerk"] == pytest.approx(1.0, abs=0.01), check
+
+
+@pytest.mark.parametrize("jerk_across", [1.0, 1.5])
+def test_check_device_log_keeps_the_stream_across_a_clear_fault(tmp_path, jerk_across):
+    """The daemon clears a latched fault bit beside the stream (after a watchdog hold it resumed from): the
+    CLEAR_FAULT takes a sequence number and the stream goes on, so the pair across it is judged as one (a setpoint
+    after it was taken for a new segment, and the next pair judged from a restart the host never made)."""
+    from pivotd.config import load_config
+    from pivotd.sim.launch import REPO
+
+    cfg = load_config(REPO / "config" / "demo.yaml")
+    dt, j = cfg.control.dt, cfg.motion.pan.max_jerk
+    log = [_log_row(0.0, "tx", "STATE", mode=MODE_ENABLED)]
+    acc = [0.5, 1.5, 2.5, 3.5, 4.5]  # [j·dt] jerk j from rest, then the step across the clear, then j again
+    acc += [acc[-1] + jerk_across, acc[-1] + jerk_across + 1, acc[-1] + jerk_across + 2]
+    rates = list(np.concatenate([[0.0], np.cumsum(acc)]) * j * dt**2)
+    for k, r in enumerate(rates):
+        if k == 6:
+            log += [_log_row(0.01 * k, "rx", "CLEAR_FAULT", seq=k)]
+        seq = k if k < 6 else k + 1
+        log += [_log_row(0.01 * k, "rx", "SETPOINT", seq=seq, pan=0.001 * k, rate=r)]
+    check = check_device_log(cfg, _write_log(tmp_path / "log.csv", log))
+    assert check.checked_pairs == len(rates) - 1, check
+    assert check.beyond_jerk == (0 if jerk_across == 1.0 else 1), check
 
 
 def test_device_reboot_behind_an_open_port_is_configured_and_enabled_again(tmp_path):

@@ -257,7 +257,8 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
     """Check every SETPOINT in a device message log against ``cfg``'s joint and motion limits.
 
     Position and velocity hold for every setpoint. Acceleration (rate difference / dt) and jerk hold between
-    setpoints of one continuous stream: consecutive frame numbers (no frame lost or corrupted between them),
+    setpoints of one continuous stream: consecutive frame numbers (no frame lost or corrupted between them; a
+    CLEAR_FAULT the daemon sent beside the stream takes one),
     sent at most ``MAX_STREAM_GAP_S`` apart (a longer stall of the control loop restarts the stream), no device
     reboot between them, and the device following the stream (mode ENABLED in its last STATE). Across a break
     the controller restarts from the measured state, which the stream cannot show.
@@ -268,11 +269,13 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
     So within ``RESTART_WINDOW_S`` of device time after a reported stop, the first setpoint that is continuous with
     one of the measured states reported since the stop (position within the distance the reported or commanded
     rate covers in ``stall_s`` plus a period; rate within one period of the acceleration limit, and that
-    acceleration within one period of the jerk limit from rest) starts the new segment, judged from that state on.
+    acceleration within one period of the jerk limit from rest) starts the new segment, judged from that state on
+    (from the most favourable of them when it continues several: the log does not say which one the host took).
     One stop allows one restart: a second restart from the same stop, or a setpoint continuous with neither the
-    previous setpoint nor a measured state, counts as beyond the limits. A restart whose setpoint also continues
-    the previous one by its acceleration, with that pair's jerk unknown (late frames of the old stream resumed the
-    device just before), may be either: the next pair's jerk is judged from the more favourable of the two.
+    previous setpoint nor a measured state, counts as beyond the limits. A setpoint that continues both the
+    previous one within the limits and a measured state (late frames of the old stream resumed the device, and the
+    host restarted from a state in motion close to the old stream) may be either: the next pair's jerk is judged
+    from the more favourable of the two, and the stop still allows its restart.
     """
     from firmware_proto.messages import MODE_ENABLED
     from pivotd.daemon.control import ControlSettings
@@ -296,16 +299,19 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
     last_mode = -1
     stop_t: float | None = None  # device time of the latest reported stop within the restart window
     measured: list[tuple[np.ndarray, np.ndarray]] = []  # (position, rate) of the states reported since that stop
+    stop_restarted = False  # a setpoint continuous with one of them was seen (counted once per stop)
 
-    def restart_acc(pos: np.ndarray, rate: np.ndarray) -> np.ndarray | None:
-        """Acceleration of a restart from one of the ``measured`` states that ``(pos, rate)`` continues, or None."""
+    def restart_accs(pos: np.ndarray, rate: np.ndarray) -> list[np.ndarray]:
+        """Accelerations of a restart from each of the ``measured`` states that ``(pos, rate)`` continues (the host
+        restarted from one of them, the log does not say which), the most favourable first."""
+        found = []
         for m_pos, m_rate in measured:
             acc = (rate - m_rate) / dt
             reach = np.maximum(np.abs(m_rate), np.abs(rate)) * (stall + dt) + 2 * res
             if (np.all(np.abs(pos - m_pos) <= reach) and np.all(np.abs(acc) <= amax + allow_a)
                     and np.all(np.abs(acc) / dt <= jmax + allow_j)):
-                return acc
-        return None
+                found.append(acc)
+        return sorted(found, key=lambda a: float(np.max(np.abs(a) / amax)))
 
     with open(path, newline="") as fh:
         for row in csv.DictReader(fh):
@@ -322,15 +328,19 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                 if mode != MODE_ENABLED:
                     prev, prev_acc = None, []
                 if mode != MODE_ENABLED and mode != last_mode:  # it stopped following
-                    stop_t, measured = t, [state]
+                    stop_t, measured, stop_restarted = t, [state], False
                 elif stop_t is not None:
                     measured.append(state)
                 last_mode = mode
                 continue
             if row["dir"] != "rx":
                 continue
+            if row["type"] == "CLEAR_FAULT" and prev is not None:
+                # sent beside the stream (the daemon's supervision): it takes a sequence number, the stream goes on
+                prev = ((prev[0] + 1) & 0xFF, prev[1], prev[2])
+                continue
             if row["type"] != "SETPOINT":
-                prev, prev_acc = None, []  # HELLO, CONFIG, ENABLE, CLEAR_FAULT: a new stream follows
+                prev, prev_acc = None, []  # HELLO, CONFIG, ENABLE, HEARTBEAT: a new stream follows
                 continue
             out.setpoints += 1
             seq = int(row["seq"])
@@ -340,15 +350,16 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
             out.worst["velocity"] = max(out.worst["velocity"], float(np.max(np.abs(rate) / vmax)))
             out.beyond_velocity += int(np.any(np.abs(rate) > vmax + allow_v))
             host = int(row["host_time_us"])
-            restarted = restart_acc(pos, rate) if measured else None
-            if restarted is not None:  # the restart after the stop (one per stop)
+            restarts = restart_accs(pos, rate) if measured else []
+            restarted = restarts[0] if restarts else None
+            if restarted is not None and not stop_restarted:  # a restart after this stop
                 out.restarts += 1
-                stop_t, measured = None, []
+                stop_restarted = True
             if (prev is not None and seq == (prev[0] + 1) & 0xFF and mode == MODE_ENABLED
                     and ((host - prev[1]) & 0xFFFFFFFF) <= MAX_STREAM_GAP_S * 1e6):
                 acc = (rate - prev[2]) / dt
-                # the acceleration before may be one of two: a pair continuous by its acceleration whose jerk was
-                # unknown, at a restart; the jerk is the one of the smaller ratio
+                # the acceleration before may be one of two (a restart that also continued the stream); the jerk
+                # is the one of the smaller ratio
                 jerks = [(acc - a) / dt for a in prev_acc]
                 jerk = min(jerks, key=lambda j: float(np.max(np.abs(j) / jmax))) if jerks else None
                 continuous = (np.all(np.abs(acc) <= amax + allow_a)
@@ -356,10 +367,11 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                 nxt = [acc]
                 if restarted is not None and not continuous:  # judged from the measured state it starts at
                     acc, jerk = restarted, restarted / dt
-                    nxt = [acc]
+                    nxt = restarts
                     out.restarted_steps += 1
-                elif restarted is not None and jerk is None:  # either the stream continued or it restarted here
-                    nxt = [acc, restarted]
+                    stop_t, measured = None, []  # the one restart this stop allows
+                elif restarted is not None:  # either the stream continued or it restarted here: both stay open
+                    nxt = [acc, *restarts]
                 out.checked_pairs += 1
                 out.worst["acceleration"] = max(out.worst["acceleration"], float(np.max(np.abs(acc) / amax)))
                 out.beyond_acceleration += int(np.any(np.abs(acc) > amax + allow_a))
@@ -368,7 +380,9 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                     out.beyond_jerk += int(np.any(np.abs(jerk) > jmax + allow_j))
                 prev_acc = nxt
             else:
-                prev_acc = [] if restarted is None else [restarted]
+                prev_acc = restarts
+                if restarted is not None:  # a new segment from a measured state: the one restart this stop allows
+                    stop_t, measured = None, []
             prev = (seq, host, rate)
     out.worst = {k: round(v, 3) for k, v in out.worst.items()}
     return out
