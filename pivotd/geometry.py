@@ -75,6 +75,32 @@ def angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
 
 
+def slerp(a: np.ndarray, b: np.ndarray, t: np.ndarray | float) -> np.ndarray:
+    """Unit vectors (..., 3) a fraction ``t`` (...) of the way from unit ``a`` to unit ``b`` (..., 3) along the
+    great circle, at constant angular speed. Opposite ``a`` and ``b`` turn through the perpendicular ``a × z``
+    (``a × x`` when ``a`` is vertical): level for a camera that looks level."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    t = np.asarray(t, dtype=float)[..., None]
+    a, b, t = np.broadcast_arrays(a, b, t)
+    t = t[..., :1]
+    omega = angle_between(a, b)[..., None]
+    opposite = np.pi - omega < 1e-6
+    if np.any(opposite):  # two quarter turns: a -> perp -> -a
+        perp = np.cross(a, [0.0, 0.0, 1.0])
+        vertical = np.linalg.norm(perp, axis=-1, keepdims=True) < 1e-6
+        perp = normalize(np.where(vertical, np.cross(a, [1.0, 0.0, 0.0]), perp))
+        second = opposite & (t > 0.5)
+        a, b = np.where(second, perp, a), np.where(opposite, np.where(second, -a, perp), b)
+        t = np.where(opposite, np.where(second, 2.0 * t - 1.0, 2.0 * t), t)
+        omega = np.where(opposite, np.pi / 2, omega)
+    small = omega < 1e-6
+    sin_o = np.where(small, 1.0, np.sin(omega))
+    wa = np.where(small, 1.0 - t, np.sin((1.0 - t) * omega) / sin_o)
+    wb = np.where(small, t, np.sin(t * omega) / sin_o)
+    return normalize(wa * a + wb * b)
+
+
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) from quaternions (..., 4) ordered (x, y, z, w); normalizes q."""
     q = normalize(np.asarray(q, dtype=float))

@@ -134,3 +134,21 @@ def test_matrix_to_quat_matches_scipy_on_random_and_half_turn_rotations():
     angles = np.concatenate([rng.uniform(0, np.pi, 200), np.full(100, np.pi), np.pi - rng.uniform(0, 1e-6, 100)])
     R = g.so3_exp(axes * angles[:, None])
     np.testing.assert_allclose(g.matrix_to_quat(R), Rotation.from_matrix(R).as_quat(canonical=True), atol=1e-9)
+
+
+def test_slerp_moves_at_constant_speed_on_the_great_circle_even_between_opposite_directions():
+    rng = np.random.default_rng(4)
+    a, b = g.normalize(rng.normal(size=(200, 3))), g.normalize(rng.normal(size=(200, 3)))
+    a[:3] = [[1.0, 0, 0], [0, 0, 1.0], [0.6, 0, 0.8]]
+    b[:3] = -a[:3]  # opposite: level, vertical and oblique starts
+    t = np.linspace(0.0, 1.0, 11)
+    path = g.slerp(a[:, None, :], b[:, None, :], t[None, :])  # (200, 11, 3) by broadcasting
+    np.testing.assert_allclose(np.linalg.norm(path, axis=-1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(path[:, 0], a, atol=1e-12)
+    np.testing.assert_allclose(path[:, -1], b, atol=1e-9)
+    steps = g.angle_between(path[:, 1:], path[:, :-1])
+    np.testing.assert_allclose(steps, np.broadcast_to(g.angle_between(a, b)[:, None] / 10, steps.shape), atol=1e-9)
+    # the half turn from a level direction stays level; from straight up it passes a horizontal direction
+    np.testing.assert_allclose(path[0, :, 2], 0.0, atol=1e-12)
+    np.testing.assert_allclose(path[1, 5, 2], 0.0, atol=1e-12)
+    np.testing.assert_allclose(g.slerp(a[3], a[3], 0.3), a[3], atol=1e-12)

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from pivotd.daemon.planner import Plan, PlannerSettings, RecedingHorizonPlanner, slerp_directions
-from pivotd.geometry import angle_between, normalize
+from pivotd.daemon.planner import Plan, PlannerSettings, RecedingHorizonPlanner
+from pivotd.geometry import angle_between, normalize, slerp
 from pivotd.gimbal.kinematics import JointLimits, Mount, world_directions_to_joints
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.formats import LandmarkCloud
@@ -69,7 +69,7 @@ def test_path_quaternions_are_used_when_informative():
 
 def test_slerp_and_plan_interpolation():
     a, b = np.array([1.0, 0, 0]), np.array([0.0, 1.0, 0])
-    mid = slerp_directions(a, b, 0.5)
+    mid = slerp(a, b, 0.5)
     np.testing.assert_allclose(mid, normalize(np.array([1.0, 1.0, 0])), atol=1e-12)
     plan = Plan(created=0.0, positions=np.array([[0.0, 0, 0], [1.0, 0, 0]]), directions=np.stack([a, b]),
                 body_quats=np.tile(IDENTITY, (2, 1)), visible=np.zeros(2, int), s=np.array([3.0, 4.0]),

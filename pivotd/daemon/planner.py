@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from pivotd.config.settings import MAX_MARKER_LANDMARKS
-from pivotd.geometry import angle_between, normalize, quat_to_matrix
+from pivotd.geometry import angle_between, normalize, quat_to_matrix, slerp
 from pivotd.gimbal.kinematics import (
     JointLimits,
     Mount,
@@ -51,21 +51,6 @@ from pivotd.robot_path import Polyline, project_onto_polyline
 
 #: Most landmarks a plan reports as inside its first cone (:attr:`Plan.in_view`, shown as live markers).
 MAX_IN_VIEW = MAX_MARKER_LANDMARKS
-
-
-def slerp_directions(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Spherical interpolation between unit vectors ``a`` and ``b`` (..., 3) at fractions ``t`` (...)."""
-    a = np.asarray(a, float)
-    b = np.asarray(b, float)
-    t = np.asarray(t, float)[..., None]
-    dot = np.clip(np.sum(a * b, axis=-1, keepdims=True), -1.0, 1.0)
-    omega = np.arccos(dot)
-    sin_o = np.sin(omega)
-    small = sin_o < 1e-6
-    safe = np.where(small, 1.0, sin_o)
-    wa = np.where(small, 1.0 - t, np.sin((1.0 - t) * omega) / safe)
-    wb = np.where(small, t, np.sin(t * omega) / safe)
-    return normalize(wa * a + wb * b)
 
 
 @dataclass(frozen=True)
@@ -103,7 +88,7 @@ class Plan:
             sc = np.clip(s_arr, self.s[0], self.s[-1])
             i = np.clip(np.searchsorted(self.s, sc, side="right") - 1, 0, self.s.shape[0] - 2)
             t = (sc - self.s[i]) / np.maximum(self.s[i + 1] - self.s[i], 1e-12)
-            out = slerp_directions(self.directions[i], self.directions[i + 1], t)
+            out = slerp(self.directions[i], self.directions[i + 1], t)
         return out[0] if scalar else out
 
     def locate(self, position: np.ndarray) -> float:

@@ -20,6 +20,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from pivotd.geometry import slerp
 from pivotd.pivot.brute import best_grid_chain, sphere_grid
 from pivotd.pivot.smoothness import pair_value
 
@@ -93,21 +94,6 @@ def best_chain(
     return path
 
 
-def _antipodal_segment(da: np.ndarray, db: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Directions (k, 3) from da to db = −da at fractions t (k,): through a perpendicular direction."""
-    perp = np.cross(da, [0.0, 0.0, 1.0])
-    if np.linalg.norm(perp) < 1e-6:
-        perp = np.cross(da, [1.0, 0.0, 0.0])
-    perp /= np.linalg.norm(perp)
-    omega = np.pi / 2
-    t = 2 * t
-    return np.where(
-        (t <= 1)[:, None],
-        (np.sin((1 - t) * omega)[:, None] * da + np.sin(t * omega)[:, None] * perp) / np.sin(omega),
-        (np.sin((2 - t) * omega)[:, None] * perp + np.sin((t - 1) * omega)[:, None] * db) / np.sin(omega),
-    )
-
-
 def slerp_fill(n: int, nodes: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     """Unit directions (n, 3) for every waypoint, spherically interpolated between node directions (K, 3)."""
     out = np.empty((n, 3))
@@ -118,16 +104,7 @@ def slerp_fill(n: int, nodes: np.ndarray, dirs: np.ndarray) -> np.ndarray:
         seg = np.clip(np.searchsorted(nodes, idx, side="right") - 1, 0, nodes.size - 2)
         a, b = nodes[seg], nodes[seg + 1]
         t = (idx - a) / np.maximum(b - a, 1)
-        da, db = dirs[seg], dirs[seg + 1]
-        omega = np.arccos(np.clip(np.einsum("ij,ij->i", da, db), -1.0, 1.0))
-        small = omega < 1e-6
-        sin_o = np.where(small, 1.0, np.sin(omega))
-        wa = np.where(small, 1 - t, np.sin((1 - t) * omega) / sin_o)
-        wb = np.where(small, t, np.sin(t * omega) / sin_o)
-        out[idx] = wa[:, None] * da + wb[:, None] * db
-        for k in np.unique(seg[np.pi - omega < 1e-6]):  # antipodal neighbours (rare)
-            rows = np.flatnonzero(seg == k)
-            out[idx[rows]] = _antipodal_segment(dirs[k], dirs[k + 1], t[rows])
+        out[idx] = slerp(dirs[seg], dirs[seg + 1], t)
     return out / np.linalg.norm(out, axis=1, keepdims=True)
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pivotd.geometry import normalize
+from pivotd.geometry import normalize, slerp
 
 
 def blind_waypoints(visible: np.ndarray, attainable: np.ndarray, fraction: float) -> np.ndarray:
@@ -49,20 +49,5 @@ def rescue_init(directions: np.ndarray, blind: np.ndarray, axes: np.ndarray, rea
                 if not 0 <= j < N or target[j] >= 0:
                     break
                 t = (reach + 1 - d) / (reach + 1)
-                out[j] = _slerp(out[j], axes[k], t)
+                out[j] = slerp(out[j], axes[k], t)
     return out
-
-
-def _slerp(a: np.ndarray, b: np.ndarray, t: float) -> np.ndarray:
-    """Unit vector (3,) a fraction ``t`` of the way from unit ``a`` to unit ``b`` along the great circle (a
-    fixed perpendicular when they are opposite)."""
-    dot = float(np.clip(a @ b, -1.0, 1.0))
-    omega = float(np.arccos(dot))
-    if omega < 1e-9:
-        return b.copy()
-    if np.pi - omega < 1e-9:  # opposite: turn through any perpendicular
-        perp = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
-        perp /= np.linalg.norm(perp)
-        return np.cos(t * np.pi) * a + np.sin(t * np.pi) * perp
-    s = np.sin(omega)
-    return normalize((np.sin((1.0 - t) * omega) * a + np.sin(t * omega) * b) / s)
