@@ -133,6 +133,8 @@ def test_tracking_run_end_to_end(tmp_path, backend):
             odom = status["bus"]["/odom"]
             assert odom.get("dropped_malformed", 0) >= 1 and odom.get("dropped_nonfinite", 0) >= 1, odom
             assert status["reloads"] == 1 and status["reload_errors"] == 1
+            planner = status["planner"]
+            assert 0 <= planner["rescues_kept"] <= planner["rescues_tried"] < planner["plans"], planner
             time.sleep(1.0)
             code = daemon.stop(signal.SIGTERM, timeout=20)
             assert code == 0, daemon.output()

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pivotd.config import load_config
-from pivotd.daemon.planner import Plan, PlannerSettings, RecedingHorizonPlanner
+from pivotd.daemon.planner import Plan, PlannerSettings, RecedingHorizonPlanner, Rescue
 from pivotd.errors import PivotdError
 from pivotd.geometry import angle_between
 from pivotd.gimbal.kinematics import JointLimits, Mount
@@ -62,6 +62,7 @@ def test_blind_warm_start_turns_to_the_wall_with_a_higher_objective():
     assert all(angle_between(d, BLANK) < math.radians(10) for d in p_off.directions)
     # with it, a second solve from the wall's axis wins by the objective and the plan looks at the wall
     assert on.solves == 2 and on.rescues == 1
+    assert p_on.rescue == Rescue.KEPT and p_off.rescue == Rescue.NOT_TRIED  # what the daemon's status counts
     assert on.last_objective > off.last_objective
     assert np.median(p_on.visible) > 300
     assert angle_between(p_on.directions[N // 2], yaw(90.0)) < math.radians(50)
@@ -127,7 +128,8 @@ def test_a_rescue_that_lost_is_not_retried_until_the_problem_changes():
     pl.settings = replace(pl.settings, horizon=10)  # too short to pay for the turn
     first = pl.replan(snap, np.zeros(3), IDENTITY, BLANK)
     assert pl.solves == 2 and pl.rescues == 0 and first.visible.max() <= 1  # tried, lost on the objective
-    pl.replan(snap, np.array([0.1, 0.0, 0.0]), IDENTITY, first.directions[0])
-    assert pl.solves == 3  # the same blind waypoints: not tried again
+    assert first.rescue == Rescue.LOST
+    second = pl.replan(snap, np.array([0.1, 0.0, 0.0]), IDENTITY, first.directions[0])
+    assert pl.solves == 3 and second.rescue == Rescue.NOT_TRIED  # the same blind waypoints: not tried again
     pl.replan(snap, np.array([0.6, 0.0, 0.0]), IDENTITY, first.directions[0])
     assert pl.solves == 5  # a new blind waypoint entered the horizon: tried again

@@ -17,7 +17,7 @@ import signal
 import sys
 import threading
 import time
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,7 +32,7 @@ from pivotd.bus.security import input_key_exprs
 from pivotd.bus.session import open_session
 from pivotd.config import Config, load_config
 from pivotd.daemon.control import ControlLoop
-from pivotd.daemon.planner import Plan
+from pivotd.daemon.planner import Plan, Rescue
 from pivotd.daemon.pose_gate import PoseGate, PoseVerdict
 from pivotd.daemon.reload import apply_reload, plan_reload
 from pivotd.daemon.states import DaemonState
@@ -115,6 +115,7 @@ class Daemon:
         self._jitter: deque = deque(maxlen=5000)
         self._solve: deque = deque(maxlen=500)
         self._plans = 0
+        self._rescues = Counter()  # replans by what the rescue of a blind warm start did (Rescue values)
         self._replan_trigger = build_replan_trigger(self.cfg)
         self._inputs_generation = 0  # counts map layer replacements and worker restarts (inputs of a plan)
         self._reloads = 0
@@ -222,6 +223,7 @@ class Daemon:
         self._replan_trigger.planned(now, pose.position, inputs)
         self.plan = plan
         self._plans += 1
+        self._rescues[plan.rescue.value] += 1
         self._solve.append(plan.solve_s)
         if self.bus is not None:
             self.bus.publish_view_plan(pose.stamp, plan.positions, plan.directions)
@@ -373,6 +375,8 @@ class Daemon:
             "fault_episodes": self._fault_episodes,
             "planner": {
                 "plans": self._plans,
+                "rescues_tried": self._rescues[Rescue.LOST.value] + self._rescues[Rescue.KEPT.value],
+                "rescues_kept": self._rescues[Rescue.KEPT.value],
                 "solve_ms_p50": _percentile_ms(list(self._solve), 50),
                 "solve_ms_p99": _percentile_ms(list(self._solve), 99),
                 "horizon": 0 if plan is None else int(plan.directions.shape[0]),

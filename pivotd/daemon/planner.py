@@ -17,6 +17,7 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from enum import Enum
 
 import numpy as np
 
@@ -53,6 +54,14 @@ from pivotd.robot_path import Polyline, project_onto_polyline
 MAX_IN_VIEW = MAX_MARKER_LANDMARKS
 
 
+class Rescue(Enum):
+    """What the rescue of blind warm starts did in a replan (see :meth:`RecedingHorizonPlanner._rescue`)."""
+
+    NOT_TRIED = "not_tried"  # nothing blind, rescue off, a cold start, or a start that lost before on this problem
+    LOST = "lost"  # a second solve from the rescue's start did not reach the higher objective
+    KEPT = "kept"  # the plan is the rescue's
+
+
 @dataclass(frozen=True)
 class Plan:
     """An immutable view plan over a horizon.
@@ -61,7 +70,7 @@ class Plan:
     positions: (N, 3) camera centres [m]; directions: (N, 3) world unit viewing directions;
     body_quats: (N, 4) predicted body attitude (x, y, z, w); visible: (N,) hard counts;
     pans: (N,) joint pan [rad] chosen for each waypoint over the whole horizon (None: the control loop
-    picks the branch nearest its previous pan).
+    picks the branch nearest its previous pan); rescue: what the rescue of a blind warm start did.
     """
 
     created: float
@@ -76,6 +85,7 @@ class Plan:
     landmarks: int = 0
     in_view: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (K, 3) landmarks in the first cone
     pans: np.ndarray | None = None
+    rescue: Rescue = Rescue.NOT_TRIED
 
 
     def direction_at_s(self, s: np.ndarray | float) -> np.ndarray:
@@ -332,8 +342,9 @@ class RecedingHorizonPlanner:
             pair_weights=pair_weights,
         )
         result = self._solve(snapshot, cams, init, solve)
+        rescue = Rescue.NOT_TRIED
         if init is not None and st.rescue_fraction is not None:
-            result = self._rescue(snapshot, cams, s, retained, result, solve)
+            result, rescue = self._rescue(snapshot, cams, s, retained, result, solve)
         self.last_objective = result.objective
         directions, visible, pans = self._joint_plan(snapshot, cams, s, retained, quats, result.directions,
                                                      np.asarray(result.visible), anchor)
@@ -350,6 +361,7 @@ class RecedingHorizonPlanner:
             landmarks=int(sum(r.shape[0] for r in retained)),
             in_view=self._in_view(snapshot, cams[0], result.directions[0], retained[0]),
             pans=pans,
+            rescue=rescue,
         )
         self.last_plan = plan
         return plan
@@ -393,7 +405,7 @@ class RecedingHorizonPlanner:
         return out
 
     def _rescue(self, snapshot: MapSnapshot, cams: np.ndarray, s: np.ndarray, retained: list[np.ndarray],
-                result: TrajectoryResult, solve: dict) -> TrajectoryResult:
+                result: TrajectoryResult, solve: dict) -> tuple[TrajectoryResult, Rescue]:
         """The warm plan ``result``, or a second solve from a start where its blind waypoints look at their best
         single-cone axis when that one reaches the higher objective (both solved with the same options).
 
@@ -407,11 +419,11 @@ class RecedingHorizonPlanner:
         st = self.settings
         blind = blind_waypoints(result.visible, self._attainable(snapshot, cams, s, retained), st.rescue_fraction)
         if blind.size == 0:
-            return result
+            return result, Rescue.NOT_TRIED
         cells = {math.floor(float(x) / st.spacing + 1e-9) for x in s[blind]}
         size, tried = self._rejected
         if size == s.shape[0] and cells <= tried:
-            return result
+            return result, Rescue.NOT_TRIED
         lost = (s.shape[0], (tried if size == s.shape[0] else set()) | cells)  # what to remember if it loses
         axes = np.empty((blind.size, 3))
         for k, i in enumerate(blind):
@@ -426,7 +438,7 @@ class RecedingHorizonPlanner:
             still = result.visible[blind] < st.rescue_fraction * reach
             if not still.any():
                 self._rejected = lost
-                return result
+                return result, Rescue.NOT_TRIED
             blind, axes = blind[still], axes[still]
         init = rescue_init(result.directions, blind, axes, st.rescue_reach)
         if constraint is not None:
@@ -435,9 +447,9 @@ class RecedingHorizonPlanner:
         if alt.objective > result.objective:
             self.rescues += 1
             self._rejected = (0, set())
-            return alt
+            return alt, Rescue.KEPT
         self._rejected = lost
-        return result
+        return result, Rescue.LOST
 
     def _joint_plan(self, snapshot: MapSnapshot, cams: np.ndarray, s: np.ndarray, retained: list[np.ndarray],
                     quats: np.ndarray,
