@@ -43,7 +43,8 @@ def _status_line(elapsed: float, st: dict) -> str:
     return (f"t={elapsed:5.1f}s state={st.get('state', '?'):<9} link={st.get('link', '?'):<10} "
             f"pose_age={'-' if age is None else f'{age:.2f}s'} pan={g.get('pan_deg', float('nan')):+7.1f}° "
             f"tilt={g.get('tilt_deg', float('nan')):+6.1f}° visible={pl.get('visible_now', '-')} "
-            f"replan_p50={pl.get('solve_ms_p50', '-')}ms jitter_p99={ctl.get('jitter_ms_p99', '-')}ms")
+            f"replan_p50={pl.get('solve_ms_p50', '-')}ms rescues_kept/tried={pl.get('rescues_kept', '-')}/"
+            f"{pl.get('rescues_tried', '-')} jitter_p99={ctl.get('jitter_ms_p99', '-')}ms")
 
 
 @dataclass(frozen=True)
