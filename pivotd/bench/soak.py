@@ -294,7 +294,7 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
     out = SetpointCheck()
     mode = -1
     prev: tuple[int, int, np.ndarray] | None = None  # (seq, host time [µs], rate) of the previous setpoint
-    prev_acc: list[np.ndarray] = []  # the acceleration of the previous pair (two candidates at an ambiguous restart)
+    prev_acc: list[np.ndarray] = []  # the acceleration of the previous pair (several candidates at a restart)
     last_t = -np.inf
     last_mode = -1
     stop_t: float | None = None  # device time of the latest reported stop within the restart window
@@ -358,8 +358,8 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
             if (prev is not None and seq == (prev[0] + 1) & 0xFF and mode == MODE_ENABLED
                     and ((host - prev[1]) & 0xFFFFFFFF) <= MAX_STREAM_GAP_S * 1e6):
                 acc = (rate - prev[2]) / dt
-                # the acceleration before may be one of two (a restart that also continued the stream); the jerk
-                # is the one of the smaller ratio
+                # the acceleration before may be one of several (a restart, which may also have continued the
+                # stream); the jerk is the one of the smallest ratio
                 jerks = [(acc - a) / dt for a in prev_acc]
                 jerk = min(jerks, key=lambda j: float(np.max(np.abs(j) / jmax))) if jerks else None
                 continuous = (np.all(np.abs(acc) <= amax + allow_a)
