@@ -207,3 +207,38 @@ def test_snapshot_order_is_fixed_by_the_landmarks_not_the_file():
     for run in crowded:
         z = snaps[0].points[run, 2].astype(float) - cells[run, 2]
         assert np.all(np.diff((z >= 0.5).astype(int)) >= 0)  # lower half first, then upper half
+
+
+def test_dense_cells_are_read_through_an_even_subsample_fixed_at_load():
+    """A map packed densely (12.5k landmarks per 1 m cell): the retained-set query returns at most the cell cap of
+    each cell in range, the same landmarks whatever the file order, spread over each cell; sparse cells whole."""
+    rng = np.random.default_rng(7)
+    dense = rng.uniform([0, 0, 0], [4, 4, 3], (600_000, 3)).astype(np.float32)  # 48 cells of the 1 m lattice
+    sparse = rng.uniform([6, 0, 0], [7, 1, 1], (50, 3)).astype(np.float32)  # one cell under the cap
+    pts = np.concatenate([dense, sparse])
+    flt = RetainedFilter(max_range=10.0)
+    way = np.array([[2.0, 2.0, 1.5]])
+    kept = []
+    for perm in (np.arange(pts.shape[0]), rng.permutation(pts.shape[0])):
+        store = MapStore(cell_cap=100)
+        store.set_layer("base", LandmarkCloud(pts[perm], np.ones(pts.shape[0], np.float32)))
+        snap = store.snapshot()
+        (idx,) = snap.retained(way, flt)
+        assert idx.size == 48 * 100 + 50  # not 600 050: the query reads the cap of every dense cell
+        assert snap.queried_landmarks == 48 * 100 + 50 and len(snap) == pts.shape[0]
+        assert np.all(np.diff(idx) > 0)
+        np.testing.assert_array_equal(snap.retained(way, RetainedFilter(max_range=np.inf))[0], idx)  # brute path
+        kept.append(snap.points[idx])
+    np.testing.assert_array_equal(kept[0], kept[1])
+    got = kept[0]
+    assert np.sum(got[:, 0] >= 6) == 50  # the sparse cell is read whole
+    corner = got[np.all(got < 1.0, axis=1)]  # the subsample of cell (0, 0, 0) covers its eight octants
+    assert corner.shape[0] == 100
+    octants = np.bincount((corner >= 0.5).astype(int) @ np.array([4, 2, 1]), minlength=8)
+    assert octants.min() >= 6, octants
+    # without a cap every landmark in range is read, as before
+    store = MapStore()
+    store.set_layer("base", LandmarkCloud(pts, np.ones(pts.shape[0], np.float32)))
+    assert store.snapshot().retained(way, flt)[0].size == pts.shape[0]
+    with pytest.raises(InputError, match="landmarks per map cell"):
+        MapStore(cell_cap=0)

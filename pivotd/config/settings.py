@@ -92,6 +92,7 @@ class MapConfig:
     allow_empty: bool = False
     filters: MapFilters = field(default_factory=MapFilters)
     layers: MapLayers = field(default_factory=MapLayers)
+    max_landmarks_per_cell: int = 256  # the planner's queries read at most this many landmarks of one 1 m cell
 
 
 @dataclass(frozen=True)
@@ -135,6 +136,8 @@ class PlannerConfig:
     normalise: Normalisation = Normalisation.TOTAL  # per-waypoint visible term over total or attainable weight
     rescue_blind: bool = True  # a second solve where the warm plan sees < rescue_fraction of one cone's best
     rescue_fraction: float = 0.25  # (0, 1]: a waypoint is blind below this share of its attainable count
+    replan_budget: float = 2.0  # [s] a replan slower than this is late: counted, and the next ones plan less
+    replan_deadline: float = 30.0  # [s] a replan not answered by then (the worker busy all along) restarts it
 
 
 def _default_limits() -> JointLimits:
@@ -542,8 +545,9 @@ def _map(s: Section) -> MapConfig:
         targets=layers_s.number("targets", MapLayers.targets, min=0.0),
     )
     layers_s.finish()
+    cell_cap = s.number("max_landmarks_per_cell", MapConfig.max_landmarks_per_cell, min=1, integer=True)
     s.finish()
-    return MapConfig(file, weight_property, allow_empty, filters, layers)
+    return MapConfig(file, weight_property, allow_empty, filters, layers, cell_cap)
 
 
 def _pivot(s: Section) -> PivotConfig:
@@ -591,7 +595,11 @@ def _planner(s: Section, control: ControlConfig) -> PlannerConfig:
         normalise=Normalisation(s.string("normalise", d.normalise.value, choices=tuple(Normalisation))),
         rescue_blind=s.boolean("rescue_blind", d.rescue_blind),
         rescue_fraction=s.number("rescue_fraction", d.rescue_fraction, min=0.0, min_open=True, max=1.0),
+        replan_budget=s.number("replan_budget_s", d.replan_budget, min=0.0, min_open=True, max=3600.0),
+        replan_deadline=s.number("replan_deadline_s", d.replan_deadline, min=0.0, min_open=True, max=3600.0),
     )
+    if out.replan_deadline < out.replan_budget:
+        raise s.error("replan_deadline_s", f"must be ≥ replan_budget_s ({out.replan_budget:g})")
     s.finish()
     return out
 

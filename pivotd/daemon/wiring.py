@@ -46,13 +46,14 @@ def build_map_store(cfg: Config) -> MapStore:
     if m.file is None:
         if not m.allow_empty:
             raise ConfigError(f"{cfg.source}: map.file: required unless map.allow_empty is true")
-        return MapStore(occupancy_voxel=m.filters.occlusion_voxel)
+        return MapStore(occupancy_voxel=m.filters.occlusion_voxel, cell_cap=m.max_landmarks_per_cell)
     store = load_map_store(
         m.file,
         weight_property=m.weight_property,
         occlusion_voxel=m.filters.occlusion_voxel,
         occupancy_file=m.filters.occupancy_file,
         allow_empty=m.allow_empty,
+        cell_cap=m.max_landmarks_per_cell,
     )
     release_free_memory()
     return store

@@ -9,6 +9,11 @@ are serialised by a lock. Each update increments ``version`` so planners can cac
 Memory per landmark: points 12 B + weights 4 B (float32) + grid index ≤ 16 B (sorted cell keys and
 offsets, typically much less) [+ directions 12 B when known]. A single layer with multiplier 1 is
 shared without copies; several layers are concatenated into the snapshot arrays.
+
+Dense cells: with ``cell_cap`` a layer also keeps, fixed at load, an even subsample of at most that many
+landmarks of every grid cell that holds more (:meth:`GridIndex.thinned`, 4 B per kept landmark), and the
+retained-set queries read only those. A query then touches at most ``cell_cap`` landmarks per cell in range,
+however densely the map is packed: its cost and memory follow what the planner keeps, not the density.
 """
 
 from __future__ import annotations
@@ -44,10 +49,24 @@ class LayerInfo:
 
 
 @dataclass(frozen=True)
+class _Thin:
+    """The retained-set queries' subsample of a layer's dense cells: ``rows`` (H,) ascending rows of the layer
+    (int32 or int64), ``index`` over them (same grid as the layer's; see :meth:`GridIndex.thinned`)."""
+
+    rows: np.ndarray
+    index: GridIndex
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.rows.nbytes + self.index.nbytes)
+
+
+@dataclass(frozen=True)
 class _Layer:
     cloud: LandmarkCloud  # points sorted by grid cell
     index: GridIndex
     weight_multiplier: float
+    thin: _Thin | None = None  # None: no cell above the store's cell cap (queries read every landmark)
 
 
 @dataclass(frozen=True)
@@ -67,19 +86,29 @@ class MapSnapshot:
     layers: dict[str, LayerInfo]
     occupancy: OccupancyGrid | None = None
     _indexes: tuple[tuple[int, GridIndex], ...] = field(default=(), repr=False)
+    _thin: tuple[_Thin | None, ...] = field(default=(), repr=False)  # per entry of _indexes
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
 
     @property
     def index_nbytes(self) -> int:
-        """Bytes held by the spatial index (all layers)."""
-        return sum(ix.nbytes for _, ix in self._indexes)
+        """Bytes held by the spatial index (all layers, with the dense cells' subsamples)."""
+        return sum(ix.nbytes for _, ix in self._indexes) + sum(t.nbytes for t in self._thin if t is not None)
+
+    @property
+    def queried_landmarks(self) -> int:
+        """Landmarks the retained-set queries can return: all but those the cell cap leaves out."""
+        if not any(t is not None for t in self._thin):
+            return len(self)
+        return sum(ix.count if t is None else int(t.rows.shape[0])
+                   for (_, ix), t in zip(self._indexes, self._thin, strict=True))
 
     def summary(self) -> dict:
         """JSON-friendly description: landmark count, bounds [m], layers, directions, occupancy, version."""
         out: dict = {
             "landmarks": len(self),
+            "queried_landmarks": self.queried_landmarks,
             "version": self.version,
             "layers": {k: {"count": v.count, "weight_multiplier": v.weight_multiplier} for k, v in self.layers.items()},
             "directions": self.directions is not None,
@@ -132,10 +161,13 @@ class MapSnapshot:
         if not math.isfinite(rmax):
             return self._in_range_brute(w, rmin)
         parts = []
-        for offset, index in self._indexes:
-            lo = offset
-            hi = offset + index.count
-            idx, counts = index.query(self.points[lo:hi], w, rmin, rmax)
+        for (offset, index), thin in zip(self._indexes, self._thin or (None,) * len(self._indexes), strict=True):
+            layer = self.points[offset:offset + index.count]
+            if thin is None:
+                idx, counts = index.query(layer, w, rmin, rmax)
+            else:  # the dense cells' subsample only: never a pass over all their landmarks
+                idx, counts = thin.index.query(layer, w, rmin, rmax, rows=thin.rows)
+                idx = thin.rows.take(idx).astype(np.int64)
             parts.append((idx + offset, counts))
         if len(parts) == 1:
             return parts[0]
@@ -146,15 +178,27 @@ class MapSnapshot:
         return idx[order], counts
 
     def _in_range_brute(self, w: np.ndarray, rmin: float) -> tuple[np.ndarray, np.ndarray]:
-        """Unbounded max_range: every landmark, minus those closer than ``rmin`` (cost O(M) per waypoint)."""
-        m = len(self)
+        """Unbounded max_range: every queried landmark, minus those closer than ``rmin`` (cost O(M) per waypoint)."""
+        rows = self._queried_rows()
+        m = len(self) if rows is None else int(rows.shape[0])
         if rmin <= 0:
-            return np.tile(np.arange(m, dtype=np.int64), w.shape[0]), np.full(w.shape[0], m, np.int64)
+            every = np.arange(m, dtype=np.int64) if rows is None else rows
+            return np.tile(every, w.shape[0]), np.full(w.shape[0], m, np.int64)
+        pts = self.points if rows is None else self.points.take(rows, axis=0)
         blocks = []
         for wi in w:
-            d = self.points.astype(np.float64) - wi
-            blocks.append(np.flatnonzero(np.einsum("ij,ij->i", d, d) >= rmin * rmin))
+            d = pts.astype(np.float64) - wi
+            hit = np.flatnonzero(np.einsum("ij,ij->i", d, d) >= rmin * rmin)
+            blocks.append(hit if rows is None else rows.take(hit))
         return np.concatenate(blocks), np.array([b.size for b in blocks], np.int64)
+
+    def _queried_rows(self) -> np.ndarray | None:
+        """Ascending rows (Q,) the queries read (None: all of them)."""
+        if not any(t is not None for t in self._thin):
+            return None
+        return np.concatenate([np.arange(offset, offset + ix.count, dtype=np.int64) if t is None
+                               else t.rows.astype(np.int64) + offset
+                               for (offset, ix), t in zip(self._indexes, self._thin, strict=True)])
 
 
 class MapStore:
@@ -162,7 +206,8 @@ class MapStore:
 
     occupancy_voxel [m]: build an occupancy grid of that voxel size from all map layers on every
     update; occupancy_points (K, 3): build it once from these points instead (needs the voxel size).
-    index_cell [m]: grid index cell edge (default 1 m).
+    index_cell [m]: grid index cell edge (default 1 m). cell_cap: most landmarks of one index cell the
+    retained-set queries read (an even subsample fixed at load; None: all).
     """
 
     def __init__(
@@ -170,6 +215,7 @@ class MapStore:
         occupancy_voxel: float | None = None,
         occupancy_points: np.ndarray | None = None,
         index_cell: float = DEFAULT_INDEX_CELL,
+        cell_cap: int | None = None,
     ) -> None:
         if occupancy_voxel is not None and not occupancy_voxel > 0:
             raise InputError(f"occupancy voxel must be > 0 m, got {occupancy_voxel}")
@@ -177,6 +223,9 @@ class MapStore:
             raise InputError("occupancy points need an occupancy voxel size")
         if not index_cell > 0:
             raise InputError(f"map index cell must be > 0 m, got {index_cell}")
+        if cell_cap is not None and not cell_cap >= 1:
+            raise InputError(f"landmarks per map cell must be ≥ 1, got {cell_cap}")
+        self._cell_cap = cell_cap
         self._voxel = occupancy_voxel
         self._index_cell = float(index_cell)
         self._static_occupancy = (
@@ -248,7 +297,13 @@ class MapStore:
             weights=np.take(weights, order),
             directions=None if directions is None else np.take(directions, order, axis=0),
         )
-        return _Layer(sorted_cloud, index, float(weight_multiplier))
+        thin = None
+        if self._cell_cap is not None and (sub := index.thinned(self._cell_cap)) is not None:
+            thin_index, rows = sub
+            thin = _Thin(rows, thin_index)
+            log.info("map layer: %d of %d landmarks in cells holding more than %d are left out of the planner's "
+                     "queries", len(sorted_cloud) - rows.shape[0], len(sorted_cloud), self._cell_cap)
+        return _Layer(sorted_cloud, index, float(weight_multiplier), thin)
 
     def _publish(self, layers: dict[str, _Layer]) -> int:
         """Build and swap in a snapshot of ``layers`` (caller holds the write lock)."""
@@ -256,11 +311,13 @@ class MapStore:
         items = list(layers.items())
         infos: dict[str, LayerInfo] = {}
         indexes = []
+        thins = []
         row = 0
         for name, layer in items:
             k = len(layer.cloud)
             infos[name] = LayerInfo(slice(row, row + k), k, layer.weight_multiplier)
             indexes.append((row, layer.index))
+            thins.append(layer.thin)
             row += k
         if len(items) == 1:
             only = items[0][1]
@@ -289,7 +346,7 @@ class MapStore:
         for arr in (points, weights, directions):
             if arr is not None:
                 arr.flags.writeable = False
-        snap = MapSnapshot(points, weights, directions, version, infos, occupancy, tuple(indexes))
+        snap = MapSnapshot(points, weights, directions, version, infos, occupancy, tuple(indexes), tuple(thins))
         self._layers = layers
         self._snapshot = snap  # the single reference swap readers observe
         log.debug("map version %d: %d landmarks in %d layers", version, len(snap), len(infos))
@@ -357,11 +414,12 @@ def load_map_store(
     occupancy_file: str | Path | None = None,
     allow_empty: bool = False,
     index_cell: float = DEFAULT_INDEX_CELL,
+    cell_cap: int | None = None,
 ) -> MapStore:
     """Load a map file into the ``base`` layer of a new :class:`MapStore`.
 
     occlusion_voxel [m] enables the occupancy grid, built from ``occupancy_file`` (any landmark map
-    format) when given, else from the map itself.
+    format) when given, else from the map itself. cell_cap: see :class:`MapStore`.
     """
     if occupancy_file is not None and occlusion_voxel is None:
         raise InputError(f"{occupancy_file}: an occupancy file needs an occlusion voxel size")
@@ -371,6 +429,7 @@ def load_map_store(
     if occupancy_file is not None:
         occ_points = load_landmarks(occupancy_file).points
     cloud = load_landmarks(path, weight_property=weight_property, allow_empty=allow_empty)
-    store = MapStore(occupancy_voxel=occlusion_voxel, occupancy_points=occ_points, index_cell=index_cell)
+    store = MapStore(occupancy_voxel=occlusion_voxel, occupancy_points=occ_points, index_cell=index_cell,
+                     cell_cap=cell_cap)
     store.set_layer(BASE_LAYER, cloud)
     return store
