@@ -234,3 +234,23 @@ def test_horizon_waypoints_sit_on_a_fixed_grid_and_the_cache_follows_the_map(sce
     store.set_layer("base", LandmarkCloud(points=sc.points[3000:], weights=sc.weights[3000:]))
     p3 = pl.replan(store.snapshot(), sc.path[0] + np.array([0.35, 0, 0]), IDENTITY, p2.directions[0])
     assert p3.landmarks < 0.2 * p2.landmarks
+
+
+def test_late_replans_halve_the_horizon_and_cap_and_fast_ones_restore_them(scene_store):
+    from dataclasses import replace
+
+    sc, store = scene_store
+    pl = _planner()
+    pl.settings = replace(pl.settings, max_landmarks_per_waypoint=400, replan_budget=1e-9)  # every replan is late
+    pl.set_path(sc.path, None, 1)
+    snap = store.snapshot()
+    shapes = []
+    for _ in range(5):
+        plan = pl.replan(snap, sc.path[0], IDENTITY, None)
+        shapes.append((plan.degrade, plan.directions.shape[0], plan.landmarks))
+    assert [d for d, _, _ in shapes] == [0, 1, 2, 3, 3]  # at most PlannerSettings.MAX_DEGRADE halvings
+    assert [n for _, n, _ in shapes] == [20, 10, 5, 2, 2]
+    assert shapes[3][2] <= 2 * 50  # two waypoints of at most 400 / 8 landmarks
+    pl.settings = replace(pl.settings, replan_budget=1e9)  # every replan fits: one halving undone per replan
+    assert [pl.replan(snap, sc.path[0], IDENTITY, None).degrade for _ in range(4)] == [3, 2, 1, 0]
+    assert pl.replan(snap, sc.path[0], IDENTITY, None).directions.shape[0] == 20

@@ -47,7 +47,7 @@ from pivotd.daemon.wiring import (
     release_free_memory,
     return_large_frees_to_the_os,
 )
-from pivotd.daemon.worker import PlannerWorker, WorkerError
+from pivotd.daemon.worker import PlannerWorker, ReplanTimeoutError, WorkerError
 from pivotd.errors import PivotdError
 from pivotd.gimbal.interface import GimbalInterface, GimbalMode, LinkState
 from pivotd.gimbal.kinematics import joints_to_world_direction
@@ -186,6 +186,8 @@ class Daemon:
             except WorkerError as exc:
                 self._worker_errors += 1
                 self._last_error = f"planner: {exc}"
+                if isinstance(exc, ReplanTimeoutError):  # a replan given up counts in solve_ms_* with its time
+                    self._solve.append(exc.elapsed_s)
                 if not self._stop.is_set():
                     log.error("planner worker: %s; restarting it", exc)
                     self._restart_worker()
@@ -386,6 +388,9 @@ class Daemon:
                 "worker_pid": self.worker.pid,
                 "worker_restarts": self.worker.restarts,
                 "worker_errors": self._worker_errors,
+                "late": self.worker.late,
+                "timeouts": self.worker.timeouts,
+                "degrade": 0 if plan is None else plan.degrade,
             },
             "control": {
                 "rate_hz": self.cfg.control.rate_hz,

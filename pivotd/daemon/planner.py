@@ -86,6 +86,7 @@ class Plan:
     in_view: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (K, 3) landmarks in the first cone
     pans: np.ndarray | None = None
     rescue: Rescue = Rescue.NOT_TRIED
+    degrade: int = 0  # halvings of the horizon and landmark cap this plan was made with (see PlannerSettings)
 
 
     def direction_at_s(self, s: np.ndarray | float) -> np.ndarray:
@@ -111,7 +112,9 @@ class PlannerSettings:
     """fov: full cone opening [rad]; lam: smoothness weight λ; spacing [m]; horizon: waypoints;
     max_step: hard limit on the turn between consecutive planned directions, from the commanded one
     on [rad] (None: no limit); max_path_offset [m]: progress advances only with the robot this close to the
-    path, and by at most the robot's displacement since the last replan plus this distance."""
+    path, and by at most the robot's displacement since the last replan plus this distance; replan_budget [s]:
+    a replan slower than this halves the next one's horizon and landmarks per waypoint (at most MAX_DEGRADE
+    times), one under a quarter of it undoes a halving (None: never)."""
 
     fov: float
     lam: float = 0.6
@@ -128,6 +131,10 @@ class PlannerSettings:
     spread: SpreadSettings | None = None  # per-waypoint spread weights of the retained landmarks (None: off)
     rescue_fraction: float | None = None  # blind warm starts (None: off): see RecedingHorizonPlanner._rescue
     rescue_reach: int = 2  # waypoints on either side of a blind run turned towards it in the rescue's start
+    replan_budget: float | None = None  # [s] a replan slower than this halves the next one's horizon and cap
+
+    #: Most halvings of the horizon and of the landmarks per waypoint after late replans.
+    MAX_DEGRADE = 3
 
     @property
     def alpha(self) -> float:
@@ -184,7 +191,7 @@ class RecedingHorizonPlanner:
         self.progress: float | None = None
         self._located_at: np.ndarray | None = None  # body position of the last progress update [m]
         self.last_plan: Plan | None = None
-        self._cache_key: tuple[int, int] | None = None
+        self._cache_key: tuple[int, int, int | None] | None = None
         self._cache: dict[int, np.ndarray] = {}
         self._spread_cache: dict[int, np.ndarray] = {}
         self.unwind_target: np.ndarray | None = None  # world direction of an unwind slew under way
@@ -194,6 +201,7 @@ class RecedingHorizonPlanner:
         self.solves = 0  # optimize_trajectory calls so far
         self.last_objective = math.nan  # the trajectory objective of the last replan's plan (before the unwinds)
         self.rescues = 0  # replans whose rescue candidate was kept
+        self.degrade = 0  # halvings of horizon and landmark cap in force (late replans; see _adapt)
 
     def set_path(self, positions: np.ndarray | None, quats: np.ndarray | None, version: int) -> None:
         """Install a new translation path (None clears it); progress restarts from the nearest point."""
@@ -229,22 +237,43 @@ class RecedingHorizonPlanner:
         warm start is exact for them.
         """
         st = self.settings
+        horizon = self._horizon()
         length = self._tracker.length
         first = math.floor(progress / st.spacing + 1e-9) + 1
-        grid = (first + np.arange(st.horizon - 1)) * st.spacing
+        grid = (first + np.arange(horizon - 1)) * st.spacing
         grid = grid[(grid < length - 1e-9) & (grid - progress > 0.05 * st.spacing)]
         s = np.concatenate([[progress], grid])
-        if s[-1] < length - 1e-9 and s.shape[0] < st.horizon:
+        if s[-1] < length - 1e-9 and s.shape[0] < horizon:
             s = np.append(s, length)  # the end of the path closes the window
         return s
 
+    def _horizon(self) -> int:
+        """Waypoints of the horizon in force: ``horizon`` halved per :attr:`degrade` step, at least 2 (or 1)."""
+        h = self.settings.horizon
+        return max(min(h, 2), h >> self.degrade)
+
+    def _cap(self) -> int | None:
+        """Landmarks per waypoint in force: ``max_landmarks_per_waypoint`` halved per :attr:`degrade` step."""
+        cap = self.settings.max_landmarks_per_waypoint
+        return None if not cap else max(1, cap >> self.degrade)
+
+    def _adapt(self, solve_s: float) -> None:
+        """After a replan of ``solve_s`` [s]: one more halving when it was over ``replan_budget``, one less
+        when it took under a quarter of it (hysteresis: a level that fits is kept)."""
+        budget = self.settings.replan_budget
+        if budget is None:
+            return
+        if solve_s > budget:
+            self.degrade = min(self.degrade + 1, PlannerSettings.MAX_DEGRADE)
+        elif solve_s < 0.25 * budget and self.degrade > 0:
+            self.degrade -= 1
+
     def _retained(self, snapshot: MapSnapshot, cams: np.ndarray, s: np.ndarray) -> list[np.ndarray]:
         """Capped retained sets per waypoint; grid waypoints (all but the first) come from a cache that is
-        valid for one path and map version."""
-        st = self.settings
+        valid for one path and map version (and landmark cap)."""
         if len(snapshot) == 0:
             return [np.zeros(0, np.int64) for _ in range(cams.shape[0])]
-        key = (self._path_version, snapshot.version)
+        key = (self._path_version, snapshot.version, self._cap())
         if self._cache_key != key:
             self._cache_key, self._cache, self._spread_cache, self._attainable_cache = key, {}, {}, {}
             self._profile_cache = {}
@@ -254,7 +283,7 @@ class RecedingHorizonPlanner:
         todo = [0] + [i for i, r in cached.items() if r is None]
         # the snapshot's rows are in a spatial order fixed by the landmarks (pivotd.maps.store.spatial_cell_order),
         # so the cap's strided subsample (and the optimizer's) do not depend on the map's landmark order
-        fresh = _cap_retained(snapshot.retained(cams[todo], st.retained_filter), st.max_landmarks_per_waypoint)
+        fresh = _cap_retained(snapshot.retained(cams[todo], self.settings.retained_filter), self._cap())
         out: list[np.ndarray] = [np.zeros(0, np.int64)] * s.shape[0]
         for i, r in zip(todo, fresh, strict=True):
             out[i] = r
@@ -362,8 +391,10 @@ class RecedingHorizonPlanner:
             in_view=self._in_view(snapshot, cams[0], result.directions[0], retained[0]),
             pans=pans,
             rescue=rescue,
+            degrade=self.degrade,
         )
         self.last_plan = plan
+        self._adapt(plan.solve_s)
         return plan
 
     def _solve(self, snapshot: MapSnapshot, cams: np.ndarray, init: np.ndarray | None,

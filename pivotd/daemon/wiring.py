@@ -103,6 +103,7 @@ def build_planner(cfg: Config) -> RecedingHorizonPlanner:
                                   distance_weights=p.distance_weights, normalise=pl.normalise,
                                   smooth_knee_deg=math.degrees(p.smooth_knee)),
         rescue_fraction=pl.rescue_fraction if pl.rescue_blind else None,
+        replan_budget=pl.replan_budget,
     )
     return RecedingHorizonPlanner(settings, cfg.gimbal.mount, cfg.gimbal.limits)
 

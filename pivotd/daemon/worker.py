@@ -11,9 +11,16 @@ Messages are tuples over a ``multiprocessing`` pipe. Parent → worker: ``(kind,
 ``("replan", id, position, quat, anchor)``, ``("path", id, positions, quats, version)`` (positions None
 clears it; no reply), ``("layer", id, name, LandmarkCloud, weight_multiplier)``, ``("reload", id, Config)``,
 ``("stop", id)``. Worker → parent: ``(kind, request_id, payload)`` with ``("ready", 0, MapInfo)``,
-``("plan", id, Plan)``, ``("map", id, MapInfo)``, ``("error", id, message)`` (one line). Every reply
-echoes its request's id, so a reply that arrives after its request timed out is recognised and dropped
+``("plan", id, Plan)``, ``("map", id, MapInfo)``, ``("error", id, message)`` (one line), and while a request
+is being computed ``("busy", id, elapsed_s)`` every :data:`HEARTBEAT_S` (a heartbeat, not a reply). Every
+reply echoes its request's id, so a reply that arrives after its request timed out is recognised and dropped
 instead of being taken as the answer to a later request.
+
+A slow replan is not a dead worker: the parent waits for a replan as long as the heartbeats come, up to
+``planner.replan_deadline_s``, and restarts the worker only when it falls silent for :data:`SILENT_AFTER_S`
+(dead, stopped, or stuck in native code) or the deadline passes. Killing a worker that is computing would
+only reload the map and start the same slow replan again; the planner instead plans less after a replan
+slower than ``planner.replan_budget_s`` (:class:`~pivotd.daemon.planner.RecedingHorizonPlanner`).
 """
 
 from __future__ import annotations
@@ -38,6 +45,8 @@ log = logging.getLogger(__name__)
 
 START_TIMEOUT_S = 60.0
 WORKER_NICE = 10  # niceness added to the planner process
+HEARTBEAT_S = 0.1  # [s] period of the worker's "busy" messages while it computes a request
+SILENT_AFTER_S = 2.0  # [s] a replan whose worker sent nothing for this long is given up (the worker is hung)
 
 
 @dataclass(frozen=True)
@@ -51,6 +60,18 @@ class MapInfo:
 
 class WorkerError(PivotdError):
     """The planner worker cannot serve (failed start-up, died, or stopped answering); one line."""
+
+
+class ReplanTimeoutError(WorkerError):
+    """A replan given up (worker silent, or past the deadline); ``elapsed_s`` [s] from the request to giving up."""
+
+    def __init__(self, message: str, elapsed_s: float) -> None:
+        super().__init__(message)
+        self.elapsed_s = elapsed_s
+
+
+class _NoAnswerError(WorkerError):
+    """No reply in time (deadline passed, or the worker silent)."""
 
 
 class RequestError(PivotdError):
@@ -68,8 +89,15 @@ class _ParentPipe:
 
     def __init__(self, conn) -> None:
         self._conn = conn
+        self._lock = threading.Lock()  # the heartbeat thread sends too
+        self._busy: tuple[int, float] | None = None  # (request id, start [monotonic s]) being computed
 
     def send(self, obj: object) -> None:
+        with self._lock:
+            self._busy = None  # a reply ends the heartbeats of its request (no "busy" after it)
+            self._send(obj)
+
+    def _send(self, obj: object) -> None:
         try:
             self._conn.send(obj)
         except (BrokenPipeError, ConnectionResetError):
@@ -77,6 +105,24 @@ class _ParentPipe:
 
     def recv(self) -> object:
         return self._conn.recv()
+
+    def begin(self, req_id: int) -> None:
+        """Heartbeats for ``req_id`` from now until its reply is sent."""
+        with self._lock:
+            self._busy = (req_id, time.monotonic())
+
+    def heartbeat_forever(self) -> None:
+        """Thread body: a "busy" message every :data:`HEARTBEAT_S` while a request is being computed (the parent
+        reads them while it waits for that request, so they never pile up in the pipe)."""
+        while True:
+            time.sleep(HEARTBEAT_S)
+            with self._lock:
+                if self._busy is not None:
+                    req_id, t0 = self._busy
+                    try:
+                        self._conn.send(("busy", req_id, time.monotonic() - t0))
+                    except (OSError, ValueError):
+                        return
 
 
 def _worker_main(conn, cfg: Config, log_level: int) -> None:  # pragma: no cover - runs in the child
@@ -106,6 +152,7 @@ def _worker_main(conn, cfg: Config, log_level: int) -> None:  # pragma: no cover
         conn.send(("error", 0, f"start-up failed: {exc!r}"))
         return
     conn.send(("ready", 0, _map_info(store)))
+    threading.Thread(target=conn.heartbeat_forever, name="pivotd-planner-heartbeat", daemon=True).start()
     rl = RateLimitedLog(log)  # a failing replan fails again at every request: one traceback per 5 s
     layers: dict[str, tuple[LandmarkCloud, float]] = {}
     path_args: tuple = (None, None, 0)
@@ -115,6 +162,8 @@ def _worker_main(conn, cfg: Config, log_level: int) -> None:  # pragma: no cover
         except (EOFError, OSError):
             return
         kind, req_id, args = msg[0], msg[1], msg[2:]
+        if kind in ("replan", "layer", "reload"):
+            conn.begin(req_id)
         try:
             if kind == "replan":
                 position, quat, anchor = args
@@ -163,6 +212,9 @@ class PlannerWorker:
         self._conn = None
         self._next_id = 0
         self.stale_replies = 0  # replies that arrived after their request had timed out (dropped)
+        self.late = 0  # replans answered after planner.replan_budget_s
+        self.timeouts = 0  # replans given up (silent worker or past planner.replan_deadline_s)
+        self._rl = RateLimitedLog(log)
         self._start(cfg)
 
     def _start(self, cfg: Config) -> None:
@@ -193,18 +245,31 @@ class PlannerWorker:
         self._next_id += 1
         return self._next_id
 
-    def _request(self, kind: str, *args, timeout: float) -> tuple[str, object]:
-        """Send one request and wait for the reply carrying its id; returns (reply kind, payload)."""
+    def _request(self, kind: str, *args, timeout: float, silent_after: float | None = None) -> tuple[str, object]:
+        """Send one request and wait for the reply carrying its id; returns (reply kind, payload).
+
+        Gives up (WorkerError) ``timeout`` [s] after sending, or once the worker sent neither the reply nor a
+        heartbeat for ``silent_after`` [s] (None: heartbeats do not matter)."""
         with self._lock:
             req_id = self._new_id()
-            deadline = time.monotonic() + timeout
+            start = time.monotonic()
+            deadline = start + timeout
+            heard = start
             try:
                 self._conn.send((kind, req_id, *args))
                 while True:
-                    remaining = deadline - time.monotonic()
-                    if remaining <= 0 or not self._conn.poll(remaining):
-                        raise WorkerError(f"planner worker did not answer {kind!r} within {timeout:.1f} s")
+                    now = time.monotonic()
+                    until = deadline if silent_after is None else min(deadline, heard + silent_after)
+                    if until - now <= 0 or not self._conn.poll(until - now):
+                        if silent_after is not None and time.monotonic() < deadline:
+                            raise _NoAnswerError(f"planner worker is silent: no answer to {kind!r} and no heartbeat "
+                                              f"for {silent_after:.1f} s")
+                        raise _NoAnswerError(f"planner worker did not answer {kind!r} within {timeout:.1f} s")
                     reply_kind, reply_id, payload = self._conn.recv()
+                    if reply_kind == "busy":
+                        if reply_id == req_id:
+                            heard = time.monotonic()
+                        continue
                     if reply_id == req_id:
                         return reply_kind, payload
                     self.stale_replies += 1
@@ -229,10 +294,26 @@ class PlannerWorker:
         self._send("path", positions, quats, version)
 
     def replan(self, position: np.ndarray, quat: np.ndarray, anchor: np.ndarray | None,
-               timeout: float = 2.0) -> Plan:
-        kind, payload = self._request("replan", position, quat, anchor, timeout=timeout)
+               timeout: float | None = None) -> Plan:
+        """The worker's plan for the pose; waits while the worker computes (heartbeats), up to ``timeout`` [s]
+        (default ``planner.replan_deadline_s``). Raises ReplanTimeoutError when given up (the worker is then in an
+        unknown state: restart it), WorkerError when it is gone, RequestError when it refused."""
+        pl = self._cfg.planner
+        timeout = pl.replan_deadline if timeout is None else timeout
+        t0 = time.monotonic()
+        try:
+            kind, payload = self._request("replan", position, quat, anchor, timeout=timeout,
+                                          silent_after=SILENT_AFTER_S)
+        except _NoAnswerError as exc:
+            self.timeouts += 1
+            raise ReplanTimeoutError(str(exc), time.monotonic() - t0) from None
         if kind != "plan":
             raise RequestError(payload)
+        elapsed = time.monotonic() - t0
+        if elapsed > pl.replan_budget:
+            self.late += 1
+            self._rl.warning("late", f"planner: a replan took {elapsed:.1f} s (planner.replan_budget_s "
+                             f"{pl.replan_budget:.1f} s); the worker is alive, the next replans plan less")
         return payload
 
     def set_layer(self, name: str, cloud: LandmarkCloud, weight_multiplier: float, timeout: float = 60.0) -> MapInfo:
@@ -255,11 +336,14 @@ class PlannerWorker:
     def close(self, timeout: float = 2.0) -> None:
         if self._proc is None:
             return
-        try:
-            with self._lock:
+        # A replan under way (another thread waiting for it) holds the lock: do not wait for it, end the worker.
+        if self._lock.acquire(timeout=timeout):
+            try:
                 self._conn.send(("stop", self._new_id()))
-        except (OSError, BrokenPipeError):
-            pass
+            except (OSError, BrokenPipeError):
+                pass
+            finally:
+                self._lock.release()
         self._proc.join(timeout)
         if self._proc.is_alive():
             self._proc.kill()
