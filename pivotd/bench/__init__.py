@@ -15,6 +15,7 @@ BENCHES: dict[str, str] = {
     "maps": "map loading, retained-set queries and occlusion tests at scale",
     "proto": "serial protocol codec throughput, link round trip, lossy-link soak",
     "horizon": "receding-horizon replanning latency",
+    "dense": "replans and planner memory on a densely packed map vs the same count spread thinly",
     "control": "control-loop jitter and pose-to-setpoint latency",
     "motion": "per-cycle cost of gimbal kinematics and Ruckig setpoint generation",
     "bus": "Zenoh/ROS 2 bus codec costs and loopback delivery latency",
