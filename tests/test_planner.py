@@ -254,3 +254,43 @@ def test_late_replans_halve_the_horizon_and_cap_and_fast_ones_restore_them(scene
     pl.settings = replace(pl.settings, replan_budget=1e9)  # every replan fits: one halving undone per replan
     assert [pl.replan(snap, sc.path[0], IDENTITY, None).degrade for _ in range(4)] == [3, 2, 1, 0]
     assert pl.replan(snap, sc.path[0], IDENTITY, None).directions.shape[0] == 20
+
+
+def _sideways(path: np.ndarray, offset: float) -> np.ndarray:
+    """``path`` (N, 3) moved ``offset`` [m] to the left of its direction of travel at every vertex."""
+    t = np.gradient(path[:, :2], axis=0)
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    out = path.copy()
+    out[:, :2] += offset * np.column_stack([-t[:, 1], t[:, 0]])
+    return out
+
+
+def test_a_path_beyond_the_offset_is_left_for_the_pose_and_resumed_when_back(scene_store):
+    from pivotd.daemon.planner import PathMode
+    from pivotd.gimbal.kinematics import camera_position
+
+    sc, store = scene_store
+    snap = store.snapshot()
+    robot = sc.path[6]
+    alone = _planner().replan(snap, robot, IDENTITY, None)  # no path: the pose alone
+    assert alone.path_mode is PathMode.NO_PATH and alone.path_offset is None
+    pl = _planner()
+    pl.set_path(_sideways(sc.path, 5.0), None, 1)  # the route's path, 5 m to the side (max_path_offset 3 m)
+    plan = pl.replan(snap, robot, IDENTITY, None)
+    assert plan.path_mode is PathMode.OFF_PATH and plan.path_offset == pytest.approx(5.0, abs=0.3)
+    assert plan.directions.shape == (1, 3)  # for where the robot is, not for waypoints it is not at
+    np.testing.assert_allclose(plan.positions[0], camera_position(robot, IDENTITY, Mount()), atol=1e-9)
+    assert plan.visible[0] >= 0.8 * alone.visible[0] and plan.visible[0] > 50
+    # the true path: the horizon along it again
+    pl.set_path(sc.path, None, 2)
+    on = pl.replan(snap, robot, IDENTITY, plan.directions[0])
+    assert on.path_mode is PathMode.ON_PATH and on.path_offset < 1e-6 and on.directions.shape == (20, 3)
+    # the robot leaves the path sideways and comes back to it further along: it resumes there
+    progress = pl.progress
+    for k in range(7, 16):
+        off = pl.replan(snap, _sideways(sc.path, 5.0)[k], IDENTITY, None)
+        assert off.path_mode is PathMode.OFF_PATH and off.directions.shape == (1, 3)
+        assert pl.progress == progress  # frozen while off the path
+    back = pl.replan(snap, sc.path[16], IDENTITY, None)
+    arc16 = float(np.sum(np.linalg.norm(np.diff(sc.path[:17], axis=0), axis=1)))
+    assert back.path_mode is PathMode.ON_PATH and back.s[0] == pytest.approx(arc16, abs=1e-6)

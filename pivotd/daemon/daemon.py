@@ -391,6 +391,9 @@ class Daemon:
                 "late": self.worker.late,
                 "timeouts": self.worker.timeouts,
                 "degrade": 0 if plan is None else plan.degrade,
+                "path_mode": None if plan is None else plan.path_mode.value,  # on_path, off_path, no_path
+                "path_offset_m": None if plan is None or plan.path_offset is None else round(plan.path_offset, 2),
+                "off_path_replans": self.worker.off_path_replans,
             },
             "control": {
                 "rate_hz": self.cfg.control.rate_hz,

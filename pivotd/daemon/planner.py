@@ -54,6 +54,14 @@ from pivotd.robot_path import Polyline, project_onto_polyline
 MAX_IN_VIEW = MAX_MARKER_LANDMARKS
 
 
+class PathMode(Enum):
+    """What a plan was made for: the path ahead, or the robot's pose alone (no path, or too far from it)."""
+
+    ON_PATH = "on_path"  # the horizon along the path, from the robot's progress
+    OFF_PATH = "off_path"  # a path, but the robot is farther than max_path_offset from it: its pose alone
+    NO_PATH = "no_path"  # no path: the robot's pose alone
+
+
 class Rescue(Enum):
     """What the rescue of blind warm starts did in a replan (see :meth:`RecedingHorizonPlanner._rescue`)."""
 
@@ -87,6 +95,8 @@ class Plan:
     pans: np.ndarray | None = None
     rescue: Rescue = Rescue.NOT_TRIED
     degrade: int = 0  # halvings of the horizon and landmark cap this plan was made with (see PlannerSettings)
+    path_mode: PathMode = PathMode.NO_PATH
+    path_offset: float | None = None  # [m] the robot's distance from the path (None without one)
 
 
     def direction_at_s(self, s: np.ndarray | float) -> np.ndarray:
@@ -190,6 +200,7 @@ class RecedingHorizonPlanner:
         self._path_version = -1
         self.progress: float | None = None
         self._located_at: np.ndarray | None = None  # body position of the last progress update [m]
+        self._off_moved = 0.0  # [m] the robot's travel while off the path (the progress may catch up by as much)
         self.last_plan: Plan | None = None
         self._cache_key: tuple[int, int, int | None] | None = None
         self._cache: dict[int, np.ndarray] = {}
@@ -213,21 +224,29 @@ class RecedingHorizonPlanner:
         self.progress = None
         self.unwind_target = None
         self._located_at = None
+        self._off_moved = 0.0
 
-    def _advance(self, body_position: np.ndarray) -> float:
-        """The robot's progress along the path [m]: never backwards, only while the robot is within
-        ``max_path_offset`` of the path, and by at most its displacement since the last call plus that
-        distance (a pose far from the path, or next to a later stretch of it, cannot push it ahead)."""
+    def _advance(self, body_position: np.ndarray) -> tuple[float, float]:
+        """The robot's progress along the path [m] and its distance from the path [m] near that progress.
+
+        Progress never goes backwards, advances only while the robot is within ``max_path_offset`` of the
+        path, and by at most its displacement since the last call plus that distance (a pose far from the
+        path, or next to a later stretch of it, cannot push it ahead). While the robot is off the path its
+        travel is added to the stretch searched ahead and to that bound, so it resumes the path where it
+        comes back to it, however far along."""
         st = self.settings
         previous, located_at = self.progress, self._located_at
-        found, offset = self._tracker.locate(body_position, previous, st.back_window, st.ahead_window)
+        slack = self._off_moved
+        found, offset = self._tracker.locate(body_position, previous, st.back_window, st.ahead_window + slack)
         self._located_at = body_position.copy()
         if previous is None or located_at is None:
-            return found
-        if offset > st.max_path_offset:
-            return previous
+            return found, offset
         moved = float(np.linalg.norm(body_position - located_at))
-        return min(found, previous + moved + st.max_path_offset)
+        if offset > st.max_path_offset:
+            self._off_moved += moved
+            return previous, offset
+        self._off_moved = 0.0
+        return min(found, previous + moved + slack + st.max_path_offset), offset
 
     def _horizon_arc(self, progress: float) -> np.ndarray:
         """Arc lengths of the horizon: the robot's progress, then the path's fixed grid k · spacing ahead.
@@ -324,11 +343,13 @@ class RecedingHorizonPlanner:
         pan_min, pan_max = (-np.inf, np.inf) if lim.continuous_pan else (lim.pan_min, lim.pan_max)
         return PanTiltConstraint(base_from_world(body_quats, self.mount), pan_min, pan_max, lim.tilt_min, lim.tilt_max)
 
-    def _warm_start(self, s: np.ndarray, n: int) -> np.ndarray | None:
+    def _warm_start(self, s: np.ndarray, n: int, mode: PathMode) -> np.ndarray | None:
+        """The previous plan's directions at ``s`` (N,) [m] (its last one for a single pose); None when it was
+        made for another path or mode (the anchor starts the plan then)."""
         prev = self.last_plan
-        if prev is None or prev.path_version != self._path_version:
+        if prev is None or prev.path_version != self._path_version or prev.path_mode is not mode:
             return None
-        if self._tracker is None:
+        if mode is not PathMode.ON_PATH:
             return np.repeat(prev.directions[-1:], n, axis=0)
         return prev.direction_at_s(s)
 
@@ -337,13 +358,18 @@ class RecedingHorizonPlanner:
         """Plan the horizon ahead of the robot at ``body_position`` / ``body_quat`` (x, y, z, w).
 
         ``anchor`` is the world direction currently being commanded (None before the first command).
+        With the robot farther than ``max_path_offset`` from the path the plan is for its pose alone, as
+        without a path (:class:`PathMode`), until it comes back within that distance.
         """
         t0 = time.perf_counter()
         st = self.settings
         body_position = np.asarray(body_position, float)
         body_quat = normalize(np.asarray(body_quat, float))
+        mode, offset = PathMode.NO_PATH, None
         if self._tracker is not None:
-            self.progress = self._advance(body_position)
+            self.progress, offset = self._advance(body_position)
+            mode = PathMode.ON_PATH if offset <= st.max_path_offset else PathMode.OFF_PATH
+        if mode is PathMode.ON_PATH:
             s = self._horizon_arc(self.progress)
             body_pos, quats = self._tracker.sample(s)
             # The first waypoint is where the robot is now, with its measured attitude.
@@ -355,7 +381,7 @@ class RecedingHorizonPlanner:
         cams = camera_positions(body_pos, quats, self.mount)
         retained = self._retained(snapshot, cams, s)
         pair_weights = self._spread_weights(snapshot, cams, s, retained)
-        init = self._warm_start(s, cams.shape[0])
+        init = self._warm_start(s, cams.shape[0], mode)
         if init is None and anchor is not None:
             init = np.repeat(np.asarray(anchor, float)[None, :], cams.shape[0], axis=0)
         if self.unwind_target is not None and (
@@ -392,6 +418,8 @@ class RecedingHorizonPlanner:
             pans=pans,
             rescue=rescue,
             degrade=self.degrade,
+            path_mode=mode,
+            path_offset=offset,
         )
         self.last_plan = plan
         self._adapt(plan.solve_s)

@@ -37,7 +37,7 @@ import numpy as np
 
 from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.config import Config
-from pivotd.daemon.planner import Plan
+from pivotd.daemon.planner import PathMode, Plan
 from pivotd.errors import PivotdError
 from pivotd.maps.formats import LandmarkCloud
 
@@ -214,6 +214,8 @@ class PlannerWorker:
         self.stale_replies = 0  # replies that arrived after their request had timed out (dropped)
         self.late = 0  # replans answered after planner.replan_budget_s
         self.timeouts = 0  # replans given up (silent worker or past planner.replan_deadline_s)
+        self.off_path_replans = 0  # plans made for the pose alone because the robot was too far from the path
+        self.path_mode: PathMode | None = None  # that of the last plan
         self._rl = RateLimitedLog(log)
         self._start(cfg)
 
@@ -309,12 +311,26 @@ class PlannerWorker:
             raise ReplanTimeoutError(str(exc), time.monotonic() - t0) from None
         if kind != "plan":
             raise RequestError(payload)
+        self._note_path_mode(payload)
         elapsed = time.monotonic() - t0
         if elapsed > pl.replan_budget:
             self.late += 1
             self._rl.warning("late", f"planner: a replan took {elapsed:.1f} s (planner.replan_budget_s "
                              f"{pl.replan_budget:.1f} s); the worker is alive, the next replans plan less")
         return payload
+
+    def _note_path_mode(self, plan: Plan) -> None:
+        """Count off-path plans; one log line when the robot leaves the path and one when it is back."""
+        mode, before = plan.path_mode, self.path_mode
+        self.path_mode = mode
+        if mode is PathMode.OFF_PATH:
+            self.off_path_replans += 1
+            if before is not PathMode.OFF_PATH:
+                log.warning("planner: the robot is %.1f m from the path (planner.max_path_offset %.1f m): planning "
+                            "for where it is until it is back", plan.path_offset, self._cfg.planner.max_path_offset)
+        elif before is PathMode.OFF_PATH and mode is PathMode.ON_PATH:
+            log.info("planner: the robot is back on the path (%.1f m from it): following the path again",
+                     plan.path_offset)
 
     def set_layer(self, name: str, cloud: LandmarkCloud, weight_multiplier: float, timeout: float = 60.0) -> MapInfo:
         kind, payload = self._request("layer", name, cloud, weight_multiplier, timeout=timeout)
