@@ -418,3 +418,25 @@ def test_device_reboot_behind_an_open_port_is_configured_and_enabled_again(tmp_p
     log = rows(tmp_path / "gimbal.csv")
     assert [r["type"] for r in log if r["dir"] == "rx" and r["type"] in ("HELLO", "CONFIG")] == [
         "HELLO", "CONFIG", "HELLO", "CONFIG"]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_a_path_metres_off_the_robot_is_planned_for_the_pose_reported_and_left_for_the_true_path(stack):
+    """The route's path published 5 m to the side (max_path_offset 3 m): the daemon plans for where the robot is,
+    sees about as much as on the path, says so in the status, and follows the true path again once it comes."""
+    t0 = time.time()
+    event = stack.inject("off_path", seconds=6.0)
+    assert event["off_path_seen"] and event["on_path_s"] is not None, event
+    docs = [s for s in list(stack.probe.statuses) if s.get("planner") and s.get("time", 0) > t0 - 6.0]
+    before = [d["planner"]["visible_now"] for d in docs if d["time"] < t0 and d["planner"]["path_mode"] == "on_path"]
+    off = [d for d in docs if d["time"] >= t0 and d["planner"]["path_mode"] == "off_path"]
+    assert off and all(d["planner"]["path_offset_m"] > 3.0 and d["planner"]["horizon"] == 1 for d in off)
+    assert all(d["state"] == "tracking" for d in off), [d["state"] for d in off]
+    assert np.median([d["planner"]["visible_now"] for d in off]) >= 0.5 * np.median(before), (before, off)
+    status = stack.probe.query_status()
+    assert status["planner"]["path_mode"] == "on_path" and status["planner"]["off_path_replans"] > 0
+    assert stack.stop_daemon() == 0
+    within_limits_and_no_tracebacks(stack)
+    lines = (stack.out / "pivotd.log").read_text().splitlines()
+    assert sum("m from the path" in line for line in lines) >= 1

@@ -44,7 +44,9 @@ DEMO = REPO / "config" / "demo.yaml"
 DEVICE_EVENTS = {"unplug": 3, "bitflips": 2, "drops": 2, "reboot": 2, "fault_bit": 3}
 BUS_EVENTS = {"nan_pose": 1, "teleport": 1, "past_pose": 1, "pose_flood": 1, "garbage": 1, "path_empty": 1,
               "path_single": 1, "path_far": 1, "path_huge": 1, "path_garbage": 1}
-RANDOM_EXTRA_EVENTS = {"silent": 1, "stale_pose": 1, "planner_stall": 1}
+RANDOM_EXTRA_EVENTS = {"silent": 1, "stale_pose": 1, "planner_stall": 1, "off_path": 1}
+OFF_PATH_M = 5.0  # [m] how far to the side the off-path fault moves the route's path (max_path_offset: 3 m)
+OFF_PATH_HZ = 20.0  # [Hz] it outpaces tools/sim_pose re-publishing the true path every 2 s
 UNPLUG_SECONDS = {0.5: 4, 5.0: 4, 60.0: 1}  # replug after [s]: relative weights
 NOISE_SECONDS = 5.0
 RECOVERY_TIMEOUT_S = 60.0
@@ -468,6 +470,23 @@ class Vandal:
         else:
             raise ValueError(f"unknown bus event {kind!r}")
 
+    def off_path(self, seconds: float, offset: float = OFF_PATH_M) -> None:
+        """The route's path (the hallway of ``tools/sim_pose --route hallway``) moved ``offset`` [m] to the side,
+        published at :data:`OFF_PATH_HZ` for ``seconds``, then the true path once."""
+        from pivotd.pivot.scenes import hallway
+
+        true = hallway().path
+        t = np.gradient(true[:, :2], axis=0)
+        t /= np.linalg.norm(t, axis=1, keepdims=True)
+        moved = true.copy()
+        moved[:, :2] += offset * np.column_stack([-t[:, 1], t[:, 0]])
+        frame = self.cfg.topics.frame_id
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.path.put(self.m.encode_path(time.time(), frame, moved))
+            time.sleep(1.0 / OFF_PATH_HZ)
+        self.path.put(self.m.encode_path(time.time(), frame, true))
+
 
 # ---------------------------------------------------------------------------------------------- the stack
 def _healthy(st: dict) -> bool:
@@ -602,6 +621,15 @@ class SoakStack:
                     os.kill(pid, signal.SIGSTOP)
                     time.sleep(params.get("seconds", 3.0))
                     os.kill(pid, signal.SIGCONT)
+        elif kind == "off_path":  # the route's path a few metres to the side for a while, then the true path
+            t0 = time.time()
+            self.vandal.off_path(params.get("seconds", 6.0))
+            end = time.time()
+            event["off_path_seen"] = any((st.get("planner") or {}).get("path_mode") == "off_path"
+                                         for st in list(self.probe.statuses) if t0 < st.get("time", 0) <= end)
+            back = self.wait(lambda st: (st.get("planner") or {}).get("path_mode") == "on_path", RECOVERY_TIMEOUT_S,
+                             since=end)
+            event["on_path_s"] = None if back is None else round(back, 2)
         elif kind in BUS_EVENTS:
             position = self.probe.poses[-1][1] if self.probe.poses else np.zeros(3)
             self.vandal.send(kind, np.asarray(position, float))
@@ -621,7 +649,7 @@ class SoakStack:
         return event
 
 
-EVENT_KINDS = (*DEVICE_EVENTS, *BUS_EVENTS, "silent", "stale_pose", "planner_stall")
+EVENT_KINDS = (*DEVICE_EVENTS, *BUS_EVENTS, "silent", "stale_pose", "planner_stall", "off_path")
 
 
 def summarise(stack: SoakStack, events: list[dict], warmup: float, exit_code: int | None) -> dict:
@@ -698,7 +726,7 @@ MATRIX: tuple[tuple[str, dict], ...] = (
     *(("fault_bit", {"bit": b}) for b in range(8)),
     ("stale_pose", {"seconds": 2.0}), ("nan_pose", {}), ("teleport", {}), ("pose_flood", {}), ("past_pose", {}),
     ("garbage", {}), ("path_empty", {}), ("path_single", {}), ("path_far", {}), ("path_huge", {}),
-    ("path_garbage", {}), ("planner_stall", {"seconds": 3.0}),
+    ("path_garbage", {}), ("planner_stall", {"seconds": 3.0}), ("off_path", {"seconds": 6.0}),
 )
 
 
