@@ -66,3 +66,25 @@ def test_a_silent_worker_is_given_up_and_counted(slow_cfg):
         assert worker.restarts == 1 and plan.directions.shape[1] == 3
     finally:
         worker.close()
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_the_daemon_waits_for_slow_replans_and_plans_less_instead_of_restarting_the_planner(tmp_path):
+    """The whole stack on a map whose replans take seconds (300k landmarks kept at each of 20 waypoints): the plans
+    come from the first planner process (no restart, no map reload), counted late, and the planner degrades."""
+    from pivotd.bench.soak import SoakStack
+    from pivotd.pivot.scenes import hallway
+
+    base = hallway().points
+    rng = np.random.default_rng(1)
+    npy = tmp_path / "dense.npy"
+    np.save(npy, rng.uniform(base.min(axis=0), base.max(axis=0), (1_200_000, 3)).astype(np.float32))
+    changes = {"map.file": str(npy), "map.max_landmarks_per_cell": 10_000_000,
+               "planner.max_landmarks_per_waypoint": 300_000, "planner.replan_budget_s": 0.05}
+    with SoakStack(tmp_path, seed=3, changes=changes) as stack:
+        assert stack.wait(lambda st: (st.get("planner") or {}).get("plans", 0) >= 3, 300) is not None, stack.status
+        planner = stack.probe.query_status()["planner"]
+        assert planner["worker_restarts"] == 0 and planner["timeouts"] == 0, planner
+        assert planner["late"] >= 1 and planner["degrade"] >= 1, planner
+        assert stack.stop_daemon() == 0
