@@ -23,6 +23,7 @@ _QUERY_GROUP = 8  # waypoints per vectorised query batch
 DENSE_CELLS_PER_POINT = 2  # dense offset table (8 B per cell) while cells ≤ this × landmarks
 MAX_CELLS = 1 << 62  # linear cell keys stay int64; far wider extents get a coarser cell
 _BRUTE_COLUMNS_PER_POINT = 4  # a query visiting more columns than this × points tests every point instead
+_KEY_BLOCK = 1 << 20  # rows per block in cell_keys
 
 
 @dataclass(frozen=True)
@@ -91,7 +92,7 @@ class GridIndex:
         A cell of n > cap points keeps rows start + ⌊k · (n − 1) / (cap − 1)⌋, k < cap: an even stride through
         the cell's stored order (spread over the cell by :func:`pivotd.maps.store.spatial_cell_order`), so the
         subsample is fixed by the landmarks. Same grid (origin, cell, dims, keys); rows are int32 below 2³¹
-        points. Cost O(K + H) for K cells, temporaries of about 2 · H int64.
+        points. Cost O(K + H) for K cells, temporaries of blocks of 2²⁰ rows.
         """
         if cap < 1:
             raise ValueError(f"points per cell must be ≥ 1, got {cap}")
@@ -102,16 +103,16 @@ class GridIndex:
         starts = np.zeros(counts.size + 1, np.int64)
         np.cumsum(kept, out=starts[1:])
         h = int(starts[-1])
-        rows = np.repeat(self.starts[:-1] - starts[:-1], kept)  # cells at or under the cap: all their rows
-        rows += np.arange(h, dtype=np.int64)
+        rtype = np.int32 if self.count < (1 << 31) else np.int64
+        rows = np.repeat((self.starts[:-1] - starts[:-1]).astype(rtype), kept)  # cells under the cap: every row
+        for a in range(0, h, _KEY_BLOCK):  # blocks of rows: no (H,) int64 temporaries
+            rows[a:a + _KEY_BLOCK] += np.arange(a, min(a + _KEY_BLOCK, h), dtype=rtype)
         over = np.flatnonzero(counts > cap)
         ramp = np.arange(cap, dtype=np.int64)
-        for part in np.array_split(over, max(1, over.size * cap // (1 << 20))):  # ~1M rows at a time
+        for part in np.array_split(over, max(1, over.size * cap // _KEY_BLOCK)):  # ~1M rows at a time
             n = counts[part][:, None]
             pos = ramp * (n - 1) // (cap - 1) if cap > 1 else np.zeros((part.size, 1), np.int64)
             rows[(starts[part][:, None] + ramp).ravel()] = (self.starts[part][:, None] + pos).ravel()
-        if self.count < (1 << 31):
-            rows = rows.astype(np.int32)
         return GridIndex(self.origin, self.cell, self.dims, self.keys, starts), rows
 
     def column_runs(
@@ -301,10 +302,13 @@ def cell_keys(points: np.ndarray, origin: np.ndarray, cell: float, dims: np.ndar
     ktype = np.int32 if math.prod(int(d) for d in dims) < (1 << 31) else np.int64
     key = np.zeros(points.shape[0], dtype=ktype)
     inv = 1.0 / cell
-    for k, mult in ((0, int(dims[1]) * int(dims[2])), (1, int(dims[2])), (2, 1)):
-        # float64 arithmetic (strong scalar); values are ≥ 0, so truncation is floor.
-        ik = ((points[:, k] - np.float64(origin[k])) * np.float64(inv)).astype(ktype)
-        if mult != 1:
-            ik *= ktype(mult)
-        key += ik
+    for a in range(0, points.shape[0], _KEY_BLOCK):  # blocks of rows: the float64 temporaries stay small
+        block = points[a:a + _KEY_BLOCK]
+        out = key[a:a + _KEY_BLOCK]
+        for k, mult in ((0, int(dims[1]) * int(dims[2])), (1, int(dims[2])), (2, 1)):
+            # float64 arithmetic (strong scalar); values are ≥ 0, so truncation is floor.
+            ik = ((block[:, k] - np.float64(origin[k])) * np.float64(inv)).astype(ktype)
+            if mult != 1:
+                ik *= ktype(mult)
+            out += ik
     return key

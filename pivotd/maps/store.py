@@ -353,6 +353,9 @@ class MapStore:
         return version
 
 
+_CHUNK = 1 << 20  # rows per block of spatial_cell_order's temporaries
+
+
 def spatial_cell_order(points: np.ndarray, weights: np.ndarray, index: GridIndex, order: np.ndarray) -> np.ndarray:
     """The grid's cell order ``order`` (M,) of ``points`` (M, 3) [m] (from :meth:`GridIndex.build`) refined
     within each cell by the Z-order (pivotd.pivot.morton) of each landmark's position inside its cell, 8 bits
@@ -363,6 +366,8 @@ def spatial_cell_order(points: np.ndarray, weights: np.ndarray, index: GridIndex
     strided subsamples of the planner and the optimizer need no per-call sort. Cost O(M log M), at load:
     sequential passes over the points, one gather of an (M,) uint32 key in cell order, and a stable sort
     of keys that are already sorted by cell.
+    Memory besides ``order``: the (M,) uint64 key, an (M,) uint32 of positions in the cells, the (M,) int64
+    permutation, and temporaries of blocks of 2²⁰ rows.
     """
     m = order.shape[0]
     if m < 2:
@@ -373,25 +378,27 @@ def spatial_cell_order(points: np.ndarray, weights: np.ndarray, index: GridIndex
     np.cumsum(key, out=key)  # the cell's rank among the occupied cells, per sorted row
     key <<= np.uint64(24)
     inv = np.float32(1.0 / index.cell)
-    q = []
-    for k in range(3):  # position inside the cell (cells lie on a fixed lattice), quantised, in file order
-        u = points[:, k] * inv
-        u -= np.floor(u)
-        u *= np.float32(256.0)
-        q.append(np.minimum(u, np.float32(255.0)).astype(np.uint8))
-    del u
-    fine = interleave_bytes(tuple(q))
-    del q
-    key |= fine.take(order)
+    fine = np.empty(m, np.uint32)
+    for a in range(0, m, _CHUNK):  # a block of rows at a time: the temporaries stay block-sized
+        q = []
+        for k in range(3):  # position inside the cell (cells lie on a fixed lattice), quantised, in file order
+            u = points[a:a + _CHUNK, k] * inv
+            u -= np.floor(u)
+            u *= np.float32(256.0)
+            q.append(np.minimum(u, np.float32(255.0)).astype(np.uint8))
+        fine[a:a + _CHUNK] = interleave_bytes(tuple(q))
+    for a in range(0, m, _CHUNK):
+        key[a:a + _CHUNK] |= fine.take(order[a:a + _CHUNK])
     del fine
     sub = np.argsort(key, kind="stable")  # already sorted by cell: a nearly sorted pass
-    key = key.take(sub)
+    key.sort(kind="stable")  # in place (the same order as key.take(sub), without a second (M,) copy)
     dup = np.flatnonzero(key[1:] == key[:-1])
     if dup.size:  # (nearly) coincident landmarks: by coordinates, then weight, within their groups
         sel = np.union1d(dup, dup + 1)
         rows = order.take(sub[sel])
         p = points.take(rows, axis=0)
         sub[sel] = sub[sel][np.lexsort((weights.take(rows), p[:, 2], p[:, 1], p[:, 0], key[sel]))]
+    del key
     return order.take(sub)
 
 
