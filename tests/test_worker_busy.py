@@ -88,3 +88,42 @@ def test_the_daemon_waits_for_slow_replans_and_plans_less_instead_of_restarting_
         assert planner["worker_restarts"] == 0 and planner["timeouts"] == 0, planner
         assert planner["late"] >= 1 and planner["degrade"] >= 1, planner
         assert stack.stop_daemon() == 0
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_a_replan_given_up_counts_in_the_status_with_the_time_it_took():
+    """The planner process stopped (no heartbeat): the daemon's planner thread gives the replan up, counts it
+    (``planner.timeouts``) and its time in ``solve_ms_*``, restarts the process and plans again."""
+    import threading
+    import time
+
+    from gimbal_fakes import pose_at
+    from support import wait_until
+
+    from pivotd.daemon.daemon import Daemon
+    from pivotd.daemon.worker import SILENT_AFTER_S
+
+    daemon = Daemon(REPO / "config" / "demo.yaml")
+    thread = threading.Thread(target=daemon._planner_loop, daemon=True)
+    try:
+        os.kill(daemon.worker.pid, signal.SIGSTOP)
+
+        def fresh_pose_and(predicate):
+            daemon.pose = pose_at(time.monotonic())
+            return predicate()
+
+        thread.start()
+        assert wait_until(lambda: fresh_pose_and(lambda: daemon._plans >= 1), 120.0)
+        daemon._stop.set()
+        daemon._planner_wake.set()
+        thread.join(30.0)
+        planner = daemon.status()["planner"]
+        assert planner["timeouts"] == 1 and planner["worker_restarts"] == 1 and planner["plans"] >= 1, planner
+        # the given-up replan is among the solve times: with one to three samples p99 is near the largest
+        assert planner["solve_ms_p99"] >= 0.9 * 1e3 * SILENT_AFTER_S, planner
+    finally:
+        daemon._stop.set()
+        daemon._planner_wake.set()
+        thread.join(30.0)
+        daemon.worker.close()

@@ -264,8 +264,8 @@ class PlannerWorker:
                     until = deadline if silent_after is None else min(deadline, heard + silent_after)
                     if until - now <= 0 or not self._conn.poll(until - now):
                         if silent_after is not None and time.monotonic() < deadline:
-                            raise _NoAnswerError(f"planner worker is silent: no answer to {kind!r} and no heartbeat "
-                                              f"for {silent_after:.1f} s")
+                            raise _NoAnswerError(f"planner worker is silent: no answer to {kind!r} and no "
+                                                 f"heartbeat for {silent_after:.1f} s")
                         raise _NoAnswerError(f"planner worker did not answer {kind!r} within {timeout:.1f} s")
                     reply_kind, reply_id, payload = self._conn.recv()
                     if reply_kind == "busy":
