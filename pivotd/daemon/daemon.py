@@ -32,8 +32,10 @@ from pivotd.bus.security import input_key_exprs
 from pivotd.bus.session import open_session
 from pivotd.config import Config, load_config
 from pivotd.daemon.control import ControlLoop
+from pivotd.daemon.last_error import LastErrors
 from pivotd.daemon.planner import Plan, Rescue
 from pivotd.daemon.pose_gate import PoseGate, PoseVerdict
+from pivotd.daemon.recorder import off_status as recording_off
 from pivotd.daemon.reload import apply_reload, plan_reload
 from pivotd.daemon.states import DaemonState
 from pivotd.daemon.systemd import Notifier, watchdog_interval
@@ -121,7 +123,8 @@ class Daemon:
         self._reloads = 0
         self._reload_errors = 0
         self._needs_restart: tuple[str, ...] = ()  # changed settings that wait for a restart
-        self._last_error = ""
+        self._errors = LastErrors()  # the status's last_error (assign a "source: text" string to _last_error)
+        self._dead_threads: set[str] = set()  # threads that must not die and did (logged once each)
         self._clear_attempts = 0
         self._fault_episodes = 0  # faults seen since start (each run of FAULT states counts once)
         self._last_clear = 0.0
@@ -129,6 +132,15 @@ class Daemon:
         self._rl = RateLimitedLog(log)
         self._threads: list[threading.Thread] = []
         self._recorder = None
+
+    @property
+    def _last_error(self) -> str:
+        """The current error's message; assigning ``"source: text"`` records it with its time."""
+        return self._errors.message
+
+    @_last_error.setter
+    def _last_error(self, message: str) -> None:
+        self._errors.set(message)
 
     # ------------------------------------------------------------------ configuration
     def _load_config(self) -> Config:
@@ -195,6 +207,8 @@ class Daemon:
             except Exception as exc:  # keep planning; never take the daemon down
                 self._rl.exception("planner", f"planner: replan failed: {exc!r}")
                 self._last_error = f"planner: {exc}"
+            else:
+                self._errors.resolve("planner")
             next_t += 1.0 / self.cfg.planner.replan_hz
             delay = next_t - time.monotonic()
             if delay < 0:
@@ -283,27 +297,30 @@ class Daemon:
                 deadline = t0 + k * period
             self._jitter.append(now - deadline)
             k += 1
+            # Nothing in a tick may end this thread: an exception anywhere is logged (rate-limited) and the next
+            # tick comes at its deadline (the tick after a failed one restarts from what the link reports).
             try:
                 tick = self.control.tick(now, self.pose, self.plan)
+                self.state = tick.mode
+                if tick.setpoint is not None and self._recorder is not None:
+                    self._record_setpoint(tick.setpoint)
             except Exception as exc:
                 self._rl.exception("control", f"control: tick failed: {exc!r}")
-                self._last_error = f"control: {exc}"
+                self._last_error = f"control: {exc!r}"
                 continue
-            self.state = tick.mode
-            if tick.setpoint is not None and self._recorder is not None:
-                self._record_setpoint(tick.setpoint)
-            # The loop ticked without an exception: it is alive (link-down included, it reconnects by
-            # itself), so systemd's watchdog is fed; a stuck or crashing loop stops feeding it.
-            if wd_period and now - last_wd >= wd_period:
-                self.notifier.watchdog()
-                last_wd = now
-            if k % js_every == 0 and self.bus is not None:
-                st = self.link.state
-                if st is not None and self.link.link_state == LinkState.UP:
-                    try:
+            self._errors.resolve("control")
+            try:
+                # The loop ticked without an exception: it is alive (link-down included, it reconnects by
+                # itself), so systemd's watchdog is fed; a stuck or crashing loop stops feeding it.
+                if wd_period and now - last_wd >= wd_period:
+                    self.notifier.watchdog()
+                    last_wd = now
+                if k % js_every == 0 and self.bus is not None:
+                    st = self.link.state
+                    if st is not None and self.link.link_state == LinkState.UP:
                         self.bus.publish_joint_state(time.time(), st.pan, st.tilt, st.pan_rate, st.tilt_rate)
-                    except Exception as exc:
-                        self._rl.warning("joint_states", f"joint_states: publish failed: {exc!r}")
+            except Exception as exc:
+                self._rl.warning("control:outputs", f"control: watchdog or joint_states failed: {exc!r}")
 
     # ------------------------------------------------------------------ supervision (main thread)
     def _supervise_gimbal(self) -> None:
@@ -335,7 +352,8 @@ class Daemon:
                 self.control.invalidate()
 
     def _record_setpoint(self, setpoint: tuple[float, float, float, float]) -> None:
-        """Record the setpoint just sent (pan, tilt [rad], rates [rad/s]) on the recording's command channel."""
+        """Record the setpoint just sent (pan, tilt [rad], rates [rad/s]) on the recording's command channel
+        (queued: :meth:`Recorder.write` neither blocks nor raises; a failed recording says so in the status)."""
         from pivotd.bus.messages import JOINT_STATE, encode_joint_state
         from pivotd.daemon.recorder import JOINT_COMMAND_TOPIC
 
@@ -355,6 +373,9 @@ class Daemon:
         if st is not None and st.mode == GimbalMode.FAULT:
             state = DaemonState.FAULT
         ctl = self.control.stats if self.control is not None else None
+        dead = self._check_threads()
+        if dead:  # a thread that must not die did: the gimbal is not controlled, whatever the last tick said
+            state = DaemonState.FAILED
         return {
             "name": self.cfg.name,
             "state": state,
@@ -400,8 +421,22 @@ class Daemon:
             "reloads": self._reloads,
             "reload_errors": self._reload_errors,
             "needs_restart": list(self._needs_restart),
-            "last_error": self._last_error,
+            "last_error": self._errors.status(),
+            "recording": self._recorder.status() if self._recorder is not None else recording_off(),
+            "threads_dead": sorted(dead),
         }
+
+    def _check_threads(self) -> set[str]:
+        """Names of the daemon's threads (control, planner) that ended while the daemon runs; each is logged once."""
+        for t in self._threads:
+            # the planner thread ends when a stop is requested, the control thread after parking
+            ends = self._halt if t.name == "pivotd-control" else self._stop
+            if not t.is_alive() and not ends.is_set() and t.name not in self._dead_threads:
+                self._dead_threads.add(t.name)
+                self._last_error = f"daemon: thread {t.name} died"
+                log.error("thread %s died: %s", t.name, "the gimbal gets no setpoints (its watchdog holds it)"
+                          if t.name == "pivotd-control" else "no more replans (the control loop holds)")
+        return set(self._dead_threads)
 
     def _do_reload(self) -> None:
         """Apply a changed config (planner thread): live settings to the planner process and the control loop
@@ -433,6 +468,7 @@ class Daemon:
             self._replan_trigger = build_replan_trigger(self.cfg)
             self._needs_restart = plan.needs_restart
             self._reloads += 1
+            self._errors.resolve("reload")
             log.info("reloaded %s: %d landmarks; applied: %s", self.config_path, info.landmarks,
                      ", ".join(plan.applied) or "no setting changed")
             if plan.needs_restart:
@@ -444,6 +480,9 @@ class Daemon:
         """Move to the park pose within the park timeout, then disable."""
         link, control = self.link, self.control
         if link is None or control is None:
+            return
+        if "pivotd-control" in self._check_threads():
+            log.error("cannot park: the control thread is gone; disabling the gimbal where it stands")
             return
         self.state = DaemonState.PARKING
         target = park_joints(self.cfg)
@@ -556,4 +595,4 @@ class Daemon:
                 self._recorder.close()
             self.worker.close()
         log.info("pivotd stopped")
-        return 0
+        return 1 if self._dead_threads else 0
