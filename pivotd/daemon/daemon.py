@@ -31,6 +31,7 @@ from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.bus.security import input_key_exprs
 from pivotd.bus.session import open_session
 from pivotd.config import Config, load_config
+from pivotd.daemon import logqueue
 from pivotd.daemon.control import ControlLoop
 from pivotd.daemon.last_error import LastErrors
 from pivotd.daemon.planner import Plan, Rescue
@@ -423,6 +424,7 @@ class Daemon:
             "needs_restart": list(self._needs_restart),
             "last_error": self._errors.status(),
             "recording": self._recorder.status() if self._recorder is not None else recording_off(),
+            "logging": logqueue.installed().status() if logqueue.installed() is not None else None,
             "threads_dead": sorted(dead),
         }
 

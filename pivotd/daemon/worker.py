@@ -92,7 +92,9 @@ def _worker_main(conn, cfg: Config, log_level: int) -> None:  # pragma: no cover
     from threadpoolctl import threadpool_limits
 
     threadpool_limits(1)
-    logging.basicConfig(level=log_level, format="%(asctime)s %(levelname)s %(name)s[worker]: %(message)s")
+    from pivotd.daemon.logqueue import install as install_log_queue
+
+    install_log_queue(log_level, fmt="%(asctime)s %(levelname)s %(name)s[worker]: %(message)s")  # never blocks
     from pivotd.daemon.wiring import build_map_store, build_planner, release_free_memory
 
     try:
