@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_proto.messages import MODE_NAMES, fault_names
+from firmware_proto.messages import FAULT_WATCHDOG, MODE_NAMES, fault_names
 from pivotd.bus.markers import PlanVisuals
 from pivotd.bus.messages import CloudMsg, PathMsg, PoseSample
 from pivotd.bus.pivot_bus import PivotBus
@@ -59,6 +59,8 @@ from pivotd.maps.formats import LandmarkCloud, make_cloud
 log = logging.getLogger("pivotd.daemon")
 
 SWITCH_INTERVAL_S = 0.0005
+HOST_STALL_S = 0.25  # [s] a supervision pass this much later than its period: the process stalled
+HOST_STALL_WINDOW_S = 2.0  # [s] a watchdog hold reported this soon after a stall of the process is the stall's
 
 
 @dataclass(frozen=True)
@@ -128,6 +130,9 @@ class Daemon:
         self._dead_threads: set[str] = set()  # threads that must not die and did (logged once each)
         self._clear_attempts = 0
         self._fault_episodes = 0  # faults seen since start (each run of FAULT states counts once)
+        self._last_host_stall = -np.inf  # [s monotonic] when this process last stalled (SIGSTOP, no CPU)
+        self._host_stalls_seen = 0
+        self._last_supervision: float | None = None
         self._last_clear = 0.0
         self._last_link_error: str | None = None
         self._rl = RateLimitedLog(log)
@@ -324,8 +329,20 @@ class Daemon:
                 self._rl.warning("control:outputs", f"control: watchdog or joint_states failed: {exc!r}")
 
     # ------------------------------------------------------------------ supervision (main thread)
+    def _note_host_stall(self, now: float) -> None:
+        """Remember when this process last stalled: a gap between supervision passes beyond their period, or a
+        stall the gimbal link saw (its ``host_stalls``)."""
+        stalls = (self.link.counters().get("host_stalls", 0) if self.link is not None else 0)
+        last = self._last_supervision
+        if stalls != self._host_stalls_seen or (
+                last is not None and now - last > 1.0 / self.cfg.control.status_hz + HOST_STALL_S):
+            self._last_host_stall = now
+        self._host_stalls_seen = stalls
+        self._last_supervision = now
+
     def _supervise_gimbal(self) -> None:
         link = self.link
+        self._note_host_stall(time.monotonic())
         if link is not None and link.last_error != self._last_link_error:
             self._last_link_error = link.last_error
             if link.last_error and link.link_state != LinkState.UP:
@@ -337,7 +354,11 @@ class Daemon:
         if st.mode == GimbalMode.FAULT or st.faults:
             if now - self._last_clear >= 1.0:
                 self._last_clear = now
-                if self._clear_attempts == 0:
+                # The device's watchdog held it because this process stalled: that is the host's stall (counted
+                # in link_counters.host_stalls), not a fault of the gimbal. The bit is cleared all the same.
+                host_stall = (st.faults == FAULT_WATCHDOG and st.mode != GimbalMode.FAULT
+                              and now - self._last_host_stall <= HOST_STALL_WINDOW_S)
+                if self._clear_attempts == 0 and not host_stall:
                     self._fault_episodes += 1
                 self._clear_attempts += 1
                 log.warning("gimbal fault bits 0x%04x (%s), mode %s: sending CLEAR_FAULT (attempt %d)",
