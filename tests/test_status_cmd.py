@@ -94,3 +94,23 @@ def test_bad_options_are_one_line_errors():
         "pivotd status: error: --name 'robot*': a daemon name has letters, digits, '_' and '-' only")
     out = run_status("--name", "a", "--all")
     assert out.returncode == 2 and "not allowed with argument" in out.stderr
+
+
+def test_a_daemon_reports_its_last_error_with_its_age_and_whether_it_cleared_and_its_failures():
+    err = {"message": "reload: bad.yaml:3: pivot.fov_deg: must be > 0", "source": "reload", "time": 990.0,
+           "resolved_time": None}
+    now = document("r1", time=1002.34, last_error=err)
+    cleared = document("r2", time=1002.34, last_error=dict(err, resolved_time=995.0))
+    failing = document("r3", time=1000.0, last_error=None, threads_dead=["pivotd-control"],
+                       recording={"state": "failed", "path": "/data/run.mcap", "messages": 4711, "bytes": 1 << 20,
+                                  "dropped": 12, "errors": 1, "error": "No space left on device (errno 28)"},
+                       logging={"dropped": 37, "queued": 10000}, link_counters={"host_stalls": 2})
+    lines = format_table({"r1": now, "r2": cleared, "r3": failing}).splitlines()[4:]
+    assert lines == [
+        "r1: last error (12.3 s ago): reload: bad.yaml:3: pivot.fov_deg: must be > 0",
+        "r2: last error (12.3 s ago, resolved): reload: bad.yaml:3: pivot.fov_deg: must be > 0",
+        "r3: threads died: pivotd-control (nothing is controlled)",
+        "r3: recording failed: No space left on device (errno 28) (/data/run.mcap; 4711 messages recorded, 12 not)",
+        "r3: 37 log records dropped (the log output was not read fast enough)",
+        "r3: host stalled 2 times while the gimbal link was up (not counted as link losses)",
+    ]

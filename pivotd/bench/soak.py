@@ -5,8 +5,9 @@ them, against the reference device model (firmware_proto) served on a loopback T
 that faults can be injected at any time: unplug/replug, bursts of bit flips and of lost frames, a device reboot
 (the port stays, the device forgets its configuration), every fault bit; and, on the bus, hostile input: NaN
 and teleported poses, poses from the past, floods, garbage payloads, empty, single-point, far-away, huge and
-malformed paths. One event at a time, at random intervals (seeded); after each the soak waits for the daemon
-to track again and records the recovery time.
+malformed paths; and a recording that fails mid-run (the daemon records to a FIFO whose reader the soak closes:
+``recorder_failure``, once per daemon start). One event at a time, at random intervals (seeded); after each the
+soak waits for the daemon to track again and records the recovery time.
 
 Reported: setpoints beyond limits (joint limits, velocity, and between consecutive setpoints the device
 followed, acceleration and jerk, each with the wire-resolution allowance), tracebacks in the daemon's log,
@@ -47,6 +48,7 @@ BUS_EVENTS = {"nan_pose": 1, "teleport": 1, "past_pose": 1, "pose_flood": 1, "ga
 RANDOM_EXTRA_EVENTS = {"silent": 1, "stale_pose": 1, "planner_stall": 1, "off_path": 1}
 OFF_PATH_M = 5.0  # [m] how far to the side the off-path fault moves the route's path (max_path_offset: 3 m)
 OFF_PATH_HZ = 20.0  # [Hz] it outpaces tools/sim_pose re-publishing the true path every 2 s
+ONCE_EVENTS = {"recorder_failure": 1}  # at most once per daemon start (the recording stops for good)
 UNPLUG_SECONDS = {0.5: 4, 5.0: 4, 60.0: 1}  # replug after [s]: relative weights
 NOISE_SECONDS = 5.0
 RECOVERY_TIMEOUT_S = 60.0
@@ -228,6 +230,47 @@ class DeviceProcess:
         if self._proc.is_alive():
             self._proc.kill()
         self._conn.close()
+
+
+class FifoSink:
+    """A FIFO the daemon records to (``pivotd --record``), read and discarded by a thread of the soak. :meth:`close`
+    closes the reading end: the daemon's next write to its recording fails (EPIPE), as a full disk would."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        os.mkfifo(path)
+        self._fd: int | None = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # before the daemon opens it to write
+        self.bytes = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._drain, name="soak-recording", daemon=True)
+        self._thread.start()
+
+    def _drain(self) -> None:
+        import select
+
+        while not self._stop.is_set():
+            ready, _, _ = select.select([self._fd], [], [], 0.1)
+            if not ready:
+                continue
+            try:
+                data = os.read(self._fd, 1 << 16)
+            except BlockingIOError:
+                continue
+            if data:
+                self.bytes += len(data)
+            else:  # no writer (yet, or any more)
+                self._stop.wait(0.05)
+
+    @property
+    def open(self) -> bool:
+        return self._fd is not None
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5.0)
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
 
 
 def tree_rss_mb(pid: int) -> float:
@@ -499,7 +542,9 @@ class SoakStack:
     """Daemon (config/demo.yaml) + :class:`SoakDevice` + ``tools/sim_pose`` looping the hallway, Zenoh on loopback,
     logs in ``out``; :meth:`inject` applies one named fault (:data:`EVENT_KINDS`). Use as a context manager."""
 
-    def __init__(self, out: Path, seed: int = 1, changes: dict | None = None) -> None:
+    def __init__(self, out: Path, seed: int = 1, changes: dict | None = None, record: bool | Path = False) -> None:
+        """``record``: True: the daemon records (``--record``) to a :class:`FifoSink` (fault ``recorder_failure``);
+        a path: to that file."""
         from pivotd.config import load_config
         from pivotd.sim.launch import derive_config, free_port
 
@@ -513,6 +558,8 @@ class SoakStack:
         self.cfg = load_config(self.config_path)
         self.daemon = self.sim = self.probe = self.vandal = None
         self.daemon_starts = 0
+        self.record = record
+        self.recording: FifoSink | None = None
         self.rss: list[tuple[float, float]] = []
         self.t_start = time.monotonic()
         self._last_rss = -np.inf
@@ -523,7 +570,15 @@ class SoakStack:
 
         self.daemon_starts += 1
         log_path = self.out / ("pivotd.log" if self.daemon_starts == 1 else f"pivotd.{self.daemon_starts}.log")
-        self.daemon = spawn([sys.executable, "-m", "pivotd.cli", "--config", str(self.config_path)], log_path)
+        extra: list[str] = []
+        if isinstance(self.record, Path):
+            extra = ["--record", str(self.record)]
+        elif self.record:
+            if self.recording is not None:
+                self.recording.close()
+            self.recording = FifoSink(self.out / f"recording.{self.daemon_starts}.fifo")
+            extra = ["--record", str(self.recording.path)]
+        self.daemon = spawn([sys.executable, "-m", "pivotd.cli", "--config", str(self.config_path), *extra], log_path)
 
     def __enter__(self) -> SoakStack:
         from pivotd.bus.probe import BusProbe
@@ -551,6 +606,8 @@ class SoakStack:
         if self.probe is not None:
             self.probe.close()
             self.probe = None
+        if self.recording is not None:
+            self.recording.close()
         self.device.stop()
 
     def stop_daemon(self, sig: int = signal.SIGTERM, timeout: float = 20.0) -> int | None:
@@ -630,6 +687,13 @@ class SoakStack:
             back = self.wait(lambda st: (st.get("planner") or {}).get("path_mode") == "on_path", RECOVERY_TIMEOUT_S,
                              since=end)
             event["on_path_s"] = None if back is None else round(back, 2)
+        elif kind == "recorder_failure":  # the recording's file fails mid-run (its reader goes away: EPIPE)
+            if self.recording is None or not self.recording.open:
+                raise ValueError("recorder_failure needs a SoakStack(record=True) whose recording still runs")
+            self.recording.close()
+            # the fault ends when the daemon has seen it: its next chunk of the recording failed
+            event["recording_failed"] = self.wait(
+                lambda st: (st.get("recording") or {}).get("state") == "failed", RECOVERY_TIMEOUT_S) is not None
         elif kind in BUS_EVENTS:
             position = self.probe.poses[-1][1] if self.probe.poses else np.zeros(3)
             self.vandal.send(kind, np.asarray(position, float))
@@ -649,7 +713,7 @@ class SoakStack:
         return event
 
 
-EVENT_KINDS = (*DEVICE_EVENTS, *BUS_EVENTS, "silent", "stale_pose", "planner_stall", "off_path")
+EVENT_KINDS = (*DEVICE_EVENTS, *BUS_EVENTS, "silent", "stale_pose", "planner_stall", "off_path", *ONCE_EVENTS)
 
 
 def summarise(stack: SoakStack, events: list[dict], warmup: float, exit_code: int | None) -> dict:
@@ -693,12 +757,11 @@ def soak(minutes: float, out: Path, seed: int = 1, mean_gap: float = 6.0, warmup
     duration = minutes * 60.0
     warmup = min(120.0, max(5.0, 0.1 * duration)) if warmup is None else warmup
     events: list[dict] = []
-    with SoakStack(out, seed) as stack:
+    with SoakStack(out, seed, record=True) as stack:
         rng = stack.rng
         if stack.wait_healthy(90.0) is None:
             raise RuntimeError(f"pivotd never started tracking; see {out / 'pivotd.log'}")
-        kinds = {**DEVICE_EVENTS, **BUS_EVENTS, **RANDOM_EXTRA_EVENTS}
-        names, weights = list(kinds), list(kinds.values())
+        kinds = {**DEVICE_EVENTS, **BUS_EVENTS, **RANDOM_EXTRA_EVENTS, **ONCE_EVENTS}
         while time.monotonic() - stack.t_start < duration:
             gap_end = time.monotonic() + rng.uniform(0.5, 1.5) * mean_gap
             while time.monotonic() < gap_end:
@@ -706,7 +769,9 @@ def soak(minutes: float, out: Path, seed: int = 1, mean_gap: float = 6.0, warmup
                 time.sleep(0.1)
             if time.monotonic() - stack.t_start >= duration:
                 break
-            kind = rng.choices(names, weights)[0]
+            if stack.recording is not None and not stack.recording.open:
+                kinds.pop("recorder_failure", None)  # it happened: the recording stopped for good
+            kind = rng.choices(list(kinds), list(kinds.values()))[0]
             params: dict = {}
             if kind == "unplug":
                 params["seconds"] = rng.choices(list(unplugs), list(unplugs.values()))[0]
@@ -727,6 +792,7 @@ MATRIX: tuple[tuple[str, dict], ...] = (
     ("stale_pose", {"seconds": 2.0}), ("nan_pose", {}), ("teleport", {}), ("pose_flood", {}), ("past_pose", {}),
     ("garbage", {}), ("path_empty", {}), ("path_single", {}), ("path_far", {}), ("path_huge", {}),
     ("path_garbage", {}), ("planner_stall", {"seconds": 3.0}), ("off_path", {"seconds": 6.0}),
+    ("recorder_failure", {}),
 )
 
 
@@ -734,7 +800,7 @@ def matrix(out: Path, seed: int = 1, skip_long: bool = False) -> dict:
     """Every row of :data:`MATRIX` once (``skip_long``: without the 60 s unplug), then SIGKILL mid-motion and a
     restart (time to tracking again), then SIGTERM mid-motion (time to exit); returns the results."""
     rows: list[dict] = []
-    with SoakStack(out, seed) as stack:
+    with SoakStack(out, seed, record=True) as stack:
         if stack.wait_healthy(90.0) is None:
             raise RuntimeError(f"pivotd never started tracking; see {out / 'pivotd.log'}")
         for kind, params in MATRIX:

@@ -21,11 +21,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pivotd.daemon import logqueue
     from pivotd.daemon.daemon import Daemon, RunOverrides
 
-    overrides = RunOverrides(port=args.port, connect=tuple(args.connect), listen=tuple(args.listen),
-                             record=args.record)
-    daemon = Daemon(args.config, overrides)
-    if not args.log_level:
-        logging.getLogger().setLevel(daemon.cfg.logging.level.upper())
-    return daemon.run()
+    # No thread of the daemon may block in a log call (a log pipe nobody reads): a bounded, dropping queue.
+    logs = logqueue.install()
+    try:
+        overrides = RunOverrides(port=args.port, connect=tuple(args.connect), listen=tuple(args.listen),
+                                 record=args.record)
+        daemon = Daemon(args.config, overrides)
+        if not args.log_level:
+            logging.getLogger().setLevel(daemon.cfg.logging.level.upper())
+        return daemon.run()
+    finally:
+        logs.stop()

@@ -230,8 +230,43 @@ def format_table(docs: dict[str, dict]) -> str:
         if drops:
             detail = ", ".join(f"{k} {v}" for k, v in drops.items())
             lines.append(f"{name}: gimbal link: {sum(drops.values())} frames dropped ({detail})")
-        error = doc.get("last_error") or doc.get("error")
-        if error:
-            lines.append(f"{name}: last error: {error}")
+        lines += [f"{name}: {line}" for line in health_lines(doc)]
     return "\n".join(lines)
+
+
+def _last_error_line(doc: dict) -> str | None:
+    """``last error (12.3 s ago[, resolved]): message``; a plain string from a daemon of an older version."""
+    error = doc.get("last_error") or doc.get("error")
+    if not error:
+        return None
+    if not isinstance(error, dict):
+        return f"last error: {error}"
+    when = ""
+    if isinstance(error.get("time"), int | float) and isinstance(doc.get("time"), int | float):
+        when = f"{max(0.0, doc['time'] - error['time']):.1f} s ago"
+    if error.get("resolved_time") is not None:
+        when = f"{when}, resolved" if when else "resolved"
+    return f"last error ({when}): {error.get('message')}" if when else f"last error: {error.get('message')}"
+
+
+def health_lines(doc: dict) -> list[str]:
+    """What a daemon reports beside its row: a dead thread, a failed recording, dropped log records, stalls of the
+    host, the last error."""
+    out = []
+    if doc.get("threads_dead"):
+        out.append(f"threads died: {', '.join(doc['threads_dead'])} (nothing is controlled)")
+    rec = doc.get("recording") or {}
+    if rec.get("state") == "failed":
+        out.append(f"recording failed: {rec.get('error')} ({rec.get('path')}; {rec.get('messages', 0)} messages "
+                   f"recorded, {rec.get('dropped', 0)} not)")
+    dropped = (doc.get("logging") or {}).get("dropped", 0)
+    if dropped:
+        out.append(f"{dropped} log records dropped (the log output was not read fast enough)")
+    stalls = (doc.get("link_counters") or {}).get("host_stalls", 0)
+    if stalls:
+        out.append(f"host stalled {stalls} times while the gimbal link was up (not counted as link losses)")
+    error = _last_error_line(doc)
+    if error:
+        out.append(error)
+    return out
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_proto.messages import MODE_NAMES, fault_names
+from firmware_proto.messages import FAULT_WATCHDOG, MODE_NAMES, fault_names
 from pivotd.bus.markers import PlanVisuals
 from pivotd.bus.messages import CloudMsg, PathMsg, PoseSample
 from pivotd.bus.pivot_bus import PivotBus
@@ -31,9 +31,12 @@ from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.bus.security import input_key_exprs
 from pivotd.bus.session import open_session
 from pivotd.config import Config, load_config
+from pivotd.daemon import logqueue
 from pivotd.daemon.control import ControlLoop
+from pivotd.daemon.last_error import LastErrors
 from pivotd.daemon.planner import Plan, Rescue
 from pivotd.daemon.pose_gate import PoseGate, PoseVerdict
+from pivotd.daemon.recorder import off_status as recording_off
 from pivotd.daemon.reload import apply_reload, plan_reload
 from pivotd.daemon.states import DaemonState
 from pivotd.daemon.systemd import Notifier, watchdog_interval
@@ -56,6 +59,8 @@ from pivotd.maps.formats import LandmarkCloud, make_cloud
 log = logging.getLogger("pivotd.daemon")
 
 SWITCH_INTERVAL_S = 0.0005
+HOST_STALL_S = 0.25  # [s] a supervision pass this much later than its period: the process stalled
+HOST_STALL_WINDOW_S = 2.0  # [s] a watchdog hold reported this soon after a stall of the process is the stall's
 
 
 @dataclass(frozen=True)
@@ -121,14 +126,27 @@ class Daemon:
         self._reloads = 0
         self._reload_errors = 0
         self._needs_restart: tuple[str, ...] = ()  # changed settings that wait for a restart
-        self._last_error = ""
+        self._errors = LastErrors()  # the status's last_error (assign a "source: text" string to _last_error)
+        self._dead_threads: set[str] = set()  # threads that must not die and did (logged once each)
         self._clear_attempts = 0
         self._fault_episodes = 0  # faults seen since start (each run of FAULT states counts once)
+        self._last_host_stall = -np.inf  # [s monotonic] when this process last stalled (SIGSTOP, no CPU)
+        self._host_stalls_seen = 0
+        self._last_supervision: float | None = None
         self._last_clear = 0.0
         self._last_link_error: str | None = None
         self._rl = RateLimitedLog(log)
         self._threads: list[threading.Thread] = []
         self._recorder = None
+
+    @property
+    def _last_error(self) -> str:
+        """The current error's message; assigning ``"source: text"`` records it with its time."""
+        return self._errors.message
+
+    @_last_error.setter
+    def _last_error(self, message: str) -> None:
+        self._errors.set(message)
 
     # ------------------------------------------------------------------ configuration
     def _load_config(self) -> Config:
@@ -197,6 +215,8 @@ class Daemon:
             except Exception as exc:  # keep planning; never take the daemon down
                 self._rl.exception("planner", f"planner: replan failed: {exc!r}")
                 self._last_error = f"planner: {exc}"
+            else:
+                self._errors.resolve("planner")
             next_t += 1.0 / self.cfg.planner.replan_hz
             delay = next_t - time.monotonic()
             if delay < 0:
@@ -285,31 +305,46 @@ class Daemon:
                 deadline = t0 + k * period
             self._jitter.append(now - deadline)
             k += 1
+            # Nothing in a tick may end this thread: an exception anywhere is logged (rate-limited) and the next
+            # tick comes at its deadline (the tick after a failed one restarts from what the link reports).
             try:
                 tick = self.control.tick(now, self.pose, self.plan)
+                self.state = tick.mode
+                if tick.setpoint is not None and self._recorder is not None:
+                    self._record_setpoint(tick.setpoint)
             except Exception as exc:
                 self._rl.exception("control", f"control: tick failed: {exc!r}")
-                self._last_error = f"control: {exc}"
+                self._last_error = f"control: {exc!r}"
                 continue
-            self.state = tick.mode
-            if tick.setpoint is not None and self._recorder is not None:
-                self._record_setpoint(tick.setpoint)
-            # The loop ticked without an exception: it is alive (link-down included, it reconnects by
-            # itself), so systemd's watchdog is fed; a stuck or crashing loop stops feeding it.
-            if wd_period and now - last_wd >= wd_period:
-                self.notifier.watchdog()
-                last_wd = now
-            if k % js_every == 0 and self.bus is not None:
-                st = self.link.state
-                if st is not None and self.link.link_state == LinkState.UP:
-                    try:
+            self._errors.resolve("control")
+            try:
+                # The loop ticked without an exception: it is alive (link-down included, it reconnects by
+                # itself), so systemd's watchdog is fed; a stuck or crashing loop stops feeding it.
+                if wd_period and now - last_wd >= wd_period:
+                    self.notifier.watchdog()
+                    last_wd = now
+                if k % js_every == 0 and self.bus is not None:
+                    st = self.link.state
+                    if st is not None and self.link.link_state == LinkState.UP:
                         self.bus.publish_joint_state(time.time(), st.pan, st.tilt, st.pan_rate, st.tilt_rate)
-                    except Exception as exc:
-                        self._rl.warning("joint_states", f"joint_states: publish failed: {exc!r}")
+            except Exception as exc:
+                self._rl.warning("control:outputs", f"control: watchdog or joint_states failed: {exc!r}")
 
     # ------------------------------------------------------------------ supervision (main thread)
+    def _note_host_stall(self, now: float) -> None:
+        """Remember when this process last stalled: a gap between supervision passes beyond their period, or a
+        stall the gimbal link saw (its ``host_stalls``)."""
+        stalls = (self.link.counters().get("host_stalls", 0) if self.link is not None else 0)
+        last = self._last_supervision
+        if stalls != self._host_stalls_seen or (
+                last is not None and now - last > 1.0 / self.cfg.control.status_hz + HOST_STALL_S):
+            self._last_host_stall = now
+        self._host_stalls_seen = stalls
+        self._last_supervision = now
+
     def _supervise_gimbal(self) -> None:
         link = self.link
+        self._note_host_stall(time.monotonic())
         if link is not None and link.last_error != self._last_link_error:
             self._last_link_error = link.last_error
             if link.last_error and link.link_state != LinkState.UP:
@@ -321,7 +356,11 @@ class Daemon:
         if st.mode == GimbalMode.FAULT or st.faults:
             if now - self._last_clear >= 1.0:
                 self._last_clear = now
-                if self._clear_attempts == 0:
+                # The device's watchdog held it because this process stalled: that is the host's stall (counted
+                # in link_counters.host_stalls), not a fault of the gimbal. The bit is cleared all the same.
+                host_stall = (st.faults == FAULT_WATCHDOG and st.mode != GimbalMode.FAULT
+                              and now - self._last_host_stall <= HOST_STALL_WINDOW_S)
+                if self._clear_attempts == 0 and not host_stall:
                     self._fault_episodes += 1
                 self._clear_attempts += 1
                 log.warning("gimbal fault bits 0x%04x (%s), mode %s: sending CLEAR_FAULT (attempt %d)",
@@ -337,7 +376,8 @@ class Daemon:
                 self.control.invalidate()
 
     def _record_setpoint(self, setpoint: tuple[float, float, float, float]) -> None:
-        """Record the setpoint just sent (pan, tilt [rad], rates [rad/s]) on the recording's command channel."""
+        """Record the setpoint just sent (pan, tilt [rad], rates [rad/s]) on the recording's command channel
+        (queued: :meth:`Recorder.write` neither blocks nor raises; a failed recording says so in the status)."""
         from pivotd.bus.messages import JOINT_STATE, encode_joint_state
         from pivotd.daemon.recorder import JOINT_COMMAND_TOPIC
 
@@ -357,6 +397,9 @@ class Daemon:
         if st is not None and st.mode == GimbalMode.FAULT:
             state = DaemonState.FAULT
         ctl = self.control.stats if self.control is not None else None
+        dead = self._check_threads()
+        if dead:  # a thread that must not die did: the gimbal is not controlled, whatever the last tick said
+            state = DaemonState.FAILED
         return {
             "name": self.cfg.name,
             "state": state,
@@ -408,8 +451,23 @@ class Daemon:
             "reloads": self._reloads,
             "reload_errors": self._reload_errors,
             "needs_restart": list(self._needs_restart),
-            "last_error": self._last_error,
+            "last_error": self._errors.status(),
+            "recording": self._recorder.status() if self._recorder is not None else recording_off(),
+            "logging": logqueue.installed().status() if logqueue.installed() is not None else None,
+            "threads_dead": sorted(dead),
         }
+
+    def _check_threads(self) -> set[str]:
+        """Names of the daemon's threads (control, planner) that ended while the daemon runs; each is logged once."""
+        for t in self._threads:
+            # the planner thread ends when a stop is requested, the control thread after parking
+            ends = self._halt if t.name == "pivotd-control" else self._stop
+            if not t.is_alive() and not ends.is_set() and t.name not in self._dead_threads:
+                self._dead_threads.add(t.name)
+                self._last_error = f"daemon: thread {t.name} died"
+                log.error("thread %s died: %s", t.name, "the gimbal gets no setpoints (its watchdog holds it)"
+                          if t.name == "pivotd-control" else "no more replans (the control loop holds)")
+        return set(self._dead_threads)
 
     def _do_reload(self) -> None:
         """Apply a changed config (planner thread): live settings to the planner process and the control loop
@@ -441,6 +499,7 @@ class Daemon:
             self._replan_trigger = build_replan_trigger(self.cfg)
             self._needs_restart = plan.needs_restart
             self._reloads += 1
+            self._errors.resolve("reload")
             log.info("reloaded %s: %d landmarks; applied: %s", self.config_path, info.landmarks,
                      ", ".join(plan.applied) or "no setting changed")
             if plan.needs_restart:
@@ -452,6 +511,9 @@ class Daemon:
         """Move to the park pose within the park timeout, then disable."""
         link, control = self.link, self.control
         if link is None or control is None:
+            return
+        if "pivotd-control" in self._check_threads():
+            log.error("cannot park: the control thread is gone; disabling the gimbal where it stands")
             return
         self.state = DaemonState.PARKING
         target = park_joints(self.cfg)
@@ -564,4 +626,4 @@ class Daemon:
                 self._recorder.close()
             self.worker.close()
         log.info("pivotd stopped")
-        return 0
+        return 1 if self._dead_threads else 0

@@ -16,3 +16,4 @@ class DaemonState(enum.StrEnum):
     FAULT = "fault"  # gimbal faulted: heartbeats only, no motion
     PARKING = "parking"  # moving to the park pose before shutdown
     STOPPED = "stopped"  # shut down
+    FAILED = "failed"  # a thread that must not die has died (status ``threads_dead``): nothing is controlled

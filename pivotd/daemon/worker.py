@@ -51,7 +51,8 @@ SILENT_AFTER_S = 2.0  # [s] a replan whose worker sent nothing for this long is 
 
 @dataclass(frozen=True)
 class MapInfo:
-    """landmarks: total count; version: store version; layers: name -> count."""
+    """landmarks: total count; version: the map's version (the worker's store; :class:`PlannerWorker` reports one
+    that increases at every change across reloads and restarts); layers: name -> count."""
 
     landmarks: int
     version: int
@@ -138,7 +139,9 @@ def _worker_main(conn, cfg: Config, log_level: int) -> None:  # pragma: no cover
     from threadpoolctl import threadpool_limits
 
     threadpool_limits(1)
-    logging.basicConfig(level=log_level, format="%(asctime)s %(levelname)s %(name)s[worker]: %(message)s")
+    from pivotd.daemon.logqueue import install as install_log_queue
+
+    install_log_queue(log_level, fmt="%(asctime)s %(levelname)s %(name)s[worker]: %(message)s")  # never blocks
     from pivotd.daemon.wiring import build_map_store, build_planner, release_free_memory
 
     try:
@@ -208,6 +211,7 @@ class PlannerWorker:
         self._log_level = log_level
         self.restarts = 0
         self.map_info = MapInfo(0, 0, {})
+        self._map_changes = 0  # maps the worker loaded or changed: the map version the daemon reports
         self._proc = None
         self._conn = None
         self._next_id = 0
@@ -237,7 +241,7 @@ class PlannerWorker:
             proc.join(5)
             raise WorkerError(payload)
         self._proc, self._conn, self._cfg = proc, parent, cfg
-        self.map_info = payload
+        self._set_map_info(payload)
 
     @property
     def pid(self) -> int | None:
@@ -336,8 +340,7 @@ class PlannerWorker:
         kind, payload = self._request("layer", name, cloud, weight_multiplier, timeout=timeout)
         if kind != "map":
             raise RequestError(payload)
-        self.map_info = payload
-        return payload
+        return self._set_map_info(payload)
 
     def reload(self, cfg: Config, timeout: float = 120.0) -> MapInfo:
         """Load ``cfg``'s map and planner settings; on a refusal (RequestError) the worker keeps the running
@@ -346,8 +349,14 @@ class PlannerWorker:
         if kind != "map":
             raise RequestError(payload)
         self._cfg = cfg
-        self.map_info = payload
-        return payload
+        return self._set_map_info(payload)
+
+    def _set_map_info(self, info: MapInfo) -> MapInfo:
+        """Keep the worker's map description with a version that increases at every change of the map: each
+        store the worker builds (start, restart, reload) counts from 1 again."""
+        self._map_changes += 1
+        self.map_info = MapInfo(info.landmarks, self._map_changes, info.layers)
+        return self.map_info
 
     def close(self, timeout: float = 2.0) -> None:
         if self._proc is None:

@@ -42,7 +42,7 @@ from firmware_proto.messages import (
 )
 from firmware_proto.urlhandler import register as _register_mock_url
 from pivotd.gimbal.interface import GimbalState, LinkState
-from pivotd.gimbal.supervisor import Connection, SupervisedLink
+from pivotd.gimbal.supervisor import Connection, SilenceClock, SupervisedLink
 
 _register_mock_url()
 
@@ -209,8 +209,12 @@ class GimbalLink(SupervisedLink):
 
     def _monitor(self, conn: Connection) -> None:
         self._last_state_rx = time.monotonic()
+        silence = SilenceClock(self.config.state_timeout_s / 2)  # a stall of this process is not a silent device
         while not self._stopping.is_set() and conn.alive:
-            if time.monotonic() - self._last_state_rx > self.config.state_timeout_s:
+            stalls = silence.stalls
+            silent = silence.silent(self._last_state_rx)
+            self._n["host_stalls"] += silence.stalls - stalls
+            if silent > self.config.state_timeout_s:
                 conn.error = f"no STATE for {self.config.state_timeout_s} s"
                 break
             self._stopping.wait(0.02)

@@ -29,7 +29,7 @@ from pivotd.errors import ConfigError
 from pivotd.gimbal import mavlink_frames as mf
 from pivotd.gimbal.interface import GimbalMode, GimbalState, LinkState
 from pivotd.gimbal.kinematics import JointLimits
-from pivotd.gimbal.supervisor import Connection, SupervisedLink
+from pivotd.gimbal.supervisor import Connection, SilenceClock, SupervisedLink
 
 log = logging.getLogger(__name__)
 
@@ -303,9 +303,13 @@ class MavlinkGimbal(SupervisedLink):
         s = self.settings
         self._last_state_rx = time.monotonic()
         next_hb = time.monotonic() + s.heartbeat_period_s
+        silence = SilenceClock(s.state_timeout_s / 2)  # a stall of this process is not a silent device
         while not self._stopping.is_set() and conn.alive:
             now = time.monotonic()
-            if now - self._last_state_rx > s.state_timeout_s:
+            stalls = silence.stalls
+            silent = silence.silent(self._last_state_rx)
+            self._n["host_stalls"] += silence.stalls - stalls
+            if silent > s.state_timeout_s:
                 conn.error = f"no GIMBAL_DEVICE_ATTITUDE_STATUS for {s.state_timeout_s} s"
                 break
             if now >= next_hb:

@@ -56,6 +56,35 @@ class Connection:
             t.join(timeout=2.0)
 
 
+class SilenceClock:
+    """How long the device has been silent *while the host ran*: the time since its last state, less the host's own
+    stalls since then. A stall is a gap of the watching thread's loop longer than ``stall_s`` (the process stopped,
+    starved of CPU): while the host does not run, the device's states wait unread in the port, so their absence is
+    no sign of a lost link. Each stall is counted (``stalls``). ``clock``: monotonic [s]."""
+
+    def __init__(self, stall_s: float, clock: Callable[[], float] = time.monotonic) -> None:
+        self.stall_s = float(stall_s)
+        self._clock = clock
+        self.stalls = 0
+        self._last_tick: float | None = None
+        self._last_rx: float | None = None
+        self._stalled = 0.0  # [s] host stalls since the last state
+
+    def silent(self, last_rx: float) -> float:
+        """Call once per loop of the watching thread with the receive time of the latest state [s of ``clock``];
+        returns the silence that counts against the state timeout [s]."""
+        now = self._clock()
+        if last_rx != self._last_rx:
+            self._last_rx, self._stalled = last_rx, 0.0
+        if self._last_tick is not None:
+            gap = now - self._last_tick
+            if gap > self.stall_s:
+                self.stalls += 1
+                self._stalled += gap
+        self._last_tick = now
+        return max(0.0, now - last_rx - self._stalled)
+
+
 class SupervisedLink:
     """Reconnect loop, link-state transitions and the shared counters (``reconnects``, ``link_losses``) of a
     gimbal backend; see the module docstring for the hooks. Thread-safe."""
@@ -75,7 +104,8 @@ class SupervisedLink:
         self._supervisor: threading.Thread | None = None
         self._want_enabled = True
         self._ever_up = False
-        self._n: dict[str, int] = dict.fromkeys(counters, 0)
+        # host_stalls: stalls of this process seen while the link was up (not judged as a silent device)
+        self._n: dict[str, int] = dict.fromkeys((*counters, "host_stalls"), 0)
         self._device_clock = DeviceClock()  # when each state was measured (reset on every connection)
 
     # ------------------------------------------------------------------ GimbalInterface
