@@ -44,7 +44,7 @@ DEMO = REPO / "config" / "demo.yaml"
 DEVICE_EVENTS = {"unplug": 3, "bitflips": 2, "drops": 2, "reboot": 2, "fault_bit": 3}
 BUS_EVENTS = {"nan_pose": 1, "teleport": 1, "past_pose": 1, "pose_flood": 1, "garbage": 1, "path_empty": 1,
               "path_single": 1, "path_far": 1, "path_huge": 1, "path_garbage": 1}
-RANDOM_EXTRA_EVENTS = {"silent": 1, "stale_pose": 1, "planner_stall": 1}
+RANDOM_EXTRA_EVENTS = {"silent": 1, "stale_pose": 1, "planner_stall": 1, "device_stall": 1}
 UNPLUG_SECONDS = {0.5: 4, 5.0: 4, 60.0: 1}  # replug after [s]: relative weights
 NOISE_SECONDS = 5.0
 RECOVERY_TIMEOUT_S = 60.0
@@ -590,6 +590,16 @@ class SoakStack:
             device.reboot()
         elif kind == "fault_bit":
             device.fault(params["bit"])
+        elif kind == "device_stall":  # the device process gets no CPU for a while: setpoints queue in its socket
+            pid = device.pid
+            event["pid"] = pid
+            if pid:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGSTOP)
+                    try:
+                        time.sleep(params.get("seconds", 2.0))
+                    finally:
+                        os.kill(pid, signal.SIGCONT)
         elif kind == "stale_pose":  # the pose source stops publishing for a while
             self.sim.send_signal(signal.SIGSTOP)
             time.sleep(params.get("seconds", 2.0))
@@ -621,7 +631,7 @@ class SoakStack:
         return event
 
 
-EVENT_KINDS = (*DEVICE_EVENTS, *BUS_EVENTS, "silent", "stale_pose", "planner_stall")
+EVENT_KINDS = (*DEVICE_EVENTS, *BUS_EVENTS, "silent", "stale_pose", "planner_stall", "device_stall")
 
 
 def summarise(stack: SoakStack, events: list[dict], warmup: float, exit_code: int | None) -> dict:
@@ -698,7 +708,7 @@ MATRIX: tuple[tuple[str, dict], ...] = (
     *(("fault_bit", {"bit": b}) for b in range(8)),
     ("stale_pose", {"seconds": 2.0}), ("nan_pose", {}), ("teleport", {}), ("pose_flood", {}), ("past_pose", {}),
     ("garbage", {}), ("path_empty", {}), ("path_single", {}), ("path_far", {}), ("path_huge", {}),
-    ("path_garbage", {}), ("planner_stall", {"seconds": 3.0}),
+    ("path_garbage", {}), ("planner_stall", {"seconds": 3.0}), ("device_stall", {"seconds": 2.0}),
 )
 
 
