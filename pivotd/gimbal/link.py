@@ -311,6 +311,9 @@ class GimbalLink(SupervisedLink):
             log.warning("gimbal at %s speaks protocol version %d: its setpoints carry no validity, so a late one is "
                         "still executed; relying on the host sending none while the device is silent", self.url,
                         ident.version)
+        if not self._wait_first_state(conn):
+            self._last_error = f"gimbal at {self.url} sent no STATE within {self.config.state_timeout_s} s"
+            return LinkState.DOWN
         expected_crc = zlib.crc32(self._cfg_msg.pack())
         ack = self._request(self._cfg_msg, None, conn, expect_value=expected_crc)
         if ack is None:
@@ -329,9 +332,6 @@ class GimbalLink(SupervisedLink):
             if ack.status != 0:
                 log.warning("gimbal at %s refused ENABLE: %s (faults 0x%04x); link up, disabled", self.url,
                             NACK_NAMES.get(ack.status, ack.status), self._state.faults if self._state else 0)
-        if not self._wait_first_state(conn):
-            self._last_error = f"gimbal at {self.url} sent no STATE within {self.config.state_timeout_s} s"
-            return LinkState.DOWN
         log.info("gimbal at %s: protocol v%d, firmware %d.%d.%d, serial %08x", self.url, ident.version,
                  ident.fw_major, ident.fw_minor, ident.fw_patch, ident.serial)
         return LinkState.UP
