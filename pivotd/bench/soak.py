@@ -3,7 +3,8 @@
 Runs ``pivotd`` (config/demo.yaml) with ``tools/sim_pose`` walking the hallway in a loop, as the demo launches
 them, against the reference device model (firmware_proto) served on a loopback TCP port of this process, so
 that faults can be injected at any time: unplug/replug, bursts of bit flips and of lost frames, a device reboot
-(the port stays, the device forgets its configuration), every fault bit; and, on the bus, hostile input: NaN
+(the port stays, the device forgets its configuration), every fault bit, a device stall (its process stopped
+while setpoints queue in its socket); and, on the bus, hostile input: NaN
 and teleported poses, poses from the past, floods, garbage payloads, empty, single-point, far-away, huge and
 malformed paths. One event at a time, at random intervals (seeded); after each the soak waits for the daemon
 to track again and records the recovery time.
