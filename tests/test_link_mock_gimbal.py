@@ -322,3 +322,36 @@ def test_a_device_stall_finds_no_burst_of_setpoints_when_it_resumes(tmp_path, ca
             burst.append(int(r["seq"]))
         assert set(burst) <= queued and len(burst) <= silence / 0.01 + 1 + 5  # + those in flight at the stop
         assert all(r["detail"] == "" for r in executed)  # version-1 setpoints: no validity on the wire
+
+
+def test_a_short_device_silence_withholds_setpoints_and_leaves_a_seq_gap_before_the_next() -> None:
+    """The device stops answering for a little more than 5 state periods (well within the state timeout, 5 s here:
+    the link stays up). The host sends nothing from 5 state periods on; the first setpoint once the device speaks
+    again skips the withheld seq, so the break of the stream shows on the wire (the control loop restarts it from a
+    measured state there)."""
+    with MockGimbal(tcp=True) as mock:
+        link = GimbalLink(mock.url, link_config(state_timeout_s=5.0))
+        try:
+            link.start()
+            assert link.wait_up(10.0), link.last_error
+            assert track(link, 0.2, 0.0) is not None
+            last = link.send_setpoint(0.2, 0.0)
+            assert last is not None
+            mock.proc.send_signal(signal.SIGSTOP)
+            try:
+                deadline = time.monotonic() + 5.0
+                while link.counters()["setpoints_withheld"] == 0 and time.monotonic() < deadline:
+                    seq = link.send_setpoint(0.2, 0.0)
+                    last = last if seq is None else seq
+                    time.sleep(0.01)
+                assert link.counters()["setpoints_withheld"] == 1
+            finally:
+                mock.proc.send_signal(signal.SIGCONT)
+            resumed = time.monotonic()
+            assert link.wait_state(lambda st: st.rx_time > resumed, 5.0) is not None
+            after = link.send_setpoint(0.2, 0.0)
+            assert after == (last + 2) & 0xFF  # the withheld one took last + 1
+            assert link.link_state == "up" and link.counters()["link_losses"] == 0
+            assert link.counters()["silences"] == 1
+        finally:
+            link.stop()

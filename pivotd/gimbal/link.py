@@ -192,6 +192,9 @@ class GimbalLink(SupervisedLink):
         now = time.monotonic()
         state = self._state
         if state is None or self._silent(now, "setpoints_withheld"):
+            # A withheld setpoint still takes its seq, as a lost frame would: the gap shows the device (and its log)
+            # that the stream broke here, and the control loop restarts it from a measured state.
+            self._next_seq()
             return None
         seq = self._next_seq()
         host_us = int(now * 1e6) & 0xFFFFFFFF
