@@ -13,7 +13,15 @@ from dataclasses import dataclass
 
 from cobs import cobs
 
-from firmware_proto.messages import MAX_BODY, MESSAGE_TYPES, PROTOCOL_VERSION, Hello, Identity, Message
+from firmware_proto.messages import (
+    MAX_BODY,
+    MESSAGE_TYPES_BY_VERSION,
+    PROTOCOL_VERSION,
+    Hello,
+    Identity,
+    Message,
+    message_types,
+)
 
 #: longest COBS encoding of a MAX_BODY body (one overhead byte per 254 data bytes)
 MAX_ENCODED = MAX_BODY + 1 + MAX_BODY // 254
@@ -31,7 +39,11 @@ def crc16(data: bytes | bytearray | memoryview) -> int:
 
 
 def encode_body(msg: Message, seq: int, version: int = PROTOCOL_VERSION) -> bytes:
-    """Unframed body ``version | type | seq | payload | crc`` of ``msg``; raises ValueError if it does not fit."""
+    """Unframed body ``version | type | seq | payload | crc`` of ``msg``; raises ValueError if it does not fit, or if
+    ``msg`` has a layout other than the one of its type in ``version`` (when that version is known)."""
+    table = MESSAGE_TYPES_BY_VERSION.get(version)
+    if table is not None and table.get(msg.TYPE) is not type(msg):
+        raise ValueError(f"{type(msg).__name__} is not the {msg.NAME} layout of protocol version {version}")
     head = bytes((version & 0xFF, msg.TYPE, seq & 0xFF)) + msg.pack()
     if len(head) + 2 > MAX_BODY:
         raise ValueError(f"{msg.NAME}: body of {len(head) + 2} bytes exceeds {MAX_BODY}")
@@ -71,6 +83,16 @@ class StreamDecoder:
         self._discarding = False  # inside an over-long segment: skip until the next delimiter
         self.frames_ok = 0
         self.drops: dict[str, int] = dict.fromkeys(DROP_REASONS, 0)
+
+    @property
+    def version(self) -> int:
+        """The protocol version this decoder accepts (and whose layouts it decodes)."""
+        return self._version
+
+    @version.setter
+    def version(self, value: int) -> None:
+        self._version = value
+        self._types = message_types(value)
 
     @property
     def dropped(self) -> int:
@@ -121,10 +143,10 @@ class StreamDecoder:
             drops["crc"] += 1
             return None
         version, mtype, seq = body[0], body[1], body[2]
-        if version != self.version and mtype not in VERSIONLESS_TYPES:
+        if version != self._version and mtype not in VERSIONLESS_TYPES:
             drops["version"] += 1
             return None
-        cls = MESSAGE_TYPES.get(mtype)
+        cls = self._types.get(mtype)
         if cls is None:
             drops["unknown_type"] += 1
             return None

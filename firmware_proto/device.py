@@ -41,8 +41,11 @@ from firmware_proto.messages import (
     Identity,
     Message,
     Setpoint,
+    SetpointV1,
     State,
     config_problems,
+    setpoint_age_us,
+    setpoint_is_fresh,
 )
 
 log = logging.getLogger(__name__)
@@ -101,8 +104,10 @@ def validate_config(cfg: Config) -> str | None:
 class DeviceModel:
     """State machine + axis dynamics + STATE stream of one gimbal. All times are device seconds.
 
-    ``on_message(direction, msg, seq, now)`` is called for every message received ("rx") and sent
-    ("tx"), for logging.
+    ``on_message(direction, msg, seq, now)`` is called for every message received and executed ("rx"), received
+    and dropped as stale ("stale": a version-2 SETPOINT older than its validity, counted in
+    :attr:`stale_setpoints`) and sent ("tx"), for logging. A version-1 device (``info.version`` 1) decodes the
+    version-1 SETPOINT, which carries no validity, and executes every one.
     """
 
     state_hz: float = 50.0
@@ -122,6 +127,7 @@ class DeviceModel:
         self.next_state = 0.0
         self.tx_seq = 0
         self.received = 0
+        self.stale_setpoints = 0  # SETPOINTs dropped because they arrived older than their validity
         self._started = False
         self._state_t0 = 0.0
         self._state_count = 0
@@ -132,6 +138,9 @@ class DeviceModel:
         out = self.step(now)
         for frame in self.decoder.feed(data):
             self.received += 1
+            if isinstance(frame.msg, Setpoint) and not setpoint_is_fresh(frame.msg, self.clock_us()):
+                self._drop_stale(frame.msg, frame.seq, now)
+                continue
             if self.on_message:
                 self.on_message("rx", frame.msg, frame.seq, now)
             reply = self._handle(frame.msg, frame.seq, now)
@@ -139,8 +148,22 @@ class DeviceModel:
                 out += self._send(reply)
         return out
 
+    def clock_us(self) -> int:
+        """The device clock [µs, wraps at 2³²], as STATE reports it."""
+        return round(self.now * 1e6) & 0xFFFFFFFF
+
+    def _drop_stale(self, sp: Setpoint, seq: int, now: float) -> None:
+        """A SETPOINT past its validity: not executed, no effect on mode, targets, watchdog or the echoed seq."""
+        self.stale_setpoints += 1
+        if self.on_message:
+            self.on_message("stale", sp, seq, now)
+        if self.stale_setpoints == 1 or self.stale_setpoints % 100 == 0:
+            log.info("stale SETPOINT seq %d dropped at t=%.3f s: %.1f ms old, valid for %d ms (%d dropped so far)",
+                     seq, now, setpoint_age_us(self.clock_us(), sp.state_time_us) / 1000.0, sp.max_age_ms,
+                     self.stale_setpoints)
+
     def _handle(self, msg: Message, seq: int, now: float) -> Message | None:
-        if isinstance(msg, Setpoint):
+        if isinstance(msg, (Setpoint, SetpointV1)):
             self._on_setpoint(msg, seq, now)
             return None
         if isinstance(msg, Heartbeat):
@@ -185,7 +208,7 @@ class DeviceModel:
         self.last_feed = now
         return ACK_OK
 
-    def _on_setpoint(self, sp: Setpoint, seq: int, now: float) -> None:
+    def _on_setpoint(self, sp: Setpoint | SetpointV1, seq: int, now: float) -> None:
         self.last_setpoint_seq = seq
         if self.mode not in (MODE_ENABLED, MODE_HOLDING) or self.config is None:
             return
@@ -247,7 +270,7 @@ class DeviceModel:
 
     def _state(self) -> State:
         return State(
-            round(self.now * 1e6) & 0xFFFFFFFF, self.pan.pos, self.tilt.pos, self.pan.vel, self.tilt.vel,
+            self.clock_us(), self.pan.pos, self.tilt.pos, self.pan.vel, self.tilt.vel,
             self.last_setpoint_seq, self.mode, self.faults,
         )
 

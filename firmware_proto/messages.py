@@ -13,7 +13,8 @@ import struct
 from dataclasses import astuple, dataclass, fields
 from typing import ClassVar
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2  # the version this package speaks by default (PROTOCOL.md §3)
+SUPPORTED_VERSIONS = (1, 2)  # versions whose layouts this package knows: a host may drive a device of either
 MAX_BODY = 64  # version + type + seq + payload + crc, bytes
 
 MICRO = 1_000_000
@@ -146,7 +147,31 @@ class Enable(Message):
 
 @dataclass(frozen=True, slots=True)
 class Setpoint(Message):
-    """host→dev 0x04: target pan/tilt [rad], feed-forward rates [rad/s], host clock [µs, wraps]. Never ACKed."""
+    """host→dev 0x04 (version 2): target pan/tilt [rad], feed-forward rates [rad/s], host clock [µs, wraps], and
+    its validity: ``state_time_us``, the device clock [µs, wraps] of the newest STATE the host had when it sent
+    it, and ``max_age_ms``, the age on the device clock beyond which it is stale and must not be executed
+    (:func:`setpoint_is_fresh`). The defaults make a setpoint that is stale everywhere but at device time 0.
+    Never ACKed."""
+
+    pan: float
+    tilt: float
+    pan_rate: float = 0.0
+    tilt_rate: float = 0.0
+    host_time_us: int = 0
+    state_time_us: int = 0
+    max_age_ms: int = 0
+    TYPE: ClassVar[int] = 0x04
+    NAME: ClassVar[str] = "SETPOINT"
+    LAYOUT: ClassVar = (
+        ("pan", "i", True), ("tilt", "i", True), ("pan_rate", "i", True), ("tilt_rate", "i", True),
+        ("host_time_us", "I", False), ("state_time_us", "I", False), ("max_age_ms", "H", False),
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class SetpointV1(Message):
+    """host→dev 0x04 in protocol version 1: target pan/tilt [rad], feed-forward rates [rad/s], host clock [µs,
+    wraps; for logging only]. It carries no validity: a version-1 device executes it whenever it arrives."""
 
     pan: float
     tilt: float
@@ -159,6 +184,22 @@ class Setpoint(Message):
         ("pan", "i", True), ("tilt", "i", True), ("pan_rate", "i", True), ("tilt_rate", "i", True),
         ("host_time_us", "I", False),
     )
+
+
+_U32 = 1 << 32
+
+
+def setpoint_age_us(device_time_us: int, state_time_us: int) -> int:
+    """Age [µs] of a setpoint that echoes the STATE stamped ``state_time_us`` at device time ``device_time_us``:
+    the difference modulo 2³² (both clocks wrap), so a stamp from the future or from before a wrap reads as very
+    old, never as young."""
+    return (int(device_time_us) - int(state_time_us)) % _U32
+
+
+def setpoint_is_fresh(sp: Setpoint, device_time_us: int) -> bool:
+    """Whether the device may execute ``sp`` at device time ``device_time_us`` [µs]: its age (since the STATE it
+    echoes) is at most ``max_age_ms``."""
+    return setpoint_age_us(device_time_us, sp.state_time_us) <= sp.max_age_ms * 1000
 
 
 @dataclass(frozen=True, slots=True)
@@ -271,8 +312,18 @@ def config_problems(cfg: Config) -> list[tuple[str, str]]:
 
 MESSAGE_TYPES: dict[int, type[Message]] = {
     cls.TYPE: cls for cls in (Hello, Config, Enable, Setpoint, Heartbeat, ClearFault, State, Identity, Ack)
+}  # the layouts of PROTOCOL_VERSION
+#: the message classes of each known version: version 1 differs only in SETPOINT
+MESSAGE_TYPES_BY_VERSION: dict[int, dict[int, type[Message]]] = {
+    1: {**MESSAGE_TYPES, SetpointV1.TYPE: SetpointV1},
+    2: MESSAGE_TYPES,
 }
 MESSAGE_BY_NAME: dict[str, type[Message]] = {cls.NAME: cls for cls in MESSAGE_TYPES.values()}
+
+
+def message_types(version: int) -> dict[int, type[Message]]:
+    """Message classes by type of protocol ``version`` (an unknown version: those of PROTOCOL_VERSION)."""
+    return MESSAGE_TYPES_BY_VERSION.get(version, MESSAGE_TYPES)
 
 
 def field_names(cls: type[Message]) -> list[str]:

@@ -22,6 +22,7 @@ import tty
 import serial
 
 from firmware_proto.device import DeviceInfo, DeviceModel
+from firmware_proto.messages import PROTOCOL_VERSION
 from firmware_proto.realtime import CsvMessageLog, FaultInjector, RealTimeDevice
 
 log = logging.getLogger("mock_gimbal")
@@ -209,7 +210,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--link", metavar="PATH", help="pty mode: keep a symlink at PATH pointing to the current pty")
     p.add_argument("--state-hz", type=float, default=50.0, help="STATE rate [Hz] (default 50)")
     add_fault_arguments(p)
-    p.add_argument("--protocol-version", type=int, default=1, help="protocol version the device speaks")
+    p.add_argument("--protocol-version", type=int, default=PROTOCOL_VERSION,
+                   help=f"protocol version the device speaks (default {PROTOCOL_VERSION}; 1: no setpoint validity)")
     p.add_argument("--log", metavar="FILE", help="CSV log of every received and emitted message")
     p.add_argument("-v", "--verbose", action="store_true")
     return p

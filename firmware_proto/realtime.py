@@ -17,7 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from firmware_proto.device import DeviceModel
-from firmware_proto.messages import Message
+from firmware_proto.messages import Message, Setpoint, setpoint_age_us
 
 log = logging.getLogger(__name__)
 
@@ -55,10 +55,12 @@ class FaultInjector:
 
 
 class CsvMessageLog:
-    """Writes every message the device receives ("rx") and emits ("tx") as a CSV row (LOG_COLUMNS).
+    """Writes every message the device receives ("rx"; "stale": a SETPOINT dropped as older than its validity, not
+    executed) and emits ("tx") as a CSV row (LOG_COLUMNS).
 
     ``t_s`` is the device clock [s]; angles/rates are SI at wire resolution. Emitted frames are logged
-    before fault injection (a dropped STATE still appears here)."""
+    before fault injection (a dropped STATE still appears here). A version-2 SETPOINT's ``detail`` is
+    ``age_us=A max_age_ms=M``: its age on the device clock when it was judged, and its validity."""
 
     def __init__(self, path: str | Path) -> None:
         self._file = open(path, "w", newline="")  # noqa: SIM115 - closed in close()
@@ -72,6 +74,8 @@ class CsvMessageLog:
         detail = ""
         if msg.NAME in ("CONFIG", "ACK", "IDENTITY", "ENABLE", "HELLO"):
             detail = " ".join(f"{k}={v}" for k, v in zip([f[0] for f in msg.LAYOUT], msg.raw(), strict=True))
+        elif isinstance(msg, Setpoint):
+            detail = f"age_us={setpoint_age_us(round(now * 1e6), msg.state_time_us)} max_age_ms={msg.max_age_ms}"
         row = (f"{now:.6f}", direction, msg.NAME, seq, g("pan"), g("tilt"), g("pan_rate"), g("tilt_rate"), g("mode"),
                g("faults"), g("device_time_us"), g("host_time_us"), detail)
         with self._lock:

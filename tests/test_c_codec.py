@@ -26,7 +26,7 @@ def test_every_vector_passes_in_c(tmp_path: Path) -> None:
     vectors = load_vectors()
     result = build_and_run(tmp_path, vectors)
     assert result.returncode == 0, result.stdout
-    n = len(vectors["frames"]) + len(vectors["streams"])
+    n = len(vectors["frames"]) + len(vectors["streams"]) + len(vectors["setpoint_validity"])
     assert f"OK: {n} vectors checked, 0 failures" in result.stdout
 
 
@@ -36,10 +36,13 @@ def test_a_wrong_vector_is_caught(tmp_path: Path) -> None:
     frame[5] ^= 0x10
     vectors["frames"][3]["frame_hex"] = frame.hex()
     vectors["streams"][0]["drops"]["crc"] = 7
+    stale = next(c for c in vectors["setpoint_validity"] if not c["fresh"])
+    stale["fresh"] = True
     result = build_and_run(tmp_path, vectors)
     assert result.returncode == 1
     assert f"FAIL {vectors['frames'][3]['name']}: encoded bytes differ" in result.stdout
     assert f"FAIL {vectors['streams'][0]['name']}: drop counter differs" in result.stdout
+    assert f"FAIL {stale['name']}: setpoint validity differs" in result.stdout
 
 
 def test_library_uses_no_heap_and_no_stdio() -> None:
@@ -58,8 +61,8 @@ def test_c_and_python_decoders_agree_on_random_and_mutated_streams(tmp_path: Pat
     subprocess.run([CC, "-Wall", "-Wextra", "-Werror", "-std=c99", "-pedantic", "-O2", f"-I{C_DIR}", "-o", str(exe),
                     str(C_DIR / "decode_lines.c"), str(C_DIR / "pivot_proto.c")], check=True, capture_output=True)
     rng = random.Random(1234)
-    msgs = [Setpoint(0.1, -0.2, 0.0, 0.5, 9), State(5, 1.0, 0.0, 0.0, 0.0, 3, 1, 0), Ack(1, 2, 0, 77), Heartbeat(),
-            Identity(2, 1, 0, 0, 0, 0)]
+    msgs = [Setpoint(0.1, -0.2, 0.0, 0.5, 9, 1_000, 200), State(5, 1.0, 0.0, 0.0, 0.0, 3, 1, 0), Ack(1, 2, 0, 77),
+            Heartbeat(), Identity(3, 1, 0, 0, 0, 0)]
     streams = []
     for _ in range(400):
         parts = [codec.encode(rng.choice(msgs), rng.randrange(256)) for _ in range(rng.randrange(1, 6))]

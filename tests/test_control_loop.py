@@ -386,3 +386,51 @@ def test_disabled_device_gets_no_setpoints_and_the_stream_starts_where_it_stands
     dt = cfg.control.dt
     assert np.all(np.abs(resumed[0, :2] - [-0.3, 0.1]) <= amax * dt * dt + 1e-9)
     _assert_jerk_limited(cfg, np.vstack([[0.0, 0.0], resumed[:, 2:]]), dt)
+
+
+class SilentGimbal(LaggingGimbal):
+    """A lagging plant whose link can go quiet: while ``silent`` no state arrives and the link sends no setpoint
+    (send_setpoint returns None, as GimbalLink does once the device stopped answering), counted in ``withheld``."""
+
+    def __init__(self, clock: FakeClock) -> None:
+        super().__init__(clock)
+        self.silent = False
+        self.withheld = 0
+
+    def send_setpoint(self, pan, tilt, pan_rate=0.0, tilt_rate=0.0):
+        if self.silent:
+            self.withheld += 1
+            return None
+        return super().send_setpoint(pan, tilt, pan_rate, tilt_rate)
+
+
+def test_a_setpoint_the_link_withholds_stops_the_stream_until_the_device_speaks_and_it_restarts_from_there():
+    """The device stalls (no STATE): the link withholds the setpoint. The loop must not keep computing a stream the
+    device does not get (each later tick would try again, and the device would find the old stream's continuation
+    in its queue); it waits with heartbeats and, once the device answers, restarts from the state it measured
+    then, jerk-limited, wherever that is."""
+    cfg = load_config(REPO / "config" / "demo.yaml")
+    clock = FakeClock()
+    gimbal = SilentGimbal(clock)
+    loop = build_control_loop(cfg, gimbal, clock=clock)
+    dt = cfg.control.dt
+    _run(loop, clock, 40, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert abs(gimbal.setpoints[-1][2]) > 0.3  # moving fast
+    n, restarts, beats = len(gimbal.setpoints), loop.restarts, gimbal.heartbeats
+    gimbal.silent = True
+    silent = _run(loop, clock, 30, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert gimbal.withheld == 1 and len(gimbal.setpoints) == n  # one attempt, then it waits
+    assert all(r.setpoint is None and r.mode == DaemonState.HOLDING for r in silent)
+    assert gimbal.heartbeats > beats
+    # the device answers again; its watchdog held it a little further on, at rest
+    rest = (gimbal.state.pan + 0.03, gimbal.state.tilt)
+    gimbal.silent = False
+    gimbal.state = replace(gimbal.state, pan=rest[0], tilt=rest[1], pan_rate=0.0, tilt_rate=0.0,
+                           mode=GimbalMode.HOLDING, faults=1 << 4, rx_time=clock.t)
+    _run(loop, clock, 40, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert loop.restarts == restarts + 1
+    resumed = np.array(gimbal.setpoints[n:])
+    amax, _ = _limits(cfg)
+    assert np.all(np.abs(resumed[0, :2] - rest) <= amax * dt * dt + 1e-9)
+    _assert_jerk_limited(cfg, np.vstack([[0.0, 0.0], resumed[:, 2:]]), dt)
+    assert resumed[-1, 2] > 0.1  # and it moves on towards the target

@@ -275,6 +275,36 @@ def test_late_delivery_and_host_stalls_mid_motion_keep_every_setpoint_within_lim
     assert check.restarts >= 1, check  # the device did hold at least once
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_device_stall_with_queued_setpoints_moves_nothing_on_resume_and_restarts_from_the_held_state(stack):
+    """The device process freezes for 2 s mid-motion. The daemon stops streaming once the device is silent; the
+    few setpoints already queued in the device's socket are stale when it resumes and are dropped (before: ~50
+    executed in a burst, 2–23° at up to 89 °/s). The device holds still until the daemon, reconnected, restarts the
+    stream from the held state, jerk-limited."""
+    assert stack.wait(lambda st: moving(stack, time.time() - 1.0), RECOVER_S) is not None
+    n_rows = len(rows(stack.out / "gimbal.csv"))
+    stack.inject("device_stall", seconds=2.0)
+    assert stack.wait_healthy(RECOVER_S) is not None, stack.status
+    counters = stack.status.get("link_counters", {})
+    assert counters.get("setpoints_withheld", 0) >= 1 and counters.get("silences", 0) >= 1, counters
+    assert stack.stop_daemon() == 0
+    log = rows(stack.out / "gimbal.csv")
+    stale = [i for i in range(n_rows, len(log)) if log[i]["dir"] == "stale"]
+    assert stale, "the daemon sent nothing into the stall?"
+    for r in log:  # no setpoint was executed past its validity
+        if r["dir"] == "rx" and r["type"] == "SETPOINT":
+            age, max_age = (int(kv.split("=")[1]) for kv in r["detail"].split())
+            assert age <= max_age * 1000, r
+    setpoint, state = resumed_setpoints(log, stale[-1])
+    first = log.index(setpoint)
+    assert not [r for r in log[stale[0]:first] if r["dir"] == "rx" and r["type"] == "SETPOINT"]
+    pans = [float(r["pan"]) for r in log[stale[0]:first] if r["dir"] == "tx" and r["type"] == "STATE"]
+    assert pans and max(pans) - min(pans) <= 1e-6  # it held still from the resume to the restart
+    assert_continuous_with_the_device(stack, setpoint, state)
+    within_limits_and_no_tracebacks(stack)
+
+
 def _write_log(path: Path, log: list[dict]) -> Path:
     from firmware_proto.realtime import LOG_COLUMNS
 

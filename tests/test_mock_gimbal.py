@@ -46,7 +46,7 @@ def test_pty_announces_path_and_speaks_the_protocol(tmp_path) -> None:
         port = serial.serial_for_url(mock.url, timeout=0.05)
         try:
             frames = exchange(port, [(Hello(1), 1), (Config(-1, 1, -1, 1, 1, 1, 5, 5, 500), 2), (Enable(1), 3),
-                                     (Setpoint(0.25, -0.5, 0.0, 0.0, 42), 4)], wait=20.0,
+                                     (Setpoint(0.25, -0.5, 0.0, 0.0, 42, 0, 65535), 4)], wait=20.0,
                               until=_acked_and_ten_states_after_setpoint)
         finally:
             port.close()

@@ -11,6 +11,7 @@ from firmware_proto.messages import (
     MAX_BODY,
     MESSAGE_BY_NAME,
     MESSAGE_TYPES,
+    PROTOCOL_VERSION,
     Ack,
     ClearFault,
     Config,
@@ -19,15 +20,18 @@ from firmware_proto.messages import (
     Hello,
     Identity,
     Setpoint,
+    SetpointV1,
     State,
     from_micro,
+    setpoint_age_us,
+    setpoint_is_fresh,
     to_micro,
 )
 from firmware_proto.vectors import build_vectors, load_vectors
 
 SAMPLES = [
     Hello(1), Config(-3.0, 3.0, -1.0, 1.0, 2.0, 2.0, 10.0, 10.0, 250), Enable(1), Enable(0),
-    Setpoint(0.1, -0.2, 0.3, -0.4, 99), Heartbeat(), ClearFault(),
+    Setpoint(0.1, -0.2, 0.3, -0.4, 99, 12345, 200), Heartbeat(), ClearFault(),
     State(123456, 1.5, -0.5, 0.25, -0.125, 17, 2, 0x30), Identity(1, 2, 3, 4, 5, 6), Ack(7, 2, 0, 0xFFFFFFFF),
 ]
 
@@ -46,17 +50,17 @@ def test_round_trip(msg, seq) -> None:
     frame = codec.encode(msg, seq)
     assert frame.endswith(b"\x00") and frame.count(0) == 1
     body = cobs.decode(frame[:-1])
-    assert body[:3] == bytes((1, msg.TYPE, seq))
+    assert body[:3] == bytes((PROTOCOL_VERSION, msg.TYPE, seq))
     assert len(body) <= MAX_BODY
     assert int.from_bytes(body[-2:], "little") == binascii.crc_hqx(body[:-2], 0xFFFF)
     (decoded,) = codec.StreamDecoder().feed(frame)
-    assert decoded.seq == seq and decoded.version == 1
+    assert decoded.seq == seq and decoded.version == PROTOCOL_VERSION
     assert decoded.msg == msg
 
 
 def test_body_sizes_match_the_contract() -> None:
     sizes = {m.NAME: len(codec.encode_body(m, 0)) - 5 for m in SAMPLES}
-    assert sizes == {"HELLO": 1, "CONFIG": 34, "ENABLE": 1, "SETPOINT": 20, "HEARTBEAT": 0, "CLEAR_FAULT": 0,
+    assert sizes == {"HELLO": 1, "CONFIG": 34, "ENABLE": 1, "SETPOINT": 26, "HEARTBEAT": 0, "CLEAR_FAULT": 0,
                      "STATE": 24, "IDENTITY": 12, "ACK": 7}
 
 
@@ -130,7 +134,34 @@ def test_decoder_counts_each_drop_reason() -> None:
 
 def test_other_version_is_dropped_except_identity() -> None:
     dec = codec.StreamDecoder()
-    assert dec.feed(codec.encode(State(1, 0, 0, 0, 0, 0, 0, 0), 5, version=2)) == []
+    assert dec.feed(codec.encode(State(1, 0, 0, 0, 0, 0, 0, 0), 5, version=3)) == []
     assert dec.drops["version"] == 1
-    (f,) = dec.feed(codec.encode(Identity(2, 0, 0, 0, 0, 0), 6, version=2))
-    assert f.version == 2 and f.msg.version == 2
+    (f,) = dec.feed(codec.encode(Identity(3, 0, 0, 0, 0, 0), 6, version=3))
+    assert f.version == 3 and f.msg.version == 3
+
+
+def test_setpoint_layouts_per_version() -> None:
+    """Version 2 adds the validity (state_time_us u32, max_age_ms u16) after host_time_us; version 1 keeps its
+    20-byte SETPOINT, decoded only by a version-1 decoder, and neither layout can be sent under the other's version."""
+    v2 = Setpoint(0.25, -0.125, 0.5, -0.0625, 123456, 1_000_000, 200)
+    body = codec.encode_body(v2, 5)
+    assert len(body) - 5 == 26
+    assert body[23:27] == (1_000_000).to_bytes(4, "little") and body[27:29] == (200).to_bytes(2, "little")
+    v1 = SetpointV1(0.25, -0.125, 0.5, -0.0625, 123456)
+    frame_v1 = codec.encode(v1, 5, version=1)
+    assert len(codec.encode_body(v1, 5, version=1)) - 5 == 20
+    (f,) = codec.StreamDecoder(version=1).feed(frame_v1)
+    assert f.version == 1 and f.msg == v1
+    dec = codec.StreamDecoder()
+    assert dec.feed(frame_v1) == [] and dec.drops["version"] == 1
+    with pytest.raises(ValueError, match="SETPOINT layout of protocol version 2"):
+        codec.encode(v1, 0)
+    with pytest.raises(ValueError, match="SETPOINT layout of protocol version 1"):
+        codec.encode(v2, 0, version=1)
+
+
+@pytest.mark.parametrize("case", load_vectors()["setpoint_validity"], ids=lambda c: c["name"])
+def test_setpoint_validity_vector(case) -> None:
+    sp = Setpoint(0.0, 0.0, 0.0, 0.0, 0, case["state_time_us"], case["max_age_ms"])
+    assert setpoint_age_us(case["device_time_us"], case["state_time_us"]) == case["age_us"]
+    assert setpoint_is_fresh(sp, case["device_time_us"]) is case["fresh"]

@@ -2,11 +2,12 @@
 
 import itertools
 import zlib
+from dataclasses import replace
 
 import pytest
 
 from firmware_proto import codec
-from firmware_proto.device import DeviceModel
+from firmware_proto.device import DeviceInfo, DeviceModel
 from firmware_proto.messages import (
     FAULT_CLAMPED,
     FAULT_CONFIG,
@@ -20,6 +21,7 @@ from firmware_proto.messages import (
     NACK_CONFIG_INVALID,
     NACK_FAULT_ACTIVE,
     NACK_NOT_CONFIGURED,
+    PROTOCOL_VERSION,
     Ack,
     ClearFault,
     Config,
@@ -28,6 +30,7 @@ from firmware_proto.messages import (
     Hello,
     Identity,
     Setpoint,
+    SetpointV1,
     State,
 )
 
@@ -35,19 +38,28 @@ CFG = Config(-2.0, 2.0, -1.0, 0.5, 1.0, 1.0, 4.0, 4.0, 250)
 
 
 class Rig:
-    """A device model driven by an explicit clock, with the host-side decoder."""
+    """A device model driven by an explicit clock, with the host-side decoder. A version-2 SETPOINT sent without a
+    validity (``max_age_ms`` 0) gets a fresh one: it echoes the device clock at ``t``, valid for 100 ms."""
 
-    def __init__(self, **kw) -> None:
-        self.dev = DeviceModel(**kw)
-        self.dec = codec.StreamDecoder()
+    def __init__(self, version: int = PROTOCOL_VERSION, **kw) -> None:
+        self.version = version
+        self.dev = DeviceModel(info=DeviceInfo(version=version), **kw)
+        self.dec = codec.StreamDecoder(version)
         self.seq = 0
         self.t = 0.0
         self.states: list[State] = []
 
-    def send(self, msg, t: float | None = None):
+    def frame(self, msg, t: float | None = None) -> bytes:
+        """The wire frame of ``msg`` sent at ``t`` (the next seq)."""
         self.t = self.t if t is None else t
         self.seq = (self.seq + 1) & 0xFF
-        return self._collect(self.dev.feed(codec.encode(msg, self.seq), self.t))
+        if isinstance(msg, Setpoint) and msg.max_age_ms == 0:
+            msg = replace(msg, state_time_us=round(self.t * 1e6) & 0xFFFFFFFF, max_age_ms=100)
+        return codec.encode(msg, self.seq, self.version)
+
+    def send(self, msg, t: float | None = None):
+        frame = self.frame(msg, t)
+        return self._collect(self.dev.feed(frame, self.t))
 
     def run_to(self, t: float):
         self.t = t
@@ -78,7 +90,7 @@ def test_starts_disabled_and_streams_state_at_a_fixed_rate() -> None:
 
 def test_hello_answers_identity() -> None:
     (ident,) = Rig().send(Hello(1))
-    assert isinstance(ident, Identity) and ident.version == 1
+    assert isinstance(ident, Identity) and ident.version == PROTOCOL_VERSION
 
 
 def test_valid_config_is_acked_with_its_crc32() -> None:
@@ -209,3 +221,70 @@ def test_enable_starts_from_the_current_position() -> None:
     rig.send(Enable(1))
     rig.run_to(2.2)
     assert rig.states[-1].pan == pytest.approx(pan, abs=1e-6)
+
+
+# ------------------------------------------------------------------ setpoint validity (protocol version 2)
+def _stale(pan: float, state_time_s: float, max_age_ms: int = 100) -> Setpoint:
+    """A setpoint echoing the STATE of device time ``state_time_s``, valid for ``max_age_ms``."""
+    return Setpoint(pan, 0.0, 0.5, 0.0, 0, round(state_time_s * 1e6), max_age_ms)
+
+
+def test_stale_setpoint_does_not_wake_a_held_device() -> None:
+    rig = Rig().enabled()
+    rig.send(Setpoint(0.2, 0.0), t=0.0)
+    rig.run_to(1.0)
+    assert rig.dev.mode == MODE_HOLDING
+    held, seq = rig.states[-1].pan, rig.dev.last_setpoint_seq
+    # the setpoints a stalled device finds queued when it resumes: computed from a state of t=0.02 s
+    burst = b"".join(rig.frame(_stale(0.2 + 0.01 * i, 0.02), t=2.0) for i in range(50))
+    rig._collect(rig.dev.feed(burst, 2.0))
+    rig.run_to(3.0)
+    assert rig.dev.stale_setpoints == 50
+    assert rig.dev.mode == MODE_HOLDING
+    assert rig.dev.last_setpoint_seq == seq  # the echo names the last setpoint executed
+    after = [s for s in rig.states if s.device_time_us >= 2_000_000]
+    assert {s.mode for s in after} == {MODE_HOLDING}
+    assert max(abs(s.pan - held) for s in after) == 0.0 and max(abs(s.pan_rate) for s in after) == 0.0
+    # a fresh one resumes tracking
+    rig.send(Setpoint(0.5, 0.0), t=3.0)
+    assert rig.dev.mode == MODE_ENABLED and rig.dev.pan.target == 0.5
+
+
+def test_stale_setpoint_while_enabled_neither_moves_nor_feeds_the_watchdog() -> None:
+    rig = Rig().enabled()
+    rig.send(Setpoint(0.1, 0.0), t=1.0)
+    for i in range(1, 6):  # old by 200 ms on arrival, valid for 100 ms
+        rig.send(_stale(1.5, 1.0 + i * 0.05 - 0.2), t=1.0 + i * 0.05)
+    assert rig.dev.pan.target == 0.1 and rig.dev.stale_setpoints == 5
+    rig.run_to(1.26)
+    assert rig.dev.mode == MODE_HOLDING and rig.dev.faults & FAULT_WATCHDOG  # fed only at t = 0
+
+
+def test_setpoint_validity_boundary_on_the_device_clock() -> None:
+    rig = Rig().enabled()
+    rig.send(_stale(0.3, 0.5, max_age_ms=100), t=0.6)  # exactly 100 ms old: still valid
+    assert rig.dev.pan.target == 0.3 and rig.dev.stale_setpoints == 0
+    rig.send(_stale(0.4, 0.5, max_age_ms=100), t=0.600001)
+    assert rig.dev.pan.target == 0.3 and rig.dev.stale_setpoints == 1
+    rig.send(_stale(0.4, 0.7, max_age_ms=100), t=0.65)  # a state time from the future is not fresh either
+    assert rig.dev.pan.target == 0.3 and rig.dev.stale_setpoints == 2
+
+
+def test_stale_setpoints_are_logged_apart_from_executed_ones() -> None:
+    rows = []
+    rig = Rig(on_message=lambda d, m, seq, now: rows.append((d, m.NAME, seq)))
+    rig.enabled()
+    rig.send(Setpoint(0.1, 0.0), t=0.0)
+    rig.send(_stale(0.2, 0.0), t=1.0)
+    sp = [(d, seq) for d, name, seq in rows if name == "SETPOINT"]
+    assert sp == [("rx", 3), ("stale", 4)]
+
+
+def test_version_1_device_executes_the_version_1_setpoint_and_drops_version_2_frames() -> None:
+    rig = Rig(version=1).enabled()
+    (ident,) = rig.send(Hello(2))
+    assert ident.version == 1
+    rig.send(SetpointV1(0.3, 0.0), t=0.0)
+    assert rig.dev.pan.target == 0.3 and rig.dev.mode == MODE_ENABLED
+    rig.dev.feed(codec.encode(Setpoint(0.6, 0.0, 0.0, 0.0, 0, 0, 100), 9), 0.0)
+    assert rig.dev.pan.target == 0.3 and rig.dev.decoder.drops["version"] == 1

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from firmware_proto import codec
-from firmware_proto.messages import MAX_BODY, Ack, Heartbeat, Setpoint, State
+from firmware_proto.messages import MAX_BODY, PROTOCOL_VERSION, Ack, Heartbeat, Setpoint, State
 
 pytestmark = pytest.mark.slow  # seconds of CPU in all: `make test`, not `make test-fast`
 
@@ -16,7 +16,8 @@ i32 = st.integers(-(2**31), 2**31 - 1)
 u8 = st.integers(0, 255)
 
 messages = st.one_of(
-    st.builds(lambda r, s: Setpoint.from_raw((*r, s)), st.tuples(i32, i32, i32, i32), st.integers(0, 2**32 - 1)),
+    st.builds(lambda r, s, ref, age: Setpoint.from_raw((*r, s, ref, age)), st.tuples(i32, i32, i32, i32),
+              st.integers(0, 2**32 - 1), st.integers(0, 2**32 - 1), st.integers(0, 2**16 - 1)),
     st.builds(lambda t, r, a, b, c: State.from_raw((t, *r, a, b, c)), st.integers(0, 2**32 - 1),
               st.tuples(i32, i32, i32, i32), u8, u8, st.integers(0, 0xFFFF)),
     st.builds(Ack, u8, u8, u8, st.integers(0, 2**32 - 1)),
@@ -69,8 +70,8 @@ def test_mutated_streams_yield_only_frames_with_a_correct_crc(items, mutations, 
     got, _ = feed_in_chunks(bytes(stream), cuts)
     valid = reference_valid_segments(bytes(stream))
     assert [codec.encode_body(f.msg, f.seq, f.version) for f in got] == [
-        b for b in valid if b[0] == 1 and b[1] in (0x04, 0x40, 0x42, 0x05)
-        and len(b) - 5 == {0x04: 20, 0x40: 24, 0x42: 7, 0x05: 0}[b[1]]]
+        b for b in valid if b[0] == PROTOCOL_VERSION and b[1] in (0x04, 0x40, 0x42, 0x05)
+        and len(b) - 5 == {0x04: 26, 0x40: 24, 0x42: 7, 0x05: 0}[b[1]]]
 
 
 @settings(max_examples=300, deadline=None)

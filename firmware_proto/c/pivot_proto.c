@@ -85,7 +85,7 @@ int pp_payload_len(uint8_t type)
     case PP_HELLO: return 1;
     case PP_CONFIG: return 34;
     case PP_ENABLE: return 1;
-    case PP_SETPOINT: return 20;
+    case PP_SETPOINT: return 26;
     case PP_HEARTBEAT: return 0;
     case PP_CLEAR_FAULT: return 0;
     case PP_STATE: return 24;
@@ -110,7 +110,7 @@ int pp_pack_payload(const pp_msg *m, uint8_t *p)
     case PP_SETPOINT: {
         const pp_setpoint *s = &m->u.setpoint;
         put_i32(p, s->pan); put_i32(p + 4, s->tilt); put_i32(p + 8, s->pan_rate); put_i32(p + 12, s->tilt_rate);
-        put_u32(p + 16, s->host_time_us);
+        put_u32(p + 16, s->host_time_us); put_u32(p + 20, s->state_time_us); put_u16(p + 24, s->max_age_ms);
         break;
     }
     case PP_HEARTBEAT: case PP_CLEAR_FAULT: break;
@@ -156,7 +156,7 @@ int pp_unpack_payload(uint8_t type, const uint8_t *p, size_t len, pp_msg *m)
     case PP_SETPOINT: {
         pp_setpoint *s = &m->u.setpoint;
         s->pan = get_i32(p); s->tilt = get_i32(p + 4); s->pan_rate = get_i32(p + 8); s->tilt_rate = get_i32(p + 12);
-        s->host_time_us = get_u32(p + 16);
+        s->host_time_us = get_u32(p + 16); s->state_time_us = get_u32(p + 20); s->max_age_ms = get_u16(p + 24);
         break;
     }
     case PP_STATE: {
@@ -214,6 +214,16 @@ int pp_decode_body(const uint8_t *body, size_t len, pp_msg *m)
     m->version = body[0];
     m->seq = body[2];
     return -1;
+}
+
+uint32_t pp_setpoint_age_us(uint32_t device_time_us, uint32_t state_time_us)
+{
+    return (uint32_t)(device_time_us - state_time_us);
+}
+
+int pp_setpoint_fresh(const pp_setpoint *s, uint32_t device_time_us)
+{
+    return pp_setpoint_age_us(device_time_us, s->state_time_us) <= (uint32_t)s->max_age_ms * 1000u;
 }
 
 void pp_decoder_init(pp_decoder *d)

@@ -11,7 +11,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define PP_VERSION 1u
+#define PP_VERSION 2u
 #define PP_MAX_BODY 64u
 #define PP_MAX_ENCODED (PP_MAX_BODY + 1u) /* COBS adds one byte per 254 */
 #define PP_MAX_FRAME (PP_MAX_ENCODED + 1u) /* plus the 0x00 delimiter */
@@ -44,7 +44,13 @@ typedef struct {
     uint16_t watchdog_ms;
 } pp_config;
 typedef struct { uint8_t on; } pp_enable;
-typedef struct { int32_t pan, tilt, pan_rate, tilt_rate; uint32_t host_time_us; } pp_setpoint;
+/* SETPOINT (version 2): state_time_us echoes the device_time_us of the newest STATE the host had, max_age_ms is
+ * the validity: the device executes it only while pp_setpoint_fresh() (see ../PROTOCOL.md section 4). */
+typedef struct {
+    int32_t pan, tilt, pan_rate, tilt_rate;
+    uint32_t host_time_us, state_time_us;
+    uint16_t max_age_ms;
+} pp_setpoint;
 typedef struct {
     uint32_t device_time_us;
     int32_t pan, tilt, pan_rate, tilt_rate;
@@ -82,6 +88,13 @@ int pp_unpack_payload(uint8_t type, const uint8_t *payload, size_t len, pp_msg *
 size_t pp_encode_frame(const pp_msg *m, uint8_t *out, size_t cap);
 /* Decode one body (after COBS); returns -1 if valid (m filled) or the pp_drop reason. */
 int pp_decode_body(const uint8_t *body, size_t len, pp_msg *m);
+
+/* Age [us] on the device clock of a SETPOINT echoing the STATE stamped state_time_us: modulo 2^32 (the clock
+ * wraps), so a stamp from the future reads as very old. */
+uint32_t pp_setpoint_age_us(uint32_t device_time_us, uint32_t state_time_us);
+/* 1 if the device may execute s at device_time_us (age <= max_age_ms), 0 if it is stale: drop it (count it) and
+ * leave mode, targets, watchdog and last_setpoint_seq as they are. */
+int pp_setpoint_fresh(const pp_setpoint *s, uint32_t device_time_us);
 
 /* Byte-at-a-time stream decoder with a fixed buffer; resyncs on 0x00. */
 typedef struct {

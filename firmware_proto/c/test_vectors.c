@@ -34,7 +34,8 @@ static void fill(pp_msg *m, uint8_t type, const int64_t *r)
     case PP_SETPOINT:
         m->u.setpoint.pan = (int32_t)r[0]; m->u.setpoint.tilt = (int32_t)r[1];
         m->u.setpoint.pan_rate = (int32_t)r[2]; m->u.setpoint.tilt_rate = (int32_t)r[3];
-        m->u.setpoint.host_time_us = (uint32_t)r[4];
+        m->u.setpoint.host_time_us = (uint32_t)r[4]; m->u.setpoint.state_time_us = (uint32_t)r[5];
+        m->u.setpoint.max_age_ms = (uint16_t)r[6];
         break;
     case PP_STATE:
         m->u.state.device_time_us = (uint32_t)r[0]; m->u.state.pan = (int32_t)r[1];
@@ -66,6 +67,7 @@ int main(void)
 {
     size_t i, k, nf = sizeof PP_FRAME_VECTORS / sizeof PP_FRAME_VECTORS[0];
     size_t ns = sizeof PP_STREAM_VECTORS / sizeof PP_STREAM_VECTORS[0];
+    size_t nv = sizeof PP_VALIDITY_VECTORS / sizeof PP_VALIDITY_VECTORS[0];
     size_t checked = 0;
     CHECK(pp_crc16((const uint8_t *)"123456789", 9) == PP_CRC_CHECK, "crc_check", "CRC of 123456789");
 
@@ -107,6 +109,17 @@ int main(void)
         }
         CHECK(nframes == s->nframes, s->name, "wrong number of frames");
         for (k = 0; k < PP_DROP_COUNT; k++) CHECK(dec.drops[k] == s->drops[k], s->name, "drop counter differs");
+        checked++;
+    }
+
+    for (i = 0; i < nv; i++) {
+        const pp_validity_vector *c = &PP_VALIDITY_VECTORS[i];
+        pp_setpoint sp;
+        memset(&sp, 0, sizeof sp);
+        sp.state_time_us = c->state_time_us;
+        sp.max_age_ms = c->max_age_ms;
+        CHECK(pp_setpoint_age_us(c->device_time_us, c->state_time_us) == c->age_us, c->name, "setpoint age differs");
+        CHECK(pp_setpoint_fresh(&sp, c->device_time_us) == c->fresh, c->name, "setpoint validity differs");
         checked++;
     }
 

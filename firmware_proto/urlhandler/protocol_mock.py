@@ -15,6 +15,7 @@ import urllib.parse
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
 from firmware_proto.device import DeviceInfo, DeviceModel
+from firmware_proto.messages import PROTOCOL_VERSION
 from firmware_proto.realtime import CsvMessageLog, FaultInjector, RealTimeDevice
 
 _OPTIONS = {"state_hz", "drop", "corrupt", "latency_ms", "seed", "log", "fault_at", "version"}
@@ -55,7 +56,7 @@ class Serial(SerialBase):
                                      float(first.get("latency_ms", 0)) / 1000.0,
                                      int(first["seed"]) if "seed" in first else None)
             faults_at = [(float(t), int(b)) for t, b in (s.split(":") for s in opts.get("fault_at", []))]
-            version = int(first.get("version", 1))
+            version = int(first.get("version", PROTOCOL_VERSION))
         except ValueError as exc:
             raise SerialException(f"{self.portstr}: bad option value: {exc}") from None
         if state_hz <= 0:

@@ -66,7 +66,7 @@ def bench_encode(n: int, repeats: int) -> dict[str, float]:
     for _ in range(repeats):
         t0 = time.perf_counter()
         for i in range(n):
-            codec.encode(Setpoint(0.001 * i, -0.001 * i, 0.1, -0.1, i), i)
+            codec.encode(Setpoint(0.001 * i, -0.001 * i, 0.1, -0.1, i, i, 200), i)
         rates.append(n / (time.perf_counter() - t0))
     return {"encode_frames_per_s": statistics.median(rates)}
 

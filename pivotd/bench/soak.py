@@ -3,7 +3,8 @@
 Runs ``pivotd`` (config/demo.yaml) with ``tools/sim_pose`` walking the hallway in a loop, as the demo launches
 them, against the reference device model (firmware_proto) served on a loopback TCP port of this process, so
 that faults can be injected at any time: unplug/replug, bursts of bit flips and of lost frames, a device reboot
-(the port stays, the device forgets its configuration), every fault bit; and, on the bus, hostile input: NaN
+(the port stays, the device forgets its configuration), every fault bit, a device stall (its process stopped
+while setpoints queue in its socket); and, on the bus, hostile input: NaN
 and teleported poses, poses from the past, floods, garbage payloads, empty, single-point, far-away, huge and
 malformed paths; and a recording that fails mid-run (the daemon records to a FIFO whose reader the soak closes:
 ``recorder_failure``, once per daemon start). One event at a time, at random intervals (seeded); after each the
@@ -45,7 +46,7 @@ DEMO = REPO / "config" / "demo.yaml"
 DEVICE_EVENTS = {"unplug": 3, "bitflips": 2, "drops": 2, "reboot": 2, "fault_bit": 3}
 BUS_EVENTS = {"nan_pose": 1, "teleport": 1, "past_pose": 1, "pose_flood": 1, "garbage": 1, "path_empty": 1,
               "path_single": 1, "path_far": 1, "path_huge": 1, "path_garbage": 1}
-RANDOM_EXTRA_EVENTS = {"silent": 1, "stale_pose": 1, "planner_stall": 1, "off_path": 1}
+RANDOM_EXTRA_EVENTS = {"silent": 1, "stale_pose": 1, "planner_stall": 1, "off_path": 1, "device_stall": 1}
 OFF_PATH_M = 5.0  # [m] how far to the side the off-path fault moves the route's path (max_path_offset: 3 m)
 OFF_PATH_HZ = 20.0  # [Hz] it outpaces tools/sim_pose re-publishing the true path every 2 s
 ONCE_EVENTS = {"recorder_failure": 1}  # at most once per daemon start (the recording stops for good)
@@ -666,6 +667,16 @@ class SoakStack:
             device.reboot()
         elif kind == "fault_bit":
             device.fault(params["bit"])
+        elif kind == "device_stall":  # the device process gets no CPU for a while: setpoints queue in its socket
+            pid = device.pid
+            event["pid"] = pid
+            if pid:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGSTOP)
+                    try:
+                        time.sleep(params.get("seconds", 2.0))
+                    finally:
+                        os.kill(pid, signal.SIGCONT)
         elif kind == "stale_pose":  # the pose source stops publishing for a while
             self.sim.send_signal(signal.SIGSTOP)
             time.sleep(params.get("seconds", 2.0))
@@ -713,7 +724,8 @@ class SoakStack:
         return event
 
 
-EVENT_KINDS = (*DEVICE_EVENTS, *BUS_EVENTS, "silent", "stale_pose", "planner_stall", "off_path", *ONCE_EVENTS)
+EVENT_KINDS = (*DEVICE_EVENTS, *BUS_EVENTS, "silent", "stale_pose", "planner_stall", "off_path", "device_stall",
+               *ONCE_EVENTS)
 
 
 def summarise(stack: SoakStack, events: list[dict], warmup: float, exit_code: int | None) -> dict:
@@ -792,7 +804,7 @@ MATRIX: tuple[tuple[str, dict], ...] = (
     ("stale_pose", {"seconds": 2.0}), ("nan_pose", {}), ("teleport", {}), ("pose_flood", {}), ("past_pose", {}),
     ("garbage", {}), ("path_empty", {}), ("path_single", {}), ("path_far", {}), ("path_huge", {}),
     ("path_garbage", {}), ("planner_stall", {"seconds": 3.0}), ("off_path", {"seconds": 6.0}),
-    ("recorder_failure", {}),
+    ("device_stall", {"seconds": 2.0}), ("recorder_failure", {}),
 )
 
 

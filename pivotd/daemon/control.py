@@ -265,6 +265,11 @@ class ControlLoop:
             self.link.send_heartbeat()
             return TickResult(DaemonState.HOLDING)
         seq = self.link.send_setpoint(pan, tilt, vp, vt)
+        if seq is None:
+            # Not sent (the device went silent, or the link's queue is full): the device does not get this stream,
+            # so it restarts from a state the device measures after it answers again.
+            self._request_reset(sent_at, hard=True)
+            return TickResult(DaemonState.HOLDING)
         self._last_send = sent_at
         if self._segment_first is None and seq is not None:
             self._segment_first = seq

@@ -84,7 +84,8 @@ class GimbalInterface(Protocol):
         ...
 
     def send_setpoint(self, pan: float, tilt: float, pan_rate: float = 0.0, tilt_rate: float = 0.0) -> int | None:
-        """Queue one setpoint (pan/tilt [rad], feed-forward rates [rad/s]); an id, or None when not sent."""
+        """Queue one setpoint (pan/tilt [rad], feed-forward rates [rad/s]); an id, or None when not sent (link not
+        up, the device silent, a full queue): the control loop then restarts the stream from a measured state."""
         ...
 
     def send_heartbeat(self) -> None:

@@ -6,6 +6,13 @@ incompatible protocol version) → CONFIG (the ACK must carry the CRC-32 of the 
 ENABLE. When the port is lost (unplug, EOF, I/O error, or no STATE for ``state_timeout_s``) the link
 goes ``down``, reconnects with exponential backoff and re-runs the whole handshake by itself.
 
+Setpoints are only sent while the device answers: after a few of its state periods without a STATE
+(:meth:`GimbalLink.silence_s`) :meth:`GimbalLink.send_setpoint` sends nothing and returns None, long before the
+link is declared lost, so a stalled device does not find a queue of setpoints when it resumes. Each version-2
+SETPOINT echoes the device clock of the newest STATE and a validity (:meth:`GimbalLink.setpoint_max_age_s`); the
+device drops it once older than that on its own clock. A version-1 device (no validity) is driven with the
+version-1 SETPOINT and the silence rule alone, with one warning.
+
 Threads per open port: a reader (decodes STATE/ACK/IDENTITY, keeps the latest state) and a writer
 (drains a bounded queue, so :meth:`GimbalLink.send_setpoint` never blocks the caller).
 Importing this module registers the ``mock://`` URL scheme with pyserial.
@@ -13,6 +20,7 @@ Importing this module registers the ``mock://`` URL scheme with pyserial.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import logging
 import queue
@@ -29,6 +37,7 @@ from firmware_proto.messages import (
     NACK_NAMES,
     NACK_NOT_CONFIGURED,
     PROTOCOL_VERSION,
+    SUPPORTED_VERSIONS,
     Ack,
     ClearFault,
     Config,
@@ -38,6 +47,7 @@ from firmware_proto.messages import (
     Identity,
     Message,
     Setpoint,
+    SetpointV1,
     State,
 )
 from firmware_proto.urlhandler import register as _register_mock_url
@@ -59,6 +69,12 @@ class LinkConfig:
     ack_timeout_s: float = 0.2  # per attempt
     ack_retries: int = 5  # extra attempts after the first
     reconnect_backoff_s: tuple = (0.1, 2.0)  # (first, max) delay between connection attempts
+    silence_periods: float = 5.0  # no STATE for this many device state periods -> no setpoints are sent
+    silence_min_s: float = 0.1  # [s] floor of that bound (host scheduling jitter)
+    setpoint_transit_s: float = 0.1  # [s] allowed for a STATE's and a SETPOINT's transit, in the validity
+
+
+_PERIOD_SAMPLES = 32  # consecutive-STATE intervals the state period is estimated from (their minimum)
 
 
 class _Pending:
@@ -78,7 +94,8 @@ class GimbalLink(SupervisedLink):
     def __init__(self, url: str, config: LinkConfig, baudrate: int = 115200) -> None:
         super().__init__(url, config.reconnect_backoff_s,
                          ("frames_sent", "frames_received", "setpoints_sent", "retries", "reconnects", "link_losses",
-                          "ack_failures", "tx_overflow", "rtt_samples"))
+                          "ack_failures", "tx_overflow", "rtt_samples", "setpoints_withheld", "heartbeats_withheld",
+                          "silences"))
         self.url = url
         self.config = config
         self.baudrate = baudrate
@@ -93,6 +110,13 @@ class GimbalLink(SupervisedLink):
         self._sent_at: list[float | None] = [None] * 256
         self._decoder = codec.StreamDecoder()
         self._last_state_rx = 0.0
+        self._opened_at = 0.0  # when the current connection was opened (monotonic) [s]
+        self._wire_version = PROTOCOL_VERSION  # the version the device spoke at the last handshake
+        self._warned_version: int | None = None
+        self._prev_state_us: int | None = None
+        self._intervals: collections.deque[int] = collections.deque(maxlen=_PERIOD_SAMPLES)  # [µs], reader thread
+        self._state_period_s: float | None = None  # smallest recent interval between STATEs, device clock [s]
+        self._silent_logged = -1.0  # _last_state_rx of the silence last logged
         self._rtt_last = self._rtt_sum = self._rtt_max = 0.0
         self._listeners: list[Callable[[GimbalState], None]] = []
 
@@ -124,26 +148,75 @@ class GimbalLink(SupervisedLink):
         """Call ``callback(state)`` on the reader thread for every STATE received (keep it short)."""
         self._listeners.append(callback)
 
+    @property
+    def protocol_version(self) -> int:
+        """The protocol version the device spoke at the last handshake (PROTOCOL_VERSION before one)."""
+        return self._wire_version
+
+    def silence_s(self) -> float:
+        """How long [s] without a STATE the device counts as silent: ``silence_periods`` of its state period (the
+        smallest recent interval between STATEs on its clock), at least ``silence_min_s``, at most
+        ``state_timeout_s`` (also before the period is known)."""
+        c = self.config
+        period = self._state_period_s
+        if period is None:
+            return c.state_timeout_s
+        return min(c.state_timeout_s, max(c.silence_min_s, c.silence_periods * period))
+
+    def setpoint_max_age_s(self) -> float:
+        """Validity [s] sent with each version-2 SETPOINT: a setpoint is sent only while the newest STATE is at most
+        :meth:`silence_s` old, plus ``setpoint_transit_s`` for that STATE's and the SETPOINT's transit."""
+        return self.silence_s() + self.config.setpoint_transit_s
+
+    def _silent(self, now: float, counter: str) -> bool:
+        """Whether the device went silent (no STATE within :meth:`silence_s`); counts the withheld frame under
+        ``counter`` and logs each silence once."""
+        last = self._last_state_rx
+        if self._state is not None and now - last <= self.silence_s():
+            return False
+        self._n[counter] += 1
+        if last != self._silent_logged:
+            self._silent_logged = last
+            self._n["silences"] += 1
+            log.info("gimbal at %s silent for %.3f s (no STATE): no setpoints until it answers again", self.url,
+                     now - last)
+        return True
+
     def send_setpoint(self, pan: float, tilt: float, pan_rate: float = 0.0, tilt_rate: float = 0.0) -> int | None:
         """Queue a SETPOINT (pan/tilt [rad], feed-forward rates [rad/s]); return its seq, or None if the link
-        is not up. Never blocks; raises ValueError on non-finite values."""
+        is not up or the device is silent (counted as ``setpoints_withheld``; see :meth:`silence_s`). Never
+        blocks; raises ValueError on non-finite values."""
         conn = self._conn
         if self._link_state != LinkState.UP or conn is None:
             return None
+        now = time.monotonic()
+        state = self._state
+        if state is None or self._silent(now, "setpoints_withheld"):
+            # A withheld setpoint still takes its seq, as a lost frame would: the gap shows the device (and its log)
+            # that the stream broke here, and the control loop restarts it from a measured state.
+            self._next_seq()
+            return None
         seq = self._next_seq()
-        host_us = int(time.monotonic() * 1e6) & 0xFFFFFFFF
-        frame = codec.encode(Setpoint(pan, tilt, pan_rate, tilt_rate, host_us), seq)
-        self._sent_at[seq] = time.monotonic()
+        host_us = int(now * 1e6) & 0xFFFFFFFF
+        if self._wire_version == 1:
+            msg: Message = SetpointV1(pan, tilt, pan_rate, tilt_rate, host_us)
+        else:
+            max_age_ms = min(0xFFFF, round(self.setpoint_max_age_s() * 1000.0))
+            msg = Setpoint(pan, tilt, pan_rate, tilt_rate, host_us, state.device_time_us, max_age_ms)
+        frame = codec.encode(msg, seq, self._wire_version)
+        self._sent_at[seq] = now
         if not self._enqueue(conn, frame):
             return None
         self._n["setpoints_sent"] += 1
         return seq
 
     def send_heartbeat(self) -> None:
-        """Queue a HEARTBEAT (feeds the device watchdog without moving); no-op if the link is not up."""
+        """Queue a HEARTBEAT (feeds the device watchdog without moving); no-op if the link is not up or the device is
+        silent (counted as ``heartbeats_withheld``: its watchdog then holds it, as for a lost link)."""
         conn = self._conn
-        if self._link_state == LinkState.UP and conn is not None:
-            self._enqueue(conn, codec.encode(Heartbeat(), self._next_seq()))
+        if (self._link_state == LinkState.UP and conn is not None
+                and not self._silent(time.monotonic(), "heartbeats_withheld")):
+            self._enqueue(conn, codec.encode(Heartbeat(), self._next_seq(), self._wire_version))
 
     def set_enabled(self, on: bool, timeout: float | None = None) -> bool:
         """ENABLE/disable the gimbal; True once ACKed with status ok. Remembered for future handshakes.
@@ -196,6 +269,9 @@ class GimbalLink(SupervisedLink):
         conn = Connection(port)
         conn.tx.put_nowait(b"\x00")  # ends any partial frame the device still holds from before
         self._decoder.reset()
+        self._opened_at = time.monotonic()
+        self._prev_state_us = None
+        self._intervals.clear()
         self._conn = conn
         conn.start_threads(((self._reader, "gimbal-rx"), (self._writer, "gimbal-tx")))
         return conn
@@ -230,11 +306,21 @@ class GimbalLink(SupervisedLink):
             self._last_error = f"gimbal at {self.url} did not answer HELLO"
             return LinkState.DOWN
         self._identity = ident
-        if ident.version != PROTOCOL_VERSION:
+        if ident.version not in SUPPORTED_VERSIONS:
+            versions = " and ".join(str(v) for v in SUPPORTED_VERSIONS)
             self._last_error = (f"gimbal at {self.url} speaks protocol version {ident.version}, this host speaks "
-                                f"version {PROTOCOL_VERSION}: refusing to drive it")
+                                f"versions {versions}: refusing to drive it")
             log.error(self._last_error)
             return LinkState.INCOMPATIBLE
+        self._wire_version = self._decoder.version = ident.version
+        if ident.version != PROTOCOL_VERSION and self._warned_version != ident.version:
+            self._warned_version = ident.version
+            log.warning("gimbal at %s speaks protocol version %d: its setpoints carry no validity, so a late one is "
+                        "still executed; relying on the host sending none while the device is silent", self.url,
+                        ident.version)
+        if not self._wait_first_state(conn):
+            self._last_error = f"gimbal at {self.url} sent no STATE within {self.config.state_timeout_s} s"
+            return LinkState.DOWN
         expected_crc = zlib.crc32(self._cfg_msg.pack())
         ack = self._request(self._cfg_msg, None, conn, expect_value=expected_crc)
         if ack is None:
@@ -257,6 +343,18 @@ class GimbalLink(SupervisedLink):
                  ident.fw_major, ident.fw_minor, ident.fw_patch, ident.serial)
         return LinkState.UP
 
+    def _wait_first_state(self, conn: Connection) -> bool:
+        """Wait (up to ``state_timeout_s``) for a STATE received on this connection: the link is up only once
+        states arrive, and setpoints echo a state of this device's clock."""
+        deadline = time.monotonic() + self.config.state_timeout_s
+        with self._changed:
+            while self._last_state_rx < self._opened_at:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or not conn.alive or self._stopping.is_set():
+                    return False
+                self._changed.wait(min(remaining, 0.05))
+        return True
+
     def _attempts(self, timeout: float | None) -> tuple[int, float]:
         per = self.config.ack_timeout_s
         n = self.config.ack_retries + 1 if timeout is None else max(1, int(timeout / per + 0.999))
@@ -270,7 +368,7 @@ class GimbalLink(SupervisedLink):
             for attempt in range(n):
                 if attempt:
                     self._n["retries"] += 1
-                self._enqueue(conn, codec.encode(Hello(PROTOCOL_VERSION), self._next_seq()))
+                self._enqueue(conn, codec.encode(Hello(PROTOCOL_VERSION), self._next_seq()))  # versionless
                 if pending.event.wait(per):
                     return pending.reply  # type: ignore[return-value]
                 if not conn.alive or self._stopping.is_set():
@@ -289,7 +387,7 @@ class GimbalLink(SupervisedLink):
         key = (seq, msg.TYPE)
         pending = _Pending()
         self._pending[key] = pending
-        frame = codec.encode(msg, seq)
+        frame = codec.encode(msg, seq, self._wire_version)
         try:
             n, per = self._attempts(timeout)
             for attempt in range(n):
@@ -340,10 +438,21 @@ class GimbalLink(SupervisedLink):
                     self._n["frames_received"] += 1
                     self._dispatch(frame)
 
+    def _note_interval(self, device_time_us: int) -> None:
+        """Estimate the device's state period from consecutive STATE stamps (reader thread)."""
+        prev, self._prev_state_us = self._prev_state_us, device_time_us
+        if prev is None:
+            return
+        step = (device_time_us - prev) & 0xFFFFFFFF
+        if 0 < step < 1 << 31:  # forwards (a reboot restarts the clock)
+            self._intervals.append(step)
+            self._state_period_s = min(self._intervals) * 1e-6
+
     def _dispatch(self, frame: codec.Frame) -> None:
         msg = frame.msg
         if isinstance(msg, State):
             now = time.monotonic()
+            self._note_interval(msg.device_time_us)
             st = GimbalState(msg.pan, msg.tilt, msg.pan_rate, msg.tilt_rate, msg.mode, msg.faults,
                              msg.last_setpoint_seq, msg.device_time_us, now,
                              self._device_clock.measured_at(msg.device_time_us, now))

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from firmware_proto.device import Axis
-from firmware_proto.messages import MODE_DISABLED, MODE_ENABLED, MODE_FAULT, Setpoint, State
+from firmware_proto.messages import MODE_DISABLED, MODE_ENABLED, MODE_FAULT, SetpointV1, State
 from firmware_proto.realtime import CsvMessageLog
 from pivotd.gimbal import mavlink_frames as mf
 from pivotd.gimbal.kinematics import JointLimits
@@ -99,7 +99,7 @@ class MavlinkGimbalModel:
         pan, tilt, pan_rate, tilt_rate = mf.from_pitch_yaw(msg.pitch, msg.yaw, msg.pitch_rate, msg.yaw_rate)
         self.setpoints += 1
         if self.log is not None and all(math.isfinite(v) for v in (pan, tilt, pan_rate, tilt_rate)):
-            self.log("rx", Setpoint(pan, tilt, pan_rate, tilt_rate, sent_us & 0xFFFFFFFF), 0, now)
+            self.log("rx", SetpointV1(pan, tilt, pan_rate, tilt_rate, sent_us & 0xFFFFFFFF), 0, now)
         if (msg.get_srcSystem(), msg.get_srcComponent()) != self.primary or self.failure_flags:
             return
         if not all(math.isfinite(v) for v in (pan, tilt)):
