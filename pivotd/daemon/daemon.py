@@ -120,6 +120,8 @@ class Daemon:
         self._inputs_generation = 0  # counts map layer replacements and worker restarts (inputs of a plan)
         self._reloads = 0
         self._reload_errors = 0
+        self._reload_requests = 0  # SIGHUPs received (main thread)
+        self._reload_served = 0  # of them, the ones the reloads run so far answered (planner thread)
         self._needs_restart: tuple[str, ...] = ()  # changed settings that wait for a restart
         self._last_error = ""
         self._clear_attempts = 0
@@ -175,12 +177,28 @@ class Daemon:
             log.info("map layer %r replaced from %s: %d points (map version %d)", layer, topic, len(lc), info.version)
 
     def _planner_loop(self) -> None:
+        """Replans on absolute deadlines ``next_t`` one replan period apart. An early wake (SIGHUP, stop) applies the
+        pending reload and goes back to waiting for the same deadline, so no number of wakes moves the schedule;
+        a replan that overran its period skips the deadlines it missed instead of replanning in a burst.
+
+        Reloads coalesce: SIGHUPs that arrive while one is pending (or during a reload) are answered by the next
+        one, so a storm of them is at most one reload under way and one pending (counted in the status)."""
         next_t = time.monotonic()
         while not self._stop.is_set():
+            self._planner_wake.clear()  # a SIGHUP from now on wakes the wait below again
             try:
                 if self._reload.is_set():
                     self._reload.clear()
+                    self._reload_served = self._reload_requests  # the requests this reload answers
                     self._do_reload()
+                now = time.monotonic()
+                if now < next_t:
+                    self._planner_wake.wait(next_t - now)
+                    continue  # woken early: apply the reload, keep the deadline
+                period = 1.0 / self.cfg.planner.replan_hz
+                next_t += period
+                if next_t <= now:  # this replan started more than a period late: skip the missed deadlines
+                    next_t = now + period
                 self._apply_pending_clouds()
                 self._replan_once()
             except WorkerError as exc:
@@ -195,13 +213,6 @@ class Daemon:
             except Exception as exc:  # keep planning; never take the daemon down
                 self._rl.exception("planner", f"planner: replan failed: {exc!r}")
                 self._last_error = f"planner: {exc}"
-            next_t += 1.0 / self.cfg.planner.replan_hz
-            delay = next_t - time.monotonic()
-            if delay < 0:
-                next_t = time.monotonic()
-                delay = 0
-            self._planner_wake.wait(delay)
-            self._planner_wake.clear()
 
     def _replan_once(self) -> None:
         pose = self.pose
@@ -399,6 +410,8 @@ class Daemon:
             "link_counters": link.counters() if link is not None else {},
             "reloads": self._reloads,
             "reload_errors": self._reload_errors,
+            "reload_requests": self._reload_requests,
+            "reloads_coalesced": max(0, self._reload_served - self._reloads - self._reload_errors),
             "needs_restart": list(self._needs_restart),
             "last_error": self._last_error,
         }
@@ -409,8 +422,9 @@ class Daemon:
         self.notifier.reloading()
         running_plan = self.plan
         try:
-            plan = plan_reload(self.cfg, self._load_config())
-            self.plan = None  # the control loop holds until the first plan made with the new settings
+            plan = plan_reload(self.cfg, self._load_config(), self.worker.map_identity)
+            if not plan.keeps_plan:
+                self.plan = None  # the control loop holds until the first plan made with the new settings
             info = apply_reload(plan, self.worker, self.control)
         except PivotdError as exc:
             self._reload_errors += 1
@@ -430,11 +444,16 @@ class Daemon:
                 self.control.reconfigure(build_control_settings(self.cfg), self.cfg.gimbal.mount)
         else:
             self.cfg = plan.config
-            self._replan_trigger = build_replan_trigger(self.cfg)
+            if plan.reload_planner:  # a new planner in the worker: replan now (the running plan is tracked until)
+                self._replan_trigger = build_replan_trigger(self.cfg)
+                self._inputs_generation += 1
             self._needs_restart = plan.needs_restart
             self._reloads += 1
-            log.info("reloaded %s: %d landmarks; applied: %s", self.config_path, info.landmarks,
-                     ", ".join(plan.applied) or "no setting changed")
+            what = ("map read again" if plan.reload_map else "map kept" if plan.reload_planner
+                    else "planner and map kept")
+            log.info("reloaded %s: %d landmarks; applied: %s%s; %s", self.config_path, info.landmarks,
+                     ", ".join(plan.applied) or "no setting changed",
+                     " (a map file changed on disk)" if plan.map_file_changed else "", what)
             if plan.needs_restart:
                 log.warning("changed settings that need a restart (running values kept): %s",
                             ", ".join(plan.needs_restart))
@@ -474,6 +493,7 @@ class Daemon:
             self.request_stop()
 
         def on_hup(_signum, _frame):
+            self._reload_requests += 1
             self._reload.set()
             self._planner_wake.set()
 

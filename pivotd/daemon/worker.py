@@ -9,8 +9,9 @@ with it: the daemon restarts the worker.
 
 Messages are tuples over a ``multiprocessing`` pipe. Parent → worker: ``(kind, request_id, *args)`` with
 ``("replan", id, position, quat, anchor)``, ``("path", id, positions, quats, version)`` (positions None
-clears it; no reply), ``("layer", id, name, LandmarkCloud, weight_multiplier)``, ``("reload", id, Config)``,
-``("stop", id)``. Worker → parent: ``(kind, request_id, payload)`` with ``("ready", 0, MapInfo)``,
+clears it; no reply), ``("layer", id, name, LandmarkCloud, weight_multiplier)``,
+``("reload", id, Config, reload_map)`` (a new planner; the map read again only if ``reload_map``), ``("stop", id)``.
+Worker → parent: ``(kind, request_id, payload)`` with ``("ready", 0, MapInfo)``,
 ``("plan", id, Plan)``, ``("map", id, MapInfo)``, ``("error", id, message)`` (one line). Every reply
 echoes its request's id, so a reply that arrives after its request timed out is recognised and dropped
 instead of being taken as the answer to a later request.
@@ -32,6 +33,7 @@ from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.config import Config
 from pivotd.daemon.planner import Plan
 from pivotd.errors import PivotdError
+from pivotd.maps.fingerprint import MapIdentity, map_identity
 from pivotd.maps.formats import LandmarkCloud
 
 log = logging.getLogger(__name__)
@@ -129,9 +131,9 @@ def _worker_main(conn, cfg: Config, log_level: int) -> None:  # pragma: no cover
                 release_free_memory()
                 conn.send(("map", req_id, _map_info(store)))
             elif kind == "reload":
-                (new_cfg,) = args
-                new_store = build_map_store(new_cfg)
-                for name, (cloud, _) in layers.items():
+                new_cfg, reload_map = args
+                new_store = build_map_store(new_cfg) if reload_map else store
+                for name, (cloud, _) in layers.items() if reload_map else ():
                     mult = float(getattr(new_cfg.map.layers, name, 1.0))
                     new_store.set_layer(name, cloud, weight_multiplier=mult)
                 new_planner = build_planner(new_cfg)
@@ -159,6 +161,7 @@ class PlannerWorker:
         self._log_level = log_level
         self.restarts = 0
         self.map_info = MapInfo(0, 0, {})
+        self.map_identity: MapIdentity = ()  # the map files as they were when the worker last read them
         self._proc = None
         self._conn = None
         self._next_id = 0
@@ -166,6 +169,7 @@ class PlannerWorker:
         self._start(cfg)
 
     def _start(self, cfg: Config) -> None:
+        identity = map_identity(cfg.map)  # before reading: a file replaced meanwhile counts as changed next time
         parent, child = self._ctx.Pipe()
         proc = self._ctx.Process(target=_worker_main, args=(child, cfg, self._log_level), name="pivotd-planner",
                                  daemon=True)
@@ -183,7 +187,7 @@ class PlannerWorker:
             proc.join(5)
             raise WorkerError(payload)
         self._proc, self._conn, self._cfg = proc, parent, cfg
-        self.map_info = payload
+        self.map_info, self.map_identity = payload, identity
 
     @property
     def pid(self) -> int | None:
@@ -242,14 +246,16 @@ class PlannerWorker:
         self.map_info = payload
         return payload
 
-    def reload(self, cfg: Config, timeout: float = 120.0) -> MapInfo:
-        """Load ``cfg``'s map and planner settings; on a refusal (RequestError) the worker keeps the running
-        ones. On WorkerError (no answer in time) its state is unknown: restart it."""
-        kind, payload = self._request("reload", cfg, timeout=timeout)
+    def reload(self, cfg: Config, timeout: float = 120.0, reload_map: bool = True) -> MapInfo:
+        """Load ``cfg``'s planner settings, and its map if ``reload_map`` (else the worker keeps the map it has); on a
+        refusal (RequestError) the worker keeps the running ones. On WorkerError (no answer in time) its state is
+        unknown: restart it."""
+        identity = map_identity(cfg.map) if reload_map else self.map_identity
+        kind, payload = self._request("reload", cfg, reload_map, timeout=timeout)
         if kind != "map":
             raise RequestError(payload)
         self._cfg = cfg
-        self.map_info = payload
+        self.map_info, self.map_identity = payload, identity
         return payload
 
     def close(self, timeout: float = 2.0) -> None:
