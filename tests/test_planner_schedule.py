@@ -20,7 +20,7 @@ from support import REPO, wait_until
 from pivotd.config import load_config
 from pivotd.daemon.daemon import Daemon
 from pivotd.daemon.reload import plan_reload
-from pivotd.maps.fingerprint import map_identity
+from pivotd.daemon.wiring import map_files_identity
 from pivotd.sim.launch import derive_config
 
 DEMO = REPO / "config" / "demo.yaml"
@@ -149,7 +149,7 @@ def test_a_reload_with_a_new_mount_drops_the_running_plan(make_daemon):
 
 def test_an_unchanged_map_file_is_not_read_again_and_a_changed_one_is(tmp_path):
     cfg = load_config(derive_config(DEMO, tmp_path / "pivotd.yaml", {}))
-    identity = map_identity(cfg.map)
+    identity = map_files_identity(cfg)
     same = plan_reload(cfg, cfg, identity)
     assert not same.map_file_changed and not same.reload_map and not same.reload_planner and same.keeps_plan
     lam = plan_reload(cfg, replace(cfg, pivot=replace(cfg.pivot, lam=0.3)), identity)
@@ -159,7 +159,7 @@ def test_an_unchanged_map_file_is_not_read_again_and_a_changed_one_is(tmp_path):
     moved = plan_reload(cfg, replace(cfg, map=replace(cfg.map, file=copy)), identity)
     assert moved.applied == ("map.file",) and moved.reload_map
     local = replace(cfg, map=replace(cfg.map, file=copy))
-    identity = map_identity(local.map)
+    identity = map_files_identity(local)
     assert not plan_reload(local, local, identity).reload_planner
     copy.write_bytes(copy.read_bytes() + b"1.0 2.0 3.0\n")  # same path, new content
     changed = plan_reload(local, local, identity)

@@ -27,9 +27,9 @@ from dataclasses import dataclass, fields, replace
 
 from pivotd.config import Config
 from pivotd.daemon.control import ControlLoop
-from pivotd.daemon.wiring import build_control_settings
+from pivotd.daemon.wiring import build_control_settings, map_files_identity
 from pivotd.daemon.worker import MapInfo, PlannerWorker
-from pivotd.maps.fingerprint import MapIdentity, map_identity
+from pivotd.maps.fingerprint import MapIdentity
 
 log = logging.getLogger(__name__)
 
@@ -98,8 +98,8 @@ def _is_restart_only(key: str) -> bool:
 def plan_reload(running: Config, loaded: Config, running_map: MapIdentity | None = None) -> ReloadPlan:
     """Split the differences between the running and the loaded config into live and restart-only ones.
 
-    ``running_map``: the identity of the map files the planner process loaded (:func:`map_identity` when it read
-    them); with it, an unchanged map file under unchanged map settings is not read again. None: compare settings
+    ``running_map``: the identity of the map files the planner process loaded (``map_files_identity`` when it
+    read them); with it, an unchanged map file under unchanged map settings is not read again. None: compare settings
     only."""
     changed = changed_keys(running, loaded)
     kept = {
@@ -116,7 +116,7 @@ def plan_reload(running: Config, loaded: Config, running_map: MapIdentity | None
         config=replace(loaded, **kept),
         applied=tuple(k for k in changed if not _is_restart_only(k)),
         needs_restart=tuple(k for k in changed if _is_restart_only(k)),
-        map_file_changed=running_map is not None and map_identity(loaded.map) != running_map,
+        map_file_changed=running_map is not None and map_files_identity(loaded) != running_map,
     )
 
 

@@ -32,8 +32,9 @@ import numpy as np
 from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.config import Config
 from pivotd.daemon.planner import Plan
+from pivotd.daemon.wiring import map_files_identity
 from pivotd.errors import PivotdError
-from pivotd.maps.fingerprint import MapIdentity, map_identity
+from pivotd.maps.fingerprint import MapIdentity
 from pivotd.maps.formats import LandmarkCloud
 
 log = logging.getLogger(__name__)
@@ -169,7 +170,7 @@ class PlannerWorker:
         self._start(cfg)
 
     def _start(self, cfg: Config) -> None:
-        identity = map_identity(cfg.map)  # before reading: a file replaced meanwhile counts as changed next time
+        identity = map_files_identity(cfg)  # before reading: a file replaced meanwhile counts as changed next time
         parent, child = self._ctx.Pipe()
         proc = self._ctx.Process(target=_worker_main, args=(child, cfg, self._log_level), name="pivotd-planner",
                                  daemon=True)
@@ -250,7 +251,7 @@ class PlannerWorker:
         """Load ``cfg``'s planner settings, and its map if ``reload_map`` (else the worker keeps the map it has); on a
         refusal (RequestError) the worker keeps the running ones. On WorkerError (no answer in time) its state is
         unknown: restart it."""
-        identity = map_identity(cfg.map) if reload_map else self.map_identity
+        identity = map_files_identity(cfg) if reload_map else self.map_identity
         kind, payload = self._request("reload", cfg, reload_map, timeout=timeout)
         if kind != "map":
             raise RequestError(payload)

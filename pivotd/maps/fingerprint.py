@@ -9,10 +9,6 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from pivotd.config.settings import MapConfig
 
 #: One file: (path, size [bytes], mtime [ns], inode), or (path,) when it cannot be read.
 FileStamp = tuple
@@ -32,6 +28,6 @@ def file_stamp(path: Path) -> FileStamp:
         return (str(path),)
 
 
-def map_identity(m: MapConfig) -> MapIdentity:
-    """The identity of the files ``m`` loads (map file, occupancy file); () when it loads none."""
-    return tuple(file_stamp(Path(p)) for p in (m.file, m.filters.occupancy_file) if p is not None)
+def map_identity(*files: str | Path | None) -> MapIdentity:
+    """The identity of the map's ``files`` (e.g. map file, occupancy file; None entries skipped)."""
+    return tuple(file_stamp(Path(p)) for p in files if p is not None)
