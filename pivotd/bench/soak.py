@@ -5,7 +5,7 @@ them, against the reference device model (firmware_proto) served on a loopback T
 that faults can be injected at any time: unplug/replug, bursts of bit flips and of lost frames, a device reboot
 (the port stays, the device forgets its configuration), every fault bit; and, on the bus, hostile input: NaN
 and teleported poses, poses from the past, floods, garbage payloads, empty, single-point, far-away, huge and
-malformed paths. One event at a time, at random intervals (seeded); after each the soak waits for the daemon
+malformed paths; a storm of SIGHUPs (``reload_storm``, the config unchanged). One event at a time, at random intervals (seeded); after each the soak waits for the daemon
 to track again and records the recovery time.
 
 Reported: setpoints beyond limits (joint limits, velocity, and between consecutive setpoints the device
@@ -44,7 +44,9 @@ DEMO = REPO / "config" / "demo.yaml"
 DEVICE_EVENTS = {"unplug": 3, "bitflips": 2, "drops": 2, "reboot": 2, "fault_bit": 3}
 BUS_EVENTS = {"nan_pose": 1, "teleport": 1, "past_pose": 1, "pose_flood": 1, "garbage": 1, "path_empty": 1,
               "path_single": 1, "path_far": 1, "path_huge": 1, "path_garbage": 1}
-RANDOM_EXTRA_EVENTS = {"silent": 1, "stale_pose": 1, "planner_stall": 1}
+RANDOM_EXTRA_EVENTS = {"silent": 1, "stale_pose": 1, "planner_stall": 1, "reload_storm": 1}
+RELOAD_STORM = 300  # SIGHUPs in a reload storm
+RELOAD_STORM_GAP_S = 0.002  # [s] between them
 UNPLUG_SECONDS = {0.5: 4, 5.0: 4, 60.0: 1}  # replug after [s]: relative weights
 NOISE_SECONDS = 5.0
 RECOVERY_TIMEOUT_S = 60.0
@@ -497,12 +499,14 @@ class SoakStack:
         self.rss: list[tuple[float, float]] = []
         self.t_start = time.monotonic()
         self._last_rss = -np.inf
+        self.sighups = 0  # SIGHUPs sent to the current daemon
 
     # ------------------------------------------------------------------ processes
     def start_daemon(self) -> None:
         from pivotd.sim.launch import spawn
 
         self.daemon_starts += 1
+        self.sighups = 0
         log_path = self.out / ("pivotd.log" if self.daemon_starts == 1 else f"pivotd.{self.daemon_starts}.log")
         self.daemon = spawn([sys.executable, "-m", "pivotd.cli", "--config", str(self.config_path)], log_path)
 
@@ -602,6 +606,12 @@ class SoakStack:
                     os.kill(pid, signal.SIGSTOP)
                     time.sleep(params.get("seconds", 3.0))
                     os.kill(pid, signal.SIGCONT)
+        elif kind == "reload_storm":  # a burst of SIGHUPs with the config unchanged: reloads coalesce, plans go on
+            for _ in range(params.get("count", RELOAD_STORM)):
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(self.daemon.pid, signal.SIGHUP)
+                self.sighups += 1
+                time.sleep(params.get("gap_s", RELOAD_STORM_GAP_S))
         elif kind in BUS_EVENTS:
             position = self.probe.poses[-1][1] if self.probe.poses else np.zeros(3)
             self.vandal.send(kind, np.asarray(position, float))
@@ -612,16 +622,25 @@ class SoakStack:
     def inject_and_recover(self, kind: str, **params) -> dict:
         """:meth:`inject`, then the recovery time: from the end of the fault to the first status document that
         shows the daemon healthy again (documents at 5 Hz, so a resolution of 0.2 s; those made within
-        ``GRACE_S`` of the end may predate the fault's effect and are not judged)."""
+        ``GRACE_S`` of the end may predate the fault's effect and are not judged). After a reload storm, healthy
+        also means every SIGHUP the daemon received answered and a plan made after the storm."""
         event = self.inject(kind, **params)
         end = time.time()
-        recovery = self.wait_healthy(RECOVERY_TIMEOUT_S, since=end + GRACE_S)
+        healthy = _healthy
+        if kind == "reload_storm":
+            plans = (self.status.get("planner") or {}).get("plans", 0)
+
+            def healthy(st: dict) -> bool:  # every SIGHUP it received answered (the kernel merges pending ones)
+                answered = st.get("reloads", 0) + st.get("reload_errors", 0) + st.get("reloads_coalesced", 0)
+                return (_healthy(st) and 0 < st.get("reload_requests", 0) == answered
+                        and (st.get("planner") or {}).get("plans", 0) > plans)
+        recovery = self.wait(healthy, RECOVERY_TIMEOUT_S, since=end + GRACE_S)
         event["recovery_s"] = None if recovery is None else round(recovery + GRACE_S, 2)
         log.info("event %s", event)
         return event
 
 
-EVENT_KINDS = (*DEVICE_EVENTS, *BUS_EVENTS, "silent", "stale_pose", "planner_stall")
+EVENT_KINDS = (*DEVICE_EVENTS, *BUS_EVENTS, "silent", "stale_pose", "planner_stall", "reload_storm")
 
 
 def summarise(stack: SoakStack, events: list[dict], warmup: float, exit_code: int | None) -> dict:
@@ -698,7 +717,7 @@ MATRIX: tuple[tuple[str, dict], ...] = (
     *(("fault_bit", {"bit": b}) for b in range(8)),
     ("stale_pose", {"seconds": 2.0}), ("nan_pose", {}), ("teleport", {}), ("pose_flood", {}), ("past_pose", {}),
     ("garbage", {}), ("path_empty", {}), ("path_single", {}), ("path_far", {}), ("path_huge", {}),
-    ("path_garbage", {}), ("planner_stall", {"seconds": 3.0}),
+    ("path_garbage", {}), ("planner_stall", {"seconds": 3.0}), ("reload_storm", {"count": RELOAD_STORM}),
 )
 
 

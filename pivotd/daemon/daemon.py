@@ -120,7 +120,7 @@ class Daemon:
         self._inputs_generation = 0  # counts map layer replacements and worker restarts (inputs of a plan)
         self._reloads = 0
         self._reload_errors = 0
-        self._reload_requests = 0  # SIGHUPs received (main thread)
+        self._reload_requests = 0  # SIGHUPs received (main thread; the kernel merges those still pending)
         self._reload_served = 0  # of them, the ones the reloads run so far answered (planner thread)
         self._needs_restart: tuple[str, ...] = ()  # changed settings that wait for a restart
         self._last_error = ""
