@@ -5,8 +5,8 @@ them, against the reference device model (firmware_proto) served on a loopback T
 that faults can be injected at any time: unplug/replug, bursts of bit flips and of lost frames, a device reboot
 (the port stays, the device forgets its configuration), every fault bit; and, on the bus, hostile input: NaN
 and teleported poses, poses from the past, floods, garbage payloads, empty, single-point, far-away, huge and
-malformed paths; a storm of SIGHUPs (``reload_storm``, the config unchanged). One event at a time, at random intervals (seeded); after each the soak waits for the daemon
-to track again and records the recovery time.
+malformed paths; a storm of SIGHUPs (``reload_storm``, the config unchanged). One event at a time, at random
+intervals (seeded); after each the soak waits for the daemon to track again and records the recovery time.
 
 Reported: setpoints beyond limits (joint limits, velocity, and between consecutive setpoints the device
 followed, acceleration and jerk, each with the wire-resolution allowance), tracebacks in the daemon's log,
