@@ -29,7 +29,7 @@ from pivotd.bus.messages import CloudMsg, PathMsg, PoseSample
 from pivotd.bus.pivot_bus import PivotBus
 from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.bus.security import input_key_exprs
-from pivotd.bus.session import open_session
+from pivotd.bus.session import build_config, open_session_waiting
 from pivotd.config import Config, load_config
 from pivotd.daemon.control import ControlLoop
 from pivotd.daemon.planner import Plan, Rescue
@@ -38,6 +38,7 @@ from pivotd.daemon.reload import apply_reload, plan_reload
 from pivotd.daemon.states import DaemonState
 from pivotd.daemon.systemd import Notifier, watchdog_interval
 from pivotd.daemon.visuals import build_plan_visuals
+from pivotd.daemon.wakeup import Wakeup
 from pivotd.daemon.wiring import (
     build_control_loop,
     build_control_settings,
@@ -92,8 +93,8 @@ class Daemon:
         self.state = DaemonState.STARTING
         self._stop = threading.Event()  # shutdown requested: leave the main loop, park
         self._halt = threading.Event()  # threads exit (after parking)
-        self._reload = threading.Event()
-        self._planner_wake = threading.Event()  # cuts the planner thread's wait short (reload, stop)
+        # Cuts the planner thread's wait short (reload, stop); set by signal handlers, so no lock (see wakeup.py).
+        self._planner_wake = Wakeup()
         self._lock = threading.Lock()
         # Latest inputs: immutable objects swapped by reference.
         self.pose: PoseSample | None = None  # the last pose the pose gate accepted
@@ -120,8 +121,10 @@ class Daemon:
         self._inputs_generation = 0  # counts map layer replacements and worker restarts (inputs of a plan)
         self._reloads = 0
         self._reload_errors = 0
-        self._reload_requests = 0  # SIGHUPs received (main thread; the kernel merges those still pending)
-        self._reload_served = 0  # of them, the ones the reloads run so far answered (planner thread)
+        # SIGHUPs received (written by the signal handler only; the kernel merges those still pending) and, of them,
+        # the ones the reloads run so far answer (planner thread only): a reload is pending while they differ.
+        self._reload_requests = 0
+        self._reload_served = 0
         self._needs_restart: tuple[str, ...] = ()  # changed settings that wait for a restart
         self._last_error = ""
         self._clear_attempts = 0
@@ -187,9 +190,9 @@ class Daemon:
         while not self._stop.is_set():
             self._planner_wake.clear()  # a SIGHUP from now on wakes the wait below again
             try:
-                if self._reload.is_set():
-                    self._reload.clear()
-                    self._reload_served = self._reload_requests  # the requests this reload answers
+                requests = self._reload_requests
+                if requests > self._reload_served:  # SIGHUPs not answered yet: one reload answers them all
+                    self._reload_served = requests
                     self._do_reload()
                 now = time.monotonic()
                 if now < next_t:
@@ -492,32 +495,31 @@ class Daemon:
             log.info("signal %s: parking and stopping", signal.Signals(signum).name)
             self.request_stop()
 
-        def on_hup(_signum, _frame):
+        def on_hup(_signum, _frame):  # no lock here: a second SIGHUP may interrupt this handler (wakeup.py)
             self._reload_requests += 1
-            self._reload.set()
             self._planner_wake.set()
 
         signal.signal(signal.SIGTERM, on_term)
         signal.signal(signal.SIGINT, on_term)
         signal.signal(signal.SIGHUP, on_hup)
 
-    def _start(self) -> None:
+    def _start(self) -> bool:
+        """Start the gimbal link, the control and planner threads, then the bus. The gimbal is held from the start
+        (no pose: the control loop holds where it is; supervision enables it and clears faults) while the session
+        opens; in client mode that waits for the router for as long as it takes, staying responsive to SIGTERM
+        and SIGHUP. READY=1 is sent once the gimbal is held, before the bus is up. False: stopped while waiting."""
         cfg = self.cfg
         return_large_frees_to_the_os()
         z = cfg.zenoh
-        self.session = open_session(mode=z.mode, connect=z.connect, listen=z.listen, config_file=z.config_file,
-                                    multicast_scouting=z.multicast_scouting, security=z.security,
-                                    input_keys=input_key_exprs(cfg.topics),
-                                    max_message_bytes=cfg.topics.max_message_bytes)
+        zenoh_settings = dict(mode=z.mode, connect=z.connect, listen=z.listen, config_file=z.config_file,
+                              multicast_scouting=z.multicast_scouting, security=z.security,
+                              input_keys=input_key_exprs(cfg.topics), max_message_bytes=cfg.topics.max_message_bytes)
+        build_config(**zenoh_settings)  # bad Zenoh settings exit (2) before the gimbal is touched
         if self.overrides.record is not None:
             from pivotd.daemon.recorder import METADATA_NAME, Recorder
 
             self._recorder = Recorder(self.overrides.record)
             self._recorder.add_metadata(METADATA_NAME, {"name": cfg.name, "config": str(cfg.source or "")})
-        self.bus = PivotBus(self.session, cfg.topics, node_name=cfg.name, on_pose=self._on_pose,
-                            on_path=self._on_path, on_cloud=self._on_cloud,
-                            on_raw=self._recorder.write if self._recorder is not None else None, qos=cfg.ros.qos)
-        self.visuals = build_plan_visuals(self.bus, cfg)
         self.link = build_gimbal(cfg)
         self.link.start()
         self.control = build_control_loop(cfg, self.link)
@@ -526,9 +528,33 @@ class Daemon:
             t = threading.Thread(target=target, name=f"pivotd-{name}", daemon=True)
             t.start()
             self._threads.append(t)
-        self.notifier.ready()
+        where = ", ".join([*z.listen, *z.connect]) or z.mode
+        self.notifier.ready(f"{DaemonState.WAITING}; opening the Zenoh session ({where}); gimbal held")
+        self.session = open_session_waiting(self._wait_supervising, **zenoh_settings)
+        if self.session is None:
+            return False
+        self.bus = PivotBus(self.session, cfg.topics, node_name=cfg.name, on_pose=self._on_pose,
+                            on_path=self._on_path, on_cloud=self._on_cloud,
+                            on_raw=self._recorder.write if self._recorder is not None else None, qos=cfg.ros.qos)
+        self.visuals = build_plan_visuals(self.bus, cfg)
         log.info("pivotd %r ready: %d landmarks, gimbal %s, zenoh %s", cfg.name, self.worker.map_info.landmarks,
-                 cfg.gimbal.port, ", ".join([*z.listen, *z.connect]) or z.mode)
+                 cfg.gimbal.port, where)
+        return True
+
+    def _wait_supervising(self, seconds: float) -> bool:
+        """Wait ``seconds`` while supervising the gimbal (before the bus is up); True as soon as stop is requested."""
+        end = time.monotonic() + seconds
+        period = 1.0 / self.cfg.control.status_hz
+        while not self._stop.is_set():
+            try:
+                self._supervise_gimbal()
+            except Exception as exc:
+                self._rl.exception("supervise", f"supervision failed: {exc!r}")
+            remaining = end - time.monotonic()
+            if remaining <= 0:
+                return False
+            self._stop.wait(min(remaining, period))
+        return True
 
     def run(self) -> int:
         """Run until stopped; returns the exit code (0 after a clean park and disable)."""
@@ -537,10 +563,10 @@ class Daemon:
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         self._install_signals()
         try:
-            self._start()
+            started = self._start()
             status_period = 1.0 / self.cfg.control.status_hz
             last_line = ""
-            while not self._stop.is_set():
+            while started and not self._stop.is_set():
                 self._stop.wait(status_period)
                 try:
                     # Publish first: a fault that supervision clears right away is still reported once.
