@@ -31,7 +31,7 @@ DEFAULT_PEER_LISTEN = "tcp/127.0.0.1:0"
 # <protocol>/<address>[#<config>], e.g. tcp/127.0.0.1:7447, tls/robot.local:7447, udp/[::1]:7447
 #: Client mode: how long one attempt to reach a router lasts [s], and the backoff between attempts [s] (doubling).
 CONNECT_ATTEMPT_S = 1.0
-CONNECT_BACKOFF_S = (0.5, 8.0)
+CONNECT_BACKOFF_S = (0.5, 4.0)
 _NO_ROUTER = "Unable to connect to any of"  # the start of Zenoh's error when no connect endpoint answered
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream|unixpipe|serial|vsock)/[^\s/]\S*$")
 

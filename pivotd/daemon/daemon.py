@@ -529,7 +529,8 @@ class Daemon:
             t.start()
             self._threads.append(t)
         where = ", ".join([*z.listen, *z.connect]) or z.mode
-        self.notifier.ready(f"{DaemonState.WAITING}; opening the Zenoh session ({where}); gimbal held")
+        bus_wait = f"waiting for the Zenoh router at {where}" if z.mode == "client" else f"opening Zenoh ({where})"
+        self.notifier.ready(f"{DaemonState.WAITING}; {bus_wait}; gimbal held")
         self.session = open_session_waiting(self._wait_supervising, **zenoh_settings)
         if self.session is None:
             return False
