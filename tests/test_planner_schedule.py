@@ -9,6 +9,9 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
+import subprocess
+import sys
 import threading
 from dataclasses import replace
 
@@ -70,6 +73,49 @@ def test_a_storm_of_sighups_does_not_stop_replanning(make_daemon):
     status = d.status()
     assert status["reload_requests"] == STORM and status["reload_errors"] == 0
     assert status["reloads"] + status["reloads_coalesced"] == STORM
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_a_storm_of_real_sighups_is_answered_and_never_deadlocks_the_main_thread(make_daemon):
+    """SIGHUPs sent to this process by another one every 0.5 ms, handled by the daemon's own handler in the main thread
+    (waiting on an Event, as in Daemon.run), while two threads compete for the interpreter lock at the daemon's switch
+    interval. A handler that takes a lock (threading.Event.set) hangs here: the next SIGHUP interrupts it while it
+    holds the lock, and the nested handler waits for that lock for ever."""
+    d = make_daemon({}, loop=True)
+    saved = {s: signal.getsignal(s) for s in (signal.SIGHUP, signal.SIGTERM, signal.SIGINT)}
+    switch = sys.getswitchinterval()
+    busy_stop = threading.Event()
+
+    def busy() -> None:
+        x = 0
+        while not busy_stop.is_set():
+            x += 1
+
+    busy_threads = [threading.Thread(target=busy, daemon=True) for _ in range(2)]
+    try:
+        sys.setswitchinterval(0.0005)
+        d._install_signals()
+        for t in busy_threads:
+            t.start()
+        sender = subprocess.Popen([sys.executable, "-c", "import os, time\nfor _ in range(3000):\n"
+                                   f"    os.kill({os.getpid()}, 1)\n    time.sleep(0.0005)"])
+        while sender.poll() is None:
+            d._stop.wait(0.01)
+        d._stop.wait(0.01)
+    finally:
+        busy_stop.set()
+        for t in busy_threads:
+            t.join()
+        sys.setswitchinterval(switch)
+        for s, handler in saved.items():
+            signal.signal(s, handler)
+    assert sender.returncode == 0
+    assert d._reload_requests >= 1  # the kernel merges SIGHUPs still pending: fewer than were sent
+    assert wait_until(lambda: d._reload_served == d._reload_requests, 30)
+    status = d.status()
+    assert status["reloads"] + status["reloads_coalesced"] == status["reload_requests"], status
+    assert status["reload_errors"] == 0
 
 
 @pytest.mark.slow

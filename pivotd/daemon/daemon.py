@@ -495,9 +495,14 @@ class Daemon:
             log.info("signal %s: parking and stopping", signal.Signals(signum).name)
             self.request_stop()
 
-        def on_hup(_signum, _frame):  # no lock here: a second SIGHUP may interrupt this handler (wakeup.py)
+        wake_fd = self._planner_wake.write_fd
+
+        def on_hup(_signum, _frame):  # no lock and no Python call: the next SIGHUP may interrupt it (wakeup.py)
             self._reload_requests += 1
-            self._planner_wake.set()
+            try:  # noqa: SIM105 - contextlib.suppress is a Python call
+                os.write(wake_fd, b"\0")
+            except OSError:  # the pipe is full: the planner thread is woken already
+                pass
 
         signal.signal(signal.SIGTERM, on_term)
         signal.signal(signal.SIGINT, on_term)

@@ -14,12 +14,18 @@ import select
 
 
 class Wakeup:
-    """``set()`` from anywhere (a signal handler included); ``wait(timeout)`` and ``clear()`` from one thread."""
+    """``set()`` from anywhere; ``wait(timeout)`` and ``clear()`` from one thread. A signal handler writes a byte to
+    :attr:`write_fd` itself (``os.write`` in a ``try``): a Python call in a handler is one more place where the next
+    signal can interrupt it."""
 
     def __init__(self) -> None:
         self._r, self._w = os.pipe()
         os.set_blocking(self._r, False)
         os.set_blocking(self._w, False)
+
+    @property
+    def write_fd(self) -> int:
+        return self._w
 
     def set(self) -> None:
         """Wake :meth:`wait` (and every later one until :meth:`clear`)."""
