@@ -124,10 +124,10 @@ def test_sighups_while_a_reload_is_pending_coalesce_and_are_counted(make_daemon)
     d = make_daemon({}, loop=False)  # no planner thread: the requests pile up as during a long reload
     for _ in range(50):
         hup(d)
-    d._reload_served = d._reload_requests  # what the planner loop does
+    d._reload_served, d._reload_runs = d._reload_requests, d._reload_runs + 1  # what the planner loop does
     d._do_reload()
     hup(d)  # one more after it
-    d._reload_served = d._reload_requests
+    d._reload_served, d._reload_runs = d._reload_requests, d._reload_runs + 1
     d._do_reload()
     status = d.status()
     assert (status["reload_requests"], status["reloads"], status["reloads_coalesced"]) == (51, 2, 49)

@@ -125,6 +125,7 @@ class Daemon:
         # the ones the reloads run so far answer (planner thread only): a reload is pending while they differ.
         self._reload_requests = 0
         self._reload_served = 0
+        self._reload_runs = 0  # reloads started (planner thread)
         self._needs_restart: tuple[str, ...] = ()  # changed settings that wait for a restart
         self._last_error = ""
         self._clear_attempts = 0
@@ -193,6 +194,7 @@ class Daemon:
                 requests = self._reload_requests
                 if requests > self._reload_served:  # SIGHUPs not answered yet: one reload answers them all
                     self._reload_served = requests
+                    self._reload_runs += 1
                     self._do_reload()
                 now = time.monotonic()
                 if now < next_t:
@@ -414,7 +416,7 @@ class Daemon:
             "reloads": self._reloads,
             "reload_errors": self._reload_errors,
             "reload_requests": self._reload_requests,
-            "reloads_coalesced": max(0, self._reload_served - self._reloads - self._reload_errors),
+            "reloads_coalesced": self._reload_served - self._reload_runs,
             "needs_restart": list(self._needs_restart),
             "last_error": self._last_error,
         }
@@ -447,7 +449,7 @@ class Daemon:
                 self.control.reconfigure(build_control_settings(self.cfg), self.cfg.gimbal.mount)
         else:
             self.cfg = plan.config
-            if plan.reload_planner:  # a new planner in the worker: replan now (the running plan is tracked until)
+            if plan.reload_planner:  # a new planner in the worker: replan now (the running plan is tracked until then)
                 self._replan_trigger = build_replan_trigger(self.cfg)
                 self._inputs_generation += 1
             self._needs_restart = plan.needs_restart
