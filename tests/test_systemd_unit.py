@@ -47,6 +47,15 @@ def test_service_type_watchdog_and_restart(unit):
     assert unit["Install"]["WantedBy"] == ["multi-user.target"]
 
 
+def test_a_router_is_ordered_before_but_not_required(unit):
+    """pivotd waits for its Zenoh router by itself (tests/test_e2e_late_router.py): the unit orders itself after a
+    local router but neither requires nor wants one, so a router that is late or absent costs no restart."""
+    u = unit["Unit"]
+    assert "zenohd.service" in " ".join(u["After"]).split()
+    assert not any("zenohd" in v for key in ("Requires", "Wants", "BindsTo", "Requisite") for v in u.get(key, []))
+    assert int(u["StartLimitBurst"][0]) >= 3 and u["StartLimitIntervalSec"]
+
+
 def test_dedicated_user_with_serial_access(unit):
     service = unit["Service"]
     assert service["User"] == ["pivotd"]

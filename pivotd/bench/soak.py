@@ -6,9 +6,10 @@ that faults can be injected at any time: unplug/replug, bursts of bit flips and 
 (the port stays, the device forgets its configuration), every fault bit, a device stall (its process stopped
 while setpoints queue in its socket); and, on the bus, hostile input: NaN
 and teleported poses, poses from the past, floods, garbage payloads, empty, single-point, far-away, huge and
-malformed paths; and a recording that fails mid-run (the daemon records to a FIFO whose reader the soak closes:
-``recorder_failure``, once per daemon start). One event at a time, at random intervals (seeded); after each the
-soak waits for the daemon to track again and records the recovery time.
+malformed paths; a storm of SIGHUPs (``reload_storm``, the config unchanged); and a recording that fails
+mid-run (the daemon records to a FIFO whose reader the soak closes: ``recorder_failure``, once per daemon
+start). One event at a time, at random intervals (seeded); after each the soak waits for the daemon to track
+again and records the recovery time.
 
 Reported: setpoints beyond limits (joint limits, velocity, and between consecutive setpoints the device
 followed, acceleration and jerk, each with the wire-resolution allowance), tracebacks in the daemon's log,
@@ -46,10 +47,13 @@ DEMO = REPO / "config" / "demo.yaml"
 DEVICE_EVENTS = {"unplug": 3, "bitflips": 2, "drops": 2, "reboot": 2, "fault_bit": 3}
 BUS_EVENTS = {"nan_pose": 1, "teleport": 1, "past_pose": 1, "pose_flood": 1, "garbage": 1, "path_empty": 1,
               "path_single": 1, "path_far": 1, "path_huge": 1, "path_garbage": 1}
-RANDOM_EXTRA_EVENTS = {"silent": 1, "stale_pose": 1, "planner_stall": 1, "off_path": 1, "device_stall": 1}
+RANDOM_EXTRA_EVENTS = {"silent": 1, "stale_pose": 1, "planner_stall": 1, "off_path": 1, "device_stall": 1,
+                       "reload_storm": 1}
 OFF_PATH_M = 5.0  # [m] how far to the side the off-path fault moves the route's path (max_path_offset: 3 m)
 OFF_PATH_HZ = 20.0  # [Hz] it outpaces tools/sim_pose re-publishing the true path every 2 s
 ONCE_EVENTS = {"recorder_failure": 1}  # at most once per daemon start (the recording stops for good)
+RELOAD_STORM = 300  # SIGHUPs in a reload storm
+RELOAD_STORM_GAP_S = 0.002  # [s] between them
 UNPLUG_SECONDS = {0.5: 4, 5.0: 4, 60.0: 1}  # replug after [s]: relative weights
 NOISE_SECONDS = 5.0
 RECOVERY_TIMEOUT_S = 60.0
@@ -564,12 +568,14 @@ class SoakStack:
         self.rss: list[tuple[float, float]] = []
         self.t_start = time.monotonic()
         self._last_rss = -np.inf
+        self.sighups = 0  # SIGHUPs sent to the current daemon
 
     # ------------------------------------------------------------------ processes
     def start_daemon(self) -> None:
         from pivotd.sim.launch import spawn
 
         self.daemon_starts += 1
+        self.sighups = 0
         log_path = self.out / ("pivotd.log" if self.daemon_starts == 1 else f"pivotd.{self.daemon_starts}.log")
         extra: list[str] = []
         if isinstance(self.record, Path):
@@ -705,6 +711,12 @@ class SoakStack:
             # the fault ends when the daemon has seen it: its next chunk of the recording failed
             event["recording_failed"] = self.wait(
                 lambda st: (st.get("recording") or {}).get("state") == "failed", RECOVERY_TIMEOUT_S) is not None
+        elif kind == "reload_storm":  # a burst of SIGHUPs with the config unchanged: reloads coalesce, plans go on
+            for _ in range(params.get("count", RELOAD_STORM)):
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(self.daemon.pid, signal.SIGHUP)
+                self.sighups += 1
+                time.sleep(params.get("gap_s", RELOAD_STORM_GAP_S))
         elif kind in BUS_EVENTS:
             position = self.probe.poses[-1][1] if self.probe.poses else np.zeros(3)
             self.vandal.send(kind, np.asarray(position, float))
@@ -715,17 +727,26 @@ class SoakStack:
     def inject_and_recover(self, kind: str, **params) -> dict:
         """:meth:`inject`, then the recovery time: from the end of the fault to the first status document that
         shows the daemon healthy again (documents at 5 Hz, so a resolution of 0.2 s; those made within
-        ``GRACE_S`` of the end may predate the fault's effect and are not judged)."""
+        ``GRACE_S`` of the end may predate the fault's effect and are not judged). After a reload storm, healthy
+        also means every SIGHUP the daemon received answered and a plan made after the storm."""
         event = self.inject(kind, **params)
         end = time.time()
-        recovery = self.wait_healthy(RECOVERY_TIMEOUT_S, since=end + GRACE_S)
+        healthy = _healthy
+        if kind == "reload_storm":
+            plans = (self.status.get("planner") or {}).get("plans", 0)
+
+            def healthy(st: dict) -> bool:  # every SIGHUP it received answered (the kernel merges pending ones)
+                answered = st.get("reloads", 0) + st.get("reload_errors", 0) + st.get("reloads_coalesced", 0)
+                return (_healthy(st) and 0 < st.get("reload_requests", 0) == answered
+                        and (st.get("planner") or {}).get("plans", 0) > plans)
+        recovery = self.wait(healthy, RECOVERY_TIMEOUT_S, since=end + GRACE_S)
         event["recovery_s"] = None if recovery is None else round(recovery + GRACE_S, 2)
         log.info("event %s", event)
         return event
 
 
 EVENT_KINDS = (*DEVICE_EVENTS, *BUS_EVENTS, "silent", "stale_pose", "planner_stall", "off_path", "device_stall",
-               *ONCE_EVENTS)
+               "reload_storm", *ONCE_EVENTS)
 
 
 def summarise(stack: SoakStack, events: list[dict], warmup: float, exit_code: int | None) -> dict:
@@ -804,7 +825,7 @@ MATRIX: tuple[tuple[str, dict], ...] = (
     ("stale_pose", {"seconds": 2.0}), ("nan_pose", {}), ("teleport", {}), ("pose_flood", {}), ("past_pose", {}),
     ("garbage", {}), ("path_empty", {}), ("path_single", {}), ("path_far", {}), ("path_huge", {}),
     ("path_garbage", {}), ("planner_stall", {"seconds": 3.0}), ("off_path", {"seconds": 6.0}),
-    ("device_stall", {"seconds": 2.0}), ("recorder_failure", {}),
+    ("device_stall", {"seconds": 2.0}), ("reload_storm", {"count": RELOAD_STORM}), ("recorder_failure", {}),
 )
 
 

@@ -29,7 +29,7 @@ from pivotd.bus.messages import CloudMsg, PathMsg, PoseSample
 from pivotd.bus.pivot_bus import PivotBus
 from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.bus.security import input_key_exprs
-from pivotd.bus.session import open_session
+from pivotd.bus.session import build_config, open_session_waiting
 from pivotd.config import Config, load_config
 from pivotd.daemon import logqueue
 from pivotd.daemon.control import ControlLoop
@@ -41,6 +41,7 @@ from pivotd.daemon.reload import apply_reload, plan_reload
 from pivotd.daemon.states import DaemonState
 from pivotd.daemon.systemd import Notifier, watchdog_interval
 from pivotd.daemon.visuals import build_plan_visuals
+from pivotd.daemon.wakeup import Wakeup
 from pivotd.daemon.wiring import (
     build_control_loop,
     build_control_settings,
@@ -97,8 +98,8 @@ class Daemon:
         self.state = DaemonState.STARTING
         self._stop = threading.Event()  # shutdown requested: leave the main loop, park
         self._halt = threading.Event()  # threads exit (after parking)
-        self._reload = threading.Event()
-        self._planner_wake = threading.Event()  # cuts the planner thread's wait short (reload, stop)
+        # Cuts the planner thread's wait short (reload, stop); set by signal handlers, so no lock (see wakeup.py).
+        self._planner_wake = Wakeup()
         self._lock = threading.Lock()
         # Latest inputs: immutable objects swapped by reference.
         self.pose: PoseSample | None = None  # the last pose the pose gate accepted
@@ -125,6 +126,11 @@ class Daemon:
         self._inputs_generation = 0  # counts map layer replacements and worker restarts (inputs of a plan)
         self._reloads = 0
         self._reload_errors = 0
+        # SIGHUPs received (written by the signal handler only; the kernel merges those still pending) and, of them,
+        # the ones the reloads run so far answer (planner thread only): a reload is pending while they differ.
+        self._reload_requests = 0
+        self._reload_served = 0
+        self._reload_runs = 0  # reloads started (planner thread)
         self._needs_restart: tuple[str, ...] = ()  # changed settings that wait for a restart
         self._errors = LastErrors()  # the status's last_error (assign a "source: text" string to _last_error)
         self._dead_threads: set[str] = set()  # threads that must not die and did (logged once each)
@@ -193,12 +199,29 @@ class Daemon:
             log.info("map layer %r replaced from %s: %d points (map version %d)", layer, topic, len(lc), info.version)
 
     def _planner_loop(self) -> None:
+        """Replans on absolute deadlines ``next_t`` one replan period apart. An early wake (SIGHUP, stop) applies the
+        pending reload and goes back to waiting for the same deadline, so no number of wakes moves the schedule;
+        a replan that overran its period skips the deadlines it missed instead of replanning in a burst.
+
+        Reloads coalesce: SIGHUPs that arrive while one is pending (or during a reload) are answered by the next
+        one, so a storm of them is at most one reload under way and one pending (counted in the status)."""
         next_t = time.monotonic()
         while not self._stop.is_set():
+            self._planner_wake.clear()  # a SIGHUP from now on wakes the wait below again
             try:
-                if self._reload.is_set():
-                    self._reload.clear()
+                requests = self._reload_requests
+                if requests > self._reload_served:  # SIGHUPs not answered yet: one reload answers them all
+                    self._reload_served = requests
+                    self._reload_runs += 1
                     self._do_reload()
+                now = time.monotonic()
+                if now < next_t:
+                    self._planner_wake.wait(next_t - now)
+                    continue  # woken early: apply the reload, keep the deadline
+                period = 1.0 / self.cfg.planner.replan_hz
+                next_t += period
+                if next_t <= now:  # this replan started more than a period late: skip the missed deadlines
+                    next_t = now + period
                 self._apply_pending_clouds()
                 self._replan_once()
             except WorkerError as exc:
@@ -217,13 +240,6 @@ class Daemon:
                 self._last_error = f"planner: {exc}"
             else:
                 self._errors.resolve("planner")
-            next_t += 1.0 / self.cfg.planner.replan_hz
-            delay = next_t - time.monotonic()
-            if delay < 0:
-                next_t = time.monotonic()
-                delay = 0
-            self._planner_wake.wait(delay)
-            self._planner_wake.clear()
 
     def _replan_once(self) -> None:
         pose = self.pose
@@ -450,6 +466,8 @@ class Daemon:
             "link_counters": link.counters() if link is not None else {},
             "reloads": self._reloads,
             "reload_errors": self._reload_errors,
+            "reload_requests": self._reload_requests,
+            "reloads_coalesced": self._reload_served - self._reload_runs,
             "needs_restart": list(self._needs_restart),
             "last_error": self._errors.status(),
             "recording": self._recorder.status() if self._recorder is not None else recording_off(),
@@ -475,8 +493,9 @@ class Daemon:
         self.notifier.reloading()
         running_plan = self.plan
         try:
-            plan = plan_reload(self.cfg, self._load_config())
-            self.plan = None  # the control loop holds until the first plan made with the new settings
+            plan = plan_reload(self.cfg, self._load_config(), self.worker.map_identity)
+            if not plan.keeps_plan:
+                self.plan = None  # the control loop holds until the first plan made with the new settings
             info = apply_reload(plan, self.worker, self.control)
         except PivotdError as exc:
             self._reload_errors += 1
@@ -496,12 +515,17 @@ class Daemon:
                 self.control.reconfigure(build_control_settings(self.cfg), self.cfg.gimbal.mount)
         else:
             self.cfg = plan.config
-            self._replan_trigger = build_replan_trigger(self.cfg)
+            if plan.reload_planner:  # a new planner in the worker: replan now (the running plan is tracked until then)
+                self._replan_trigger = build_replan_trigger(self.cfg)
+                self._inputs_generation += 1
             self._needs_restart = plan.needs_restart
             self._reloads += 1
             self._errors.resolve("reload")
-            log.info("reloaded %s: %d landmarks; applied: %s", self.config_path, info.landmarks,
-                     ", ".join(plan.applied) or "no setting changed")
+            what = ("map read again" if plan.reload_map else "map kept" if plan.reload_planner
+                    else "planner and map kept")
+            log.info("reloaded %s: %d landmarks; applied: %s%s; %s", self.config_path, info.landmarks,
+                     ", ".join(plan.applied) or "no setting changed",
+                     " (a map file changed on disk)" if plan.map_file_changed else "", what)
             if plan.needs_restart:
                 log.warning("changed settings that need a restart (running values kept): %s",
                             ", ".join(plan.needs_restart))
@@ -543,31 +567,36 @@ class Daemon:
             log.info("signal %s: parking and stopping", signal.Signals(signum).name)
             self.request_stop()
 
-        def on_hup(_signum, _frame):
-            self._reload.set()
-            self._planner_wake.set()
+        wake_fd = self._planner_wake.write_fd
+
+        def on_hup(_signum, _frame):  # no lock and no Python call: the next SIGHUP may interrupt it (wakeup.py)
+            self._reload_requests += 1
+            try:  # noqa: SIM105 - contextlib.suppress is a Python call
+                os.write(wake_fd, b"\0")
+            except OSError:  # the pipe is full: the planner thread is woken already
+                pass
 
         signal.signal(signal.SIGTERM, on_term)
         signal.signal(signal.SIGINT, on_term)
         signal.signal(signal.SIGHUP, on_hup)
 
-    def _start(self) -> None:
+    def _start(self) -> bool:
+        """Start the gimbal link, the control and planner threads, then the bus. The gimbal is held from the start
+        (no pose: the control loop holds where it is; supervision enables it and clears faults) while the session
+        opens; in client mode that waits for the router for as long as it takes, staying responsive to SIGTERM
+        and SIGHUP. READY=1 is sent once the gimbal is held, before the bus is up. False: stopped while waiting."""
         cfg = self.cfg
         return_large_frees_to_the_os()
         z = cfg.zenoh
-        self.session = open_session(mode=z.mode, connect=z.connect, listen=z.listen, config_file=z.config_file,
-                                    multicast_scouting=z.multicast_scouting, security=z.security,
-                                    input_keys=input_key_exprs(cfg.topics),
-                                    max_message_bytes=cfg.topics.max_message_bytes)
+        zenoh_settings = dict(mode=z.mode, connect=z.connect, listen=z.listen, config_file=z.config_file,
+                              multicast_scouting=z.multicast_scouting, security=z.security,
+                              input_keys=input_key_exprs(cfg.topics), max_message_bytes=cfg.topics.max_message_bytes)
+        build_config(**zenoh_settings)  # bad Zenoh settings exit (2) before the gimbal is touched
         if self.overrides.record is not None:
             from pivotd.daemon.recorder import METADATA_NAME, Recorder
 
             self._recorder = Recorder(self.overrides.record)
             self._recorder.add_metadata(METADATA_NAME, {"name": cfg.name, "config": str(cfg.source or "")})
-        self.bus = PivotBus(self.session, cfg.topics, node_name=cfg.name, on_pose=self._on_pose,
-                            on_path=self._on_path, on_cloud=self._on_cloud,
-                            on_raw=self._recorder.write if self._recorder is not None else None, qos=cfg.ros.qos)
-        self.visuals = build_plan_visuals(self.bus, cfg)
         self.link = build_gimbal(cfg)
         self.link.start()
         self.control = build_control_loop(cfg, self.link)
@@ -576,9 +605,34 @@ class Daemon:
             t = threading.Thread(target=target, name=f"pivotd-{name}", daemon=True)
             t.start()
             self._threads.append(t)
-        self.notifier.ready()
+        where = ", ".join([*z.listen, *z.connect]) or z.mode
+        bus_wait = f"waiting for the Zenoh router at {where}" if z.mode == "client" else f"opening Zenoh ({where})"
+        self.notifier.ready(f"{DaemonState.WAITING}; {bus_wait}; gimbal held")
+        self.session = open_session_waiting(self._wait_supervising, **zenoh_settings)
+        if self.session is None:
+            return False
+        self.bus = PivotBus(self.session, cfg.topics, node_name=cfg.name, on_pose=self._on_pose,
+                            on_path=self._on_path, on_cloud=self._on_cloud,
+                            on_raw=self._recorder.write if self._recorder is not None else None, qos=cfg.ros.qos)
+        self.visuals = build_plan_visuals(self.bus, cfg)
         log.info("pivotd %r ready: %d landmarks, gimbal %s, zenoh %s", cfg.name, self.worker.map_info.landmarks,
-                 cfg.gimbal.port, ", ".join([*z.listen, *z.connect]) or z.mode)
+                 cfg.gimbal.port, where)
+        return True
+
+    def _wait_supervising(self, seconds: float) -> bool:
+        """Wait ``seconds`` while supervising the gimbal (before the bus is up); True as soon as stop is requested."""
+        end = time.monotonic() + seconds
+        period = 1.0 / self.cfg.control.status_hz
+        while not self._stop.is_set():
+            try:
+                self._supervise_gimbal()
+            except Exception as exc:
+                self._rl.exception("supervise", f"supervision failed: {exc!r}")
+            remaining = end - time.monotonic()
+            if remaining <= 0:
+                return False
+            self._stop.wait(min(remaining, period))
+        return True
 
     def run(self) -> int:
         """Run until stopped; returns the exit code (0 after a clean park and disable)."""
@@ -587,10 +641,10 @@ class Daemon:
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         self._install_signals()
         try:
-            self._start()
+            started = self._start()
             status_period = 1.0 / self.cfg.control.status_hz
             last_line = ""
-            while not self._stop.is_set():
+            while started and not self._stop.is_set():
                 self._stop.wait(status_period)
                 try:
                     # Publish first: a fault that supervision clears right away is still reported once.

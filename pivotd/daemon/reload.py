@@ -7,6 +7,16 @@ timeout, ``sim``. Restart-only (kept at their running values, logged as "needs r
 ``mavlink`` / ``dynamixel`` (the connection), ``limits`` and ``watchdog_ms`` (sent to the device at the
 handshake), ``motion`` (the device's rate limits), ``control`` (the control thread's rate and clock) and
 ``logging`` (the command line may override it) and ``ros`` (publishers and QoS).
+
+What a reload costs depends on what changed. Nothing that affects the plan (no setting, or only the park pose,
+``pose_gate``, ``sim``, restart-only ones): the planner process is not asked at all and the running plan stays.
+``pivot`` / ``planner`` settings: the planner process builds a new planner on the map it has; ``map`` settings or
+a map file that changed on disk (:mod:`pivotd.maps.fingerprint`): it reads the map again. In both cases the
+control loop keeps tracking the running plan until the first plan made with the new settings replaces it: the
+control loop converts the plan's world directions to joint targets with its own joint limits, mount and motion
+limits at every tick, so an older plan is a valid (if no longer optimal) target, and it still holds once the plan
+is older than its ``plan_timeout``. Only a new ``gimbal.mount`` drops the running plan (the control loop holds
+until the first plan made with the new mount): the plan's pan branch was chosen in the old mount's frame.
 """
 
 from __future__ import annotations
@@ -17,8 +27,9 @@ from dataclasses import dataclass, fields, replace
 
 from pivotd.config import Config
 from pivotd.daemon.control import ControlLoop
-from pivotd.daemon.wiring import build_control_settings
+from pivotd.daemon.wiring import build_control_settings, map_files_identity
 from pivotd.daemon.worker import MapInfo, PlannerWorker
+from pivotd.maps.fingerprint import MapIdentity
 
 log = logging.getLogger(__name__)
 
@@ -27,6 +38,10 @@ RESTART_SECTIONS = ("name", "zenoh", "topics", "motion", "control", "logging", "
 #: ``gimbal`` fields whose changes only take effect at the next start (the rest of ``gimbal`` is live).
 RESTART_GIMBAL_FIELDS = ("backend", "port", "baud", "limits", "watchdog_ms", "mavlink", "dynamixel")
 _NOT_SETTINGS = ("source",)
+#: Live sections the plan depends on (a change rebuilds the planner in the planner process).
+PLAN_SECTIONS = ("map", "pivot", "planner")
+#: A change of this setting drops the running plan (see the module docstring).
+PLAN_DROPPING = ("gimbal.mount",)
 
 
 @dataclass(frozen=True)
@@ -37,6 +52,23 @@ class ReloadPlan:
     config: Config
     applied: tuple[str, ...]
     needs_restart: tuple[str, ...]
+    map_file_changed: bool = False  # the map settings are the same but one of the map's files changed on disk
+
+    @property
+    def reload_map(self) -> bool:
+        """Whether the planner process reads the map again (map settings or map files changed)."""
+        return self.map_file_changed or any(k.partition(".")[0] == "map" for k in self.applied)
+
+    @property
+    def reload_planner(self) -> bool:
+        """Whether the planner process is asked at all (a new planner, and the map if :attr:`reload_map`)."""
+        return self.reload_map or any(k.partition(".")[0] in PLAN_SECTIONS or k in PLAN_DROPPING
+                                      for k in self.applied)
+
+    @property
+    def keeps_plan(self) -> bool:
+        """Whether the control loop may keep tracking the running plan until a new one is made."""
+        return not any(k in PLAN_DROPPING for k in self.applied)
 
 
 def changed_keys(old: object, new: object, prefix: str = "") -> list[str]:
@@ -63,8 +95,12 @@ def _is_restart_only(key: str) -> bool:
     return section == "gimbal" and field_name in RESTART_GIMBAL_FIELDS
 
 
-def plan_reload(running: Config, loaded: Config) -> ReloadPlan:
-    """Split the differences between the running and the loaded config into live and restart-only ones."""
+def plan_reload(running: Config, loaded: Config, running_map: MapIdentity | None = None) -> ReloadPlan:
+    """Split the differences between the running and the loaded config into live and restart-only ones.
+
+    ``running_map``: the identity of the map files the planner process loaded (``map_files_identity`` when it
+    read them); with it, an unchanged map file under unchanged map settings is not read again. None: compare settings
+    only."""
     changed = changed_keys(running, loaded)
     kept = {
         "name": running.name,
@@ -80,17 +116,19 @@ def plan_reload(running: Config, loaded: Config) -> ReloadPlan:
         config=replace(loaded, **kept),
         applied=tuple(k for k in changed if not _is_restart_only(k)),
         needs_restart=tuple(k for k in changed if _is_restart_only(k)),
+        map_file_changed=running_map is not None and map_files_identity(loaded) != running_map,
     )
 
 
 def apply_reload(plan: ReloadPlan, worker: PlannerWorker, control: ControlLoop | None) -> MapInfo:
-    """Give the planner process and the control loop the settings of ``plan.config``: the worker first (if it
-    refuses, RequestError, neither side changes), then the control loop (mount, plan timeout).
+    """Give the planner process and the control loop the settings of ``plan.config``: the worker first, if the plan
+    depends on what changed (if it refuses, RequestError, neither side changes), then the control loop (mount,
+    plan timeout).
 
-    Call from the thread that makes the worker's other requests, and drop the running plan first: the
-    control loop then holds until the first plan made with the new settings.
+    Call from the thread that makes the worker's other requests, and drop the running plan first unless
+    ``plan.keeps_plan``: the control loop then holds until the first plan made with the new settings.
     """
-    info = worker.reload(plan.config)
+    info = worker.reload(plan.config, reload_map=plan.reload_map) if plan.reload_planner else worker.map_info
     if control is not None:
         control.reconfigure(build_control_settings(plan.config), plan.config.gimbal.mount)
     return info

@@ -24,6 +24,7 @@ from pivotd.gimbal.link import GimbalLink, LinkConfig
 from pivotd.gimbal.mavlink_link import MavlinkGimbal, MavlinkSettings
 from pivotd.gimbal.motion import MotionGenerator
 from pivotd.maps.filters import RetainedFilter
+from pivotd.maps.fingerprint import MapIdentity, map_identity
 from pivotd.maps.store import MapStore, load_map_store
 from pivotd.pivot.trajectory import TrajectoryOptions
 from pivotd.pivot.weights import SpreadSettings
@@ -57,6 +58,11 @@ def build_map_store(cfg: Config) -> MapStore:
     )
     release_free_memory()
     return store
+
+
+def map_files_identity(cfg: Config) -> MapIdentity:
+    """The identity on disk of the files :func:`build_map_store` reads for ``cfg`` (pivotd.maps.fingerprint)."""
+    return map_identity(cfg.map.file, cfg.map.filters.occupancy_file)
 
 
 def release_free_memory() -> None:

@@ -9,8 +9,9 @@ with it: the daemon restarts the worker.
 
 Messages are tuples over a ``multiprocessing`` pipe. Parent → worker: ``(kind, request_id, *args)`` with
 ``("replan", id, position, quat, anchor)``, ``("path", id, positions, quats, version)`` (positions None
-clears it; no reply), ``("layer", id, name, LandmarkCloud, weight_multiplier)``, ``("reload", id, Config)``,
-``("stop", id)``. Worker → parent: ``(kind, request_id, payload)`` with ``("ready", 0, MapInfo)``,
+clears it; no reply), ``("layer", id, name, LandmarkCloud, weight_multiplier)``,
+``("reload", id, Config, reload_map)`` (a new planner; the map read again only if ``reload_map``), ``("stop", id)``.
+Worker → parent: ``(kind, request_id, payload)`` with ``("ready", 0, MapInfo)``,
 ``("plan", id, Plan)``, ``("map", id, MapInfo)``, ``("error", id, message)`` (one line), and while a request
 is being computed ``("busy", id, elapsed_s)`` every :data:`HEARTBEAT_S` (a heartbeat, not a reply). Every
 reply echoes its request's id, so a reply that arrives after its request timed out is recognised and dropped
@@ -38,7 +39,9 @@ import numpy as np
 from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.config import Config
 from pivotd.daemon.planner import PathMode, Plan
+from pivotd.daemon.wiring import map_files_identity
 from pivotd.errors import PivotdError
+from pivotd.maps.fingerprint import MapIdentity
 from pivotd.maps.formats import LandmarkCloud
 
 log = logging.getLogger(__name__)
@@ -181,9 +184,9 @@ def _worker_main(conn, cfg: Config, log_level: int) -> None:  # pragma: no cover
                 release_free_memory()
                 conn.send(("map", req_id, _map_info(store)))
             elif kind == "reload":
-                (new_cfg,) = args
-                new_store = build_map_store(new_cfg)
-                for name, (cloud, _) in layers.items():
+                new_cfg, reload_map = args
+                new_store = build_map_store(new_cfg) if reload_map else store
+                for name, (cloud, _) in layers.items() if reload_map else ():
                     mult = float(getattr(new_cfg.map.layers, name, 1.0))
                     new_store.set_layer(name, cloud, weight_multiplier=mult)
                 new_planner = build_planner(new_cfg)
@@ -212,6 +215,7 @@ class PlannerWorker:
         self.restarts = 0
         self.map_info = MapInfo(0, 0, {})
         self._map_changes = 0  # maps the worker loaded or changed: the map version the daemon reports
+        self.map_identity: MapIdentity = ()  # the map files as they were when the worker last read them
         self._proc = None
         self._conn = None
         self._next_id = 0
@@ -224,6 +228,7 @@ class PlannerWorker:
         self._start(cfg)
 
     def _start(self, cfg: Config) -> None:
+        identity = map_files_identity(cfg)  # before reading: a file replaced meanwhile counts as changed next time
         parent, child = self._ctx.Pipe()
         proc = self._ctx.Process(target=_worker_main, args=(child, cfg, self._log_level), name="pivotd-planner",
                                  daemon=True)
@@ -242,6 +247,7 @@ class PlannerWorker:
             raise WorkerError(payload)
         self._proc, self._conn, self._cfg = proc, parent, cfg
         self._set_map_info(payload)
+        self.map_identity = identity
 
     @property
     def pid(self) -> int | None:
@@ -342,19 +348,23 @@ class PlannerWorker:
             raise RequestError(payload)
         return self._set_map_info(payload)
 
-    def reload(self, cfg: Config, timeout: float = 120.0) -> MapInfo:
-        """Load ``cfg``'s map and planner settings; on a refusal (RequestError) the worker keeps the running
-        ones. On WorkerError (no answer in time) its state is unknown: restart it."""
-        kind, payload = self._request("reload", cfg, timeout=timeout)
+    def reload(self, cfg: Config, timeout: float = 120.0, reload_map: bool = True) -> MapInfo:
+        """Load ``cfg``'s planner settings, and its map if ``reload_map`` (else the worker keeps the map it has); on a
+        refusal (RequestError) the worker keeps the running ones. On WorkerError (no answer in time) its state is
+        unknown: restart it."""
+        identity = map_files_identity(cfg) if reload_map else self.map_identity
+        kind, payload = self._request("reload", cfg, reload_map, timeout=timeout)
         if kind != "map":
             raise RequestError(payload)
         self._cfg = cfg
-        return self._set_map_info(payload)
+        self.map_identity = identity
+        return self._set_map_info(payload, changed=reload_map)
 
-    def _set_map_info(self, info: MapInfo) -> MapInfo:
-        """Keep the worker's map description with a version that increases at every change of the map: each
-        store the worker builds (start, restart, reload) counts from 1 again."""
-        self._map_changes += 1
+    def _set_map_info(self, info: MapInfo, changed: bool = True) -> MapInfo:
+        """Keep the worker's map description with a version that increases at every change of the map (each
+        store the worker builds, at start, restart or reload, counts from 1 again); a reload that kept the map
+        keeps its version."""
+        self._map_changes += int(changed)
         self.map_info = MapInfo(info.landmarks, self._map_changes, info.layers)
         return self.map_info
 
