@@ -119,6 +119,34 @@ def test_a_storm_of_real_sighups_is_answered_and_never_deadlocks_the_main_thread
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_a_storm_of_real_sigterms_and_sighups_never_deadlocks_the_main_thread_and_stops_it(make_daemon):
+    """SIGTERM must always stop the daemon: its handler, like SIGHUP's, takes no lock and does not log (the main
+    thread logs the signal). SIGTERMs and SIGHUPs alternate every 0.5 ms while the main thread waits on the stop flag
+    as Daemon.run does; a handler interrupted inside a lock by the next one would hang here."""
+    d = make_daemon({}, loop=True)
+    saved = {s: signal.getsignal(s) for s in (signal.SIGHUP, signal.SIGTERM, signal.SIGINT)}
+    switch = sys.getswitchinterval()
+    sender = None
+    try:
+        sys.setswitchinterval(0.0005)
+        d._install_signals()
+        sender = subprocess.Popen([sys.executable, "-c", "import os, time\nfor i in range(3000):\n"
+                                   f"    os.kill({os.getpid()}, 15 if i % 2 else 1)\n    time.sleep(0.0005)"])
+        while sender.poll() is None:
+            d._stop.wait(0.01)
+    finally:
+        if sender is not None and sender.poll() is None:  # a handler raised: stop the storm before the defaults
+            sender.kill()
+            sender.wait()
+        sys.setswitchinterval(switch)
+        for s, handler in saved.items():
+            signal.signal(s, handler)
+    assert sender.returncode == 0
+    assert d._stop.is_set() and d._stop_signal == signal.SIGTERM
+
+
+@pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_sighups_while_a_reload_is_pending_coalesce_and_are_counted(make_daemon):
     d = make_daemon({}, loop=False)  # no planner thread: the requests pile up as during a long reload

@@ -41,7 +41,7 @@ from pivotd.daemon.reload import apply_reload, plan_reload
 from pivotd.daemon.states import DaemonState
 from pivotd.daemon.systemd import Notifier, watchdog_interval
 from pivotd.daemon.visuals import build_plan_visuals
-from pivotd.daemon.wakeup import Wakeup
+from pivotd.daemon.wakeup import StopFlag, Wakeup
 from pivotd.daemon.wiring import (
     build_control_loop,
     build_control_settings,
@@ -96,7 +96,8 @@ class Daemon:
         self.cfg: Config = self._load_config()
         self.notifier = Notifier()
         self.state = DaemonState.STARTING
-        self._stop = threading.Event()  # shutdown requested: leave the main loop, park
+        self._stop = StopFlag()  # shutdown requested: leave the main loop, park (set by the SIGTERM handler)
+        self._stop_signal: int | None = None  # the signal that asked for it (logged by the main thread)
         self._halt = threading.Event()  # threads exit (after parking)
         # Cuts the planner thread's wait short (reload, stop); set by signal handlers, so no lock (see wakeup.py).
         self._planner_wake = Wakeup()
@@ -563,8 +564,8 @@ class Daemon:
         self._planner_wake.set()
 
     def _install_signals(self) -> None:
-        def on_term(signum, _frame):
-            log.info("signal %s: parking and stopping", signal.Signals(signum).name)
+        def on_term(signum, _frame):  # no lock and no logging here: the main thread logs it (wakeup.py)
+            self._stop_signal = signum
             self.request_stop()
 
         wake_fd = self._planner_wake.write_fd
@@ -660,6 +661,8 @@ class Daemon:
                         release_free_memory()  # Zenoh reassembled it in many small heap blocks, now free
                 except Exception as exc:
                     self._rl.exception("supervise", f"supervision failed: {exc!r}")
+            if self._stop_signal is not None:
+                log.info("signal %s: parking and stopping", signal.Signals(self._stop_signal).name)
             self.notifier.stopping()
             self._park()
         finally:

@@ -48,3 +48,28 @@ class Wakeup:
         for fd in (self._r, self._w):
             with contextlib.suppress(OSError):
                 os.close(fd)
+
+
+class StopFlag:
+    """A flag that is set once and never cleared, which a signal handler may set (SIGTERM): ``set()`` assigns a
+    bool and writes one byte to a self-pipe, taking no lock, so a handler that interrupted a thread inside
+    ``wait`` or another handler cannot deadlock on it. Any number of threads may ``wait``: once set, the pipe stays
+    readable for all of them. The same ``is_set`` / ``wait`` / ``set`` calls as ``threading.Event``."""
+
+    def __init__(self) -> None:
+        self._flag = False
+        self._pipe = Wakeup()
+
+    def set(self) -> None:
+        self._flag = True
+        self._pipe.set()
+
+    def is_set(self) -> bool:
+        return self._flag
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Block up to ``timeout`` [s] (None: until set); True once set."""
+        if self._flag:
+            return True
+        self._pipe.wait(1e9 if timeout is None else timeout)
+        return self._flag
