@@ -3,7 +3,8 @@
 Runs ``pivotd`` (config/demo.yaml) with ``tools/sim_pose`` walking the hallway in a loop, as the demo launches
 them, against the reference device model (firmware_proto) served on a loopback TCP port of this process, so
 that faults can be injected at any time: unplug/replug, bursts of bit flips and of lost frames, a device reboot
-(the port stays, the device forgets its configuration), every fault bit; and, on the bus, hostile input: NaN
+(the port stays, the device forgets its configuration), every fault bit, a pan axis held mechanically (no fault
+bit); and, on the bus, hostile input: NaN
 and teleported poses, poses from the past, floods, garbage payloads, empty, single-point, far-away, huge and
 malformed paths. One event at a time, at random intervals (seeded); after each the soak waits for the daemon
 to track again and records the recovery time.
@@ -28,6 +29,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,11 +46,11 @@ DEMO = REPO / "config" / "demo.yaml"
 DEVICE_EVENTS = {"unplug": 3, "bitflips": 2, "drops": 2, "reboot": 2, "fault_bit": 3}
 BUS_EVENTS = {"nan_pose": 1, "teleport": 1, "past_pose": 1, "pose_flood": 1, "garbage": 1, "path_empty": 1,
               "path_single": 1, "path_far": 1, "path_huge": 1, "path_garbage": 1}
-RANDOM_EXTRA_EVENTS = {"silent": 1, "stale_pose": 1, "planner_stall": 1}
+RANDOM_EXTRA_EVENTS = {"silent": 1, "stale_pose": 1, "planner_stall": 1, "stuck_axis": 1}
+STUCK_SECONDS = 6.0  # [s] how long the stuck_axis fault holds the pan axis mechanically (a few 10° of turn)
 UNPLUG_SECONDS = {0.5: 4, 5.0: 4, 60.0: 1}  # replug after [s]: relative weights
 NOISE_SECONDS = 5.0
 RECOVERY_TIMEOUT_S = 60.0
-MAX_STREAM_GAP_S = 0.1  # [s] setpoints sent further apart than this are not one continuous stream
 RESTART_WINDOW_S = 1.0  # [s] device time after it reported a stop during which a stream may restart from its states
 GRACE_S = 0.05  # [s] status documents made this soon after a fault may predate its effect
 
@@ -111,6 +113,10 @@ class SoakDevice:
     def fault(self, bit: int) -> None:
         self._commands.put(("fault", bit))
 
+    def stuck(self, axis: str, seconds: float) -> None:
+        """Hold ``axis`` mechanically for ``seconds`` (no fault bit; DeviceModel.inject_stuck_axis)."""
+        self._commands.put(("stuck", (axis, seconds)))
+
     def noise(self, drop: float, corrupt: float) -> None:
         self.injector.drop, self.injector.corrupt = drop, corrupt
 
@@ -132,6 +138,8 @@ class SoakDevice:
                     self.reboots += 1
                 elif kind == "fault":
                     self.device.inject_fault(int(value))
+                elif kind == "stuck":
+                    self.device.inject_stuck_axis(*value)
             if unplugged_until is not None:
                 if time.monotonic() < unplugged_until:
                     self._stop.wait(0.01)
@@ -204,6 +212,9 @@ class DeviceProcess:
     def fault(self, bit: int) -> None:
         self._conn.send(("fault", (bit,)))
 
+    def stuck(self, axis: str, seconds: float) -> None:
+        self._conn.send(("stuck", (axis, seconds)))
+
     def noise(self, drop: float, corrupt: float) -> None:
         self._conn.send(("noise", (drop, corrupt)))
 
@@ -242,6 +253,7 @@ class SetpointCheck:
     checked_pairs: int = 0
     restarts: int = 0  # segments judged from a measured state after the device reported a stop
     restarted_steps: int = 0  # of those, pairs that were a step from the previous setpoint (late frames before)
+    axis_restarts: int = 0  # pairs where an axis that did not follow restarted from its measured state at rest
     beyond_position: int = 0
     beyond_velocity: int = 0
     beyond_acceleration: int = 0
@@ -256,16 +268,19 @@ class SetpointCheck:
 def check_device_log(cfg, path: Path) -> SetpointCheck:
     """Check every SETPOINT in a device message log against ``cfg``'s joint and motion limits.
 
-    Position and velocity hold for every setpoint. Acceleration (rate difference / dt) and jerk hold between
-    setpoints of one continuous stream: consecutive frame numbers (no frame lost or corrupted between them; a
-    CLEAR_FAULT the daemon sent beside the stream takes one),
-    sent at most ``MAX_STREAM_GAP_S`` apart (a longer stall of the control loop restarts the stream), no device
-    reboot between them, and the device following the stream (mode ENABLED in its last STATE). Across a break
-    the controller restarts from the measured state, which the stream cannot show.
+    Position and velocity hold for every setpoint. Acceleration (rate difference / dt) and jerk hold between every
+    two consecutive setpoints the device executed while it followed the stream: consecutive frame numbers (no frame
+    lost or corrupted between them; a HEARTBEAT or CLEAR_FAULT the daemon sent between them takes one and the stream
+    goes on across it), no device reboot or new handshake (HELLO, CONFIG, ENABLE) between them, and the device
+    following (mode ENABLED in its last STATE, no newly latched watchdog bit). However late a setpoint comes after
+    the previous one, a device that did not stop executes it as the next step of the stream, so the pair is judged
+    as one control period apart (a restart from the measured state while the device never held was a 4.5x
+    acceleration and 69x jerk step that a rule "sent more than 0.1 s apart: a new stream" did not see).
 
     Restarts after the device stopped: when the device reported that it stopped following (a STATE with mode
-    HOLDING, DISABLED or FAULT), the host restarts the stream from a state the device measured after the stop;
-    setpoints it sent before it learnt of the stop may still reach the device after it (late, on a loaded host).
+    HOLDING, DISABLED or FAULT, or with the watchdog bit newly latched), the host restarts the stream from a state
+    the device measured after the stop; setpoints it sent before it learnt of the stop may still reach the device
+    after it (late, on a loaded host).
     So within ``RESTART_WINDOW_S`` of device time after a reported stop, the first setpoint that is continuous with
     one of the measured states reported since the stop (position within the distance the reported or commanded
     rate covers in ``stall_s`` plus a period; rate within one period of the acceleration limit, and that
@@ -276,8 +291,15 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
     previous one within the limits and a measured state (late frames of the old stream resumed the device, and the
     host restarted from a state in motion close to the old stream) may be either: the next pair's jerk is judged
     from the more favourable of the two, and the stop still allows its restart.
+
+    An axis that did not follow may restart from its measured state while the other axis goes on: the daemon's
+    tracking-error hold (pivotd.daemon.tracking_error). Such an axis stood still in every state the device reported
+    for the last ``control.tracking_error_s`` (rate within one period of the acceleration limit) while the previous
+    setpoint was farther than ``control.tracking_error_deg`` from it; its step is judged from its latest measured
+    state (counted in ``axis_restarts``). A device that overshot a stale setpoint and was still slowing down is
+    not such an axis: its step counts.
     """
-    from firmware_proto.messages import MODE_ENABLED
+    from firmware_proto.messages import FAULT_WATCHDOG, MODE_ENABLED
     from pivotd.daemon.control import ControlSettings
     from pivotd.sim.analysis import WIRE_RESOLUTION
 
@@ -289,16 +311,20 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
     vmax = np.array([cfg.motion.pan.max_velocity, cfg.motion.tilt.max_velocity])
     amax = np.array([cfg.motion.pan.max_acceleration, cfg.motion.tilt.max_acceleration])
     jmax = np.array([cfg.motion.pan.max_jerk, cfg.motion.tilt.max_jerk])
+    bound = cfg.control.tracking_error  # [rad] an axis farther than this from its setpoint did not follow ...
+    window = cfg.control.tracking_error_s  # [s] ... for this long
     res = WIRE_RESOLUTION
     allow_v, allow_a, allow_j = res / dt, 2 * res / dt, 4 * res / dt**2
     out = SetpointCheck()
     mode = -1
-    prev: tuple[int, int, np.ndarray] | None = None  # (seq, host time [µs], rate) of the previous setpoint
+    faults = 0
+    prev: tuple[int, np.ndarray, np.ndarray] | None = None  # (seq, position, rate) of the previous setpoint
     prev_acc: list[np.ndarray] = []  # the acceleration of the previous pair (several candidates at a restart)
     last_t = -np.inf
     last_mode = -1
     stop_t: float | None = None  # device time of the latest reported stop within the restart window
     measured: list[tuple[np.ndarray, np.ndarray]] = []  # (position, rate) of the states reported since that stop
+    recent: deque[tuple[float, np.ndarray, np.ndarray]] = deque()  # (t, position, rate) of the last states
     stop_restarted = False  # a setpoint continuous with one of them was seen (counted once per stop)
 
     def restart_accs(pos: np.ndarray, rate: np.ndarray) -> list[np.ndarray]:
@@ -313,21 +339,42 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                 found.append(acc)
         return sorted(found, key=lambda a: float(np.max(np.abs(a) / amax)))
 
+    def axis_restart(i: int, t: float, prev_pos: np.ndarray, pos: np.ndarray, rate: np.ndarray) -> float | None:
+        """Acceleration of axis ``i`` restarting from its latest measured state, if it stood still for the last
+        tracking-error window, farther than the bound from the previous setpoint (a tracking-error hold); or None."""
+        if not recent or t - recent[0][0] < window:
+            return None
+        if any(abs(m_rate[i]) > amax[i] * dt for m_t, _, m_rate in recent if m_t >= t - window):
+            return None
+        _, m_pos, m_rate = recent[-1]
+        acc = (rate[i] - m_rate[i]) / dt
+        if (abs(prev_pos[i] - m_pos[i]) > bound and abs(pos[i] - m_pos[i]) <= amax[i] * dt * (stall + dt) + 2 * res
+                and abs(acc) <= amax[i] + allow_a and abs(acc) / dt <= jmax[i] + allow_j):
+            return acc
+        return None
+
     with open(path, newline="") as fh:
         for row in csv.DictReader(fh):
             t = float(row["t_s"])
             if t < last_t - 1.0:  # the device clock restarted: a reboot
-                prev, prev_acc, stop_t, measured, last_mode = None, [], None, [], -1
+                prev, prev_acc, stop_t, measured, last_mode, faults = None, [], None, [], -1, 0
+                recent.clear()
             last_t = t
             if stop_t is not None and t - stop_t > RESTART_WINDOW_S:
                 stop_t, measured = None, []
             if row["dir"] == "tx" and row["type"] == "STATE":
                 mode = int(row["mode"])
+                new_faults = int(row["faults"] or 0)
+                watchdog_edge = bool(new_faults & FAULT_WATCHDOG) and not faults & FAULT_WATCHDOG
+                faults = new_faults
                 state = (np.array([float(row["pan"]), float(row["tilt"])]),
                          np.array([float(row["pan_rate"]), float(row["tilt_rate"])]))
-                if mode != MODE_ENABLED:
+                recent.append((t, *state))
+                while t - recent[0][0] > window + 0.1:
+                    recent.popleft()
+                if mode != MODE_ENABLED or watchdog_edge:
                     prev, prev_acc = None, []
-                if mode != MODE_ENABLED and mode != last_mode:  # it stopped following
+                if (mode != MODE_ENABLED and mode != last_mode) or watchdog_edge:  # it stopped following
                     stop_t, measured, stop_restarted = t, [state], False
                 elif stop_t is not None:
                     measured.append(state)
@@ -335,12 +382,14 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                 continue
             if row["dir"] != "rx":
                 continue
-            if row["type"] == "CLEAR_FAULT" and prev is not None:
-                # sent beside the stream (the daemon's supervision): it takes a sequence number, the stream goes on
-                prev = ((prev[0] + 1) & 0xFF, prev[1], prev[2])
+            if row["type"] in ("CLEAR_FAULT", "HEARTBEAT"):
+                if prev is not None:
+                    # sent beside or within the stream (supervision, a wait for a state): it takes a sequence
+                    # number, the device keeps executing the stream and the next setpoint continues it
+                    prev = ((prev[0] + 1) & 0xFF, prev[1], prev[2])
                 continue
             if row["type"] != "SETPOINT":
-                prev, prev_acc = None, []  # HELLO, CONFIG, ENABLE, HEARTBEAT: a new stream follows
+                prev, prev_acc = None, []  # HELLO, CONFIG, ENABLE: a new stream follows
                 continue
             out.setpoints += 1
             seq = int(row["seq"])
@@ -349,21 +398,22 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
             out.beyond_position += int(np.any(pos < lo) or np.any(pos > hi))
             out.worst["velocity"] = max(out.worst["velocity"], float(np.max(np.abs(rate) / vmax)))
             out.beyond_velocity += int(np.any(np.abs(rate) > vmax + allow_v))
-            host = int(row["host_time_us"])
             restarts = restart_accs(pos, rate) if measured else []
             restarted = restarts[0] if restarts else None
             if restarted is not None and not stop_restarted:  # a restart after this stop
                 out.restarts += 1
                 stop_restarted = True
-            if (prev is not None and seq == (prev[0] + 1) & 0xFF and mode == MODE_ENABLED
-                    and ((host - prev[1]) & 0xFFFFFFFF) <= MAX_STREAM_GAP_S * 1e6):
+            if prev is not None and seq == (prev[0] + 1) & 0xFF and mode == MODE_ENABLED:
                 acc = (rate - prev[2]) / dt
                 # the acceleration before may be one of several (a restart, which may also have continued the
                 # stream); the jerk is the one of the smallest ratio
                 jerks = [(acc - a) / dt for a in prev_acc]
                 jerk = min(jerks, key=lambda j: float(np.max(np.abs(j) / jmax))) if jerks else None
-                continuous = (np.all(np.abs(acc) <= amax + allow_a)
-                              and (jerk is None or np.all(np.abs(jerk) <= jmax + allow_j)))
+
+                def beyond(acc, jerk):
+                    return (np.abs(acc) > amax + allow_a) | (jerk is not None and np.abs(jerk) > jmax + allow_j)
+
+                continuous = not np.any(beyond(acc, jerk))
                 nxt = [acc]
                 if restarted is not None and not continuous:  # judged from the measured state it starts at
                     acc, jerk = restarted, restarted / dt
@@ -372,6 +422,16 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                     stop_t, measured = None, []  # the one restart this stop allows
                 elif restarted is not None:  # either the stream continued or it restarted here: both stay open
                     nxt = [acc, *restarts]
+                elif not continuous:  # an axis held at the measured state after it did not follow?
+                    axis_accs = {i: axis_restart(i, t, prev[1], pos, rate) for i in np.flatnonzero(beyond(acc, jerk))}
+                    if all(a is not None for a in axis_accs.values()):
+                        acc, jerk = acc.copy(), None if jerk is None else jerk.copy()
+                        for i, a in axis_accs.items():
+                            acc[i] = a
+                            if jerk is not None:
+                                jerk[i] = a / dt
+                        nxt = [acc]
+                        out.axis_restarts += 1
                 out.checked_pairs += 1
                 out.worst["acceleration"] = max(out.worst["acceleration"], float(np.max(np.abs(acc) / amax)))
                 out.beyond_acceleration += int(np.any(np.abs(acc) > amax + allow_a))
@@ -383,7 +443,7 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                 prev_acc = restarts
                 if restarted is not None:  # a new segment from a measured state: the one restart this stop allows
                     stop_t, measured = None, []
-            prev = (seq, host, rate)
+            prev = (seq, pos, rate)
     out.worst = {k: round(v, 3) for k, v in out.worst.items()}
     return out
 
@@ -590,6 +650,10 @@ class SoakStack:
             device.reboot()
         elif kind == "fault_bit":
             device.fault(params["bit"])
+        elif kind == "stuck_axis":  # the pan axis held mechanically: no fault bit, the encoder tells the truth
+            seconds = params.get("seconds", STUCK_SECONDS)
+            device.stuck(params.get("axis", "pan"), seconds)
+            time.sleep(seconds)
         elif kind == "stale_pose":  # the pose source stops publishing for a while
             self.sim.send_signal(signal.SIGSTOP)
             time.sleep(params.get("seconds", 2.0))
@@ -621,7 +685,7 @@ class SoakStack:
         return event
 
 
-EVENT_KINDS = (*DEVICE_EVENTS, *BUS_EVENTS, "silent", "stale_pose", "planner_stall")
+EVENT_KINDS = (*DEVICE_EVENTS, *BUS_EVENTS, "silent", "stale_pose", "planner_stall", "stuck_axis")
 
 
 def summarise(stack: SoakStack, events: list[dict], warmup: float, exit_code: int | None) -> dict:
@@ -642,7 +706,7 @@ def summarise(stack: SoakStack, events: list[dict], warmup: float, exit_code: in
     return {
         "events": len(events),
         "setpoints": check.setpoints, "checked_pairs": check.checked_pairs,
-        "restarts": check.restarts, "restarted_steps": check.restarted_steps,
+        "restarts": check.restarts, "restarted_steps": check.restarted_steps, "axis_restarts": check.axis_restarts,
         "setpoints_beyond_limits": check.beyond_limits,
         "beyond": {"position": check.beyond_position, "velocity": check.beyond_velocity,
                    "acceleration": check.beyond_acceleration, "jerk": check.beyond_jerk},
@@ -698,7 +762,7 @@ MATRIX: tuple[tuple[str, dict], ...] = (
     *(("fault_bit", {"bit": b}) for b in range(8)),
     ("stale_pose", {"seconds": 2.0}), ("nan_pose", {}), ("teleport", {}), ("pose_flood", {}), ("past_pose", {}),
     ("garbage", {}), ("path_empty", {}), ("path_single", {}), ("path_far", {}), ("path_huge", {}),
-    ("path_garbage", {}), ("planner_stall", {"seconds": 3.0}),
+    ("path_garbage", {}), ("planner_stall", {"seconds": 3.0}), ("stuck_axis", {"seconds": STUCK_SECONDS}),
 )
 
 
