@@ -51,6 +51,7 @@ STUCK_SECONDS = 6.0  # [s] how long the stuck_axis fault holds the pan axis mech
 UNPLUG_SECONDS = {0.5: 4, 5.0: 4, 60.0: 1}  # replug after [s]: relative weights
 NOISE_SECONDS = 5.0
 RECOVERY_TIMEOUT_S = 60.0
+AXIS_DECISION_S = 0.1  # [s] device time a tracking-error hold may come after the state the host decided on
 RESTART_WINDOW_S = 1.0  # [s] device time after it reported a stop during which a stream may restart from its states
 GRACE_S = 0.05  # [s] status documents made this soon after a fault may predate its effect
 
@@ -340,17 +341,21 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
         return sorted(found, key=lambda a: float(np.max(np.abs(a) / amax)))
 
     def axis_restart(i: int, t: float, prev_pos: np.ndarray, pos: np.ndarray, rate: np.ndarray) -> float | None:
-        """Acceleration of axis ``i`` restarting from its latest measured state, if it stood still for the last
-        tracking-error window, farther than the bound from the previous setpoint (a tracking-error hold); or None."""
-        if not recent or t - recent[0][0] < window:
-            return None
-        if any(abs(m_rate[i]) > amax[i] * dt for m_t, _, m_rate in recent if m_t >= t - window):
-            return None
-        _, m_pos, m_rate = recent[-1]
-        acc = (rate[i] - m_rate[i]) / dt
-        if (abs(prev_pos[i] - m_pos[i]) > bound and abs(pos[i] - m_pos[i]) <= amax[i] * dt * (stall + dt) + 2 * res
-                and abs(acc) <= amax[i] + allow_a and abs(acc) / dt <= jmax[i] + allow_j):
-            return acc
+        """Acceleration of axis ``i`` restarting from one of its latest measured states, if it stood still for the
+        tracking-error window up to that state, farther than the bound from the previous setpoint (a tracking-error
+        hold; the host decided on a state up to ``AXIS_DECISION_S`` old); or None."""
+        states = list(recent)
+        for k in range(len(states) - 1, -1, -1):
+            m_t, m_pos, m_rate = states[k]
+            if t - m_t > AXIS_DECISION_S:
+                break
+            window_states = [st for st in states[:k + 1] if st[0] >= m_t - window]
+            if m_t - states[0][0] < window or any(abs(r[i]) > amax[i] * dt for _, _, r in window_states):
+                continue
+            acc = (rate[i] - m_rate[i]) / dt
+            if (abs(prev_pos[i] - m_pos[i]) > bound and abs(pos[i] - m_pos[i]) <= amax[i] * dt * (stall + dt) + 2 * res
+                    and abs(acc) <= amax[i] + allow_a and abs(acc) / dt <= jmax[i] + allow_j):
+                return acc
         return None
 
     with open(path, newline="") as fh:
@@ -370,7 +375,7 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                 state = (np.array([float(row["pan"]), float(row["tilt"])]),
                          np.array([float(row["pan_rate"]), float(row["tilt_rate"])]))
                 recent.append((t, *state))
-                while t - recent[0][0] > window + 0.1:
+                while t - recent[0][0] > window + AXIS_DECISION_S + 0.05:
                     recent.popleft()
                 if mode != MODE_ENABLED or watchdog_edge:
                     prev, prev_acc = None, []

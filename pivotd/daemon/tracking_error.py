@@ -17,9 +17,10 @@ States (:class:`TrackingState`):
   error stayed within ``bound`` for ``window_s`` and each axis that faulted followed: it moved by at least half
   of what it was commanded to since the probe began, once that was a quarter of ``bound`` (a jerk-limited start
   moves little in one window, and a blocked axis must not pass for one that follows); an axis commanded to move
-  less than that counts as following. An error beyond ``bound`` of an axis that stands still holds again at once
-  (``FAULT``), so a still blocked axis runs at most ``bound`` away from where it stands; an axis that moves (freed,
-  catching up with the stream at the device's limits) is left to close its error.
+  less than that counts as following once its setpoint stood still for a window (the target reached). An error
+  beyond ``bound`` of an axis that stands still holds again at once (``FAULT``), so a still blocked axis runs at
+  most ``bound`` away from where it stands; an axis that moves (freed, catching up with the stream at the device's
+  limits) is left to close its error.
 """
 
 from __future__ import annotations
@@ -124,10 +125,14 @@ class TrackingErrorSupervisor:
             self._probe_from = (cmd, (pan, tilt))
             return False
         (cmd0, meas0), meas = self._probe_from, (pan, tilt)
+        before = self._commanded_at(measured_time - self.settings.window_s) or cmd0
         for i in self._faulted:
             demanded = abs(cmd[i] - cmd0[i])
-            if demanded >= 0.25 * self.settings.bound and abs(meas[i] - meas0[i]) < 0.5 * demanded:
-                return False
+            if demanded >= 0.25 * self.settings.bound:
+                if abs(meas[i] - meas0[i]) < 0.5 * demanded:
+                    return False
+            elif abs(cmd[i] - before[i]) > REST_RATE * self.settings.window_s:
+                return False  # commanded to move, not far enough yet to tell: wait
         return True
 
     def judge(self, now: float, measured_time: float, pan: float, tilt: float, pan_rate: float = 0.0,
