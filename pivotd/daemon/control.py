@@ -317,8 +317,6 @@ class ControlLoop:
         if seq is not None:
             self._last_sample = sample
             self.tracking.commanded(sent_at, pan, tilt)
-        if self.tracking.state is not TrackingState.OK and mode == DaemonState.TRACKING:
-            mode = DaemonState.TRACKING_ERROR  # recovering: reported until the axes follow again
         if self._segment_first is None and seq is not None:
             self._segment_first = seq
         self._streaming = True
@@ -329,4 +327,6 @@ class ControlLoop:
                 self.stats.pose_latency.append(self.clock() - pose.rx_time)
                 self._last_pose_rx = pose.rx_time
             self.commanded_direction = joints_to_world_direction(pan, tilt, pose.quat, mount)
+        if self.tracking.state is not TrackingState.OK and mode == DaemonState.TRACKING:
+            mode = DaemonState.TRACKING_ERROR  # recovering: reported until the axes follow again
         return TickResult(mode, (pan, tilt, vp, vt), clamped)
