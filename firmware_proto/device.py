@@ -259,7 +259,8 @@ class DeviceModel:
         held = []
         for name, until in list(self.stuck_until.items()):
             if self.now > until:
-                del self.stuck_until[name]
+                if self.stuck_until.get(name) == until:  # not renewed meanwhile (inject_stuck_axis, any thread)
+                    del self.stuck_until[name]
                 continue
             ax = self.pan if name == "pan" else self.tilt
             held.append((ax, ax.pos))
