@@ -108,3 +108,24 @@ def test_the_hold_probes_after_the_window_and_clears_when_the_axis_follows_again
 def test_settings_are_validated(bound, window):
     with pytest.raises(ValueError, match="tracking error"):
         TrackingErrorSettings(bound, window)
+
+
+def test_an_axis_catching_up_with_a_late_stream_is_not_a_fault():
+    """On a loaded host the device may get a burst of setpoints late and then close a 15° error at its own limits:
+    it moves towards its setpoint (at least half the setpoint's rate), so it follows and is not held. Standing
+    still at the same error is a fault."""
+    sup = supervisor()
+    lag = math.radians(15.0)
+    for k in range(100):  # 1 s at 15° behind a setpoint moving at 1 rad/s, the axis moving at 0.8 rad/s
+        t = k * DT
+        sup.commanded(t, 1.0 * t, 0.0, 1.0, 0.0)
+        if k % 2 == 0:
+            assert not sup.judge(t, t, 1.0 * t - lag, 0.0, 0.8, 0.0).entered_fault
+    assert sup.state is TrackingState.OK and sup.worst_error == pytest.approx(lag)
+    faults = []
+    for k in range(100, 200):  # the same error, standing still
+        t = k * DT
+        sup.commanded(t, 1.0, 0.0, 0.0, 0.0)
+        if k % 2 == 0 and sup.judge(t, t, 1.0 - lag, 0.0, 0.0, 0.0).entered_fault:
+            faults.append(t)
+    assert faults and faults[0] == pytest.approx(1.0 + WINDOW, abs=3 * DT)

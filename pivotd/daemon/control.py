@@ -316,7 +316,7 @@ class ControlLoop:
         self._last_send = sent_at
         if seq is not None:
             self._last_sample = sample
-            self.tracking.commanded(sent_at, pan, tilt)
+            self.tracking.commanded(sent_at, pan, tilt, vp, vt)
         if self._segment_first is None and seq is not None:
             self._segment_first = seq
         self._streaming = True

@@ -7,8 +7,10 @@ measured (so the transport delay of the state is not counted as error).
 
 States (:class:`TrackingState`):
 
-- ``OK``: the axes follow. An error beyond ``bound`` on one axis, continuously for ``window_s``, enters ``FAULT``
-  (counted as one episode, logged once).
+- ``OK``: the axes follow. An error beyond ``bound`` on one axis while it does not close in on its setpoint
+  (its measured rate towards it is below ``REST_RATE`` and below half the setpoint's rate that way: a blocked axis;
+  an axis catching up with a stream it got late, at its own limits, is closing in), continuously for
+  ``window_s``, enters ``FAULT`` (counted as one episode, logged once).
 - ``FAULT``: the control loop holds: the axes that did not follow and stood still (rate within ``REST_RATE``) for
   the last ``window_s`` restart from their measured state at rest, the others brake jerk-limited, and nothing moves
   towards the target, so an axis that frees itself does not close an old error at the device's full speed. After
@@ -81,7 +83,7 @@ class TrackingErrorSupervisor:
         self.holds = 0  # entries into FAULT (episodes and re-holds while recovering)
         self.reason = ""  # the latest fault's axis and error, for the status
         self.worst_error = 0.0  # [rad] largest error judged since start
-        self._sent: deque[tuple[float, float, float]] = deque(maxlen=history)  # (time, pan, tilt)
+        self._sent: deque[tuple[float, float, float, float, float]] = deque(maxlen=history)  # (t, pan, tilt, rates)
         self._over_since: list[float | None] = [None, None]  # per axis: measured time the error went over
         self.status_since = -math.inf  # loop time of the last change of ``state`` [s]
         self._within_since: float | None = None  # RECOVERING: measured time since which the error is within
@@ -89,9 +91,9 @@ class TrackingErrorSupervisor:
         self._rest_since: list[float | None] = [None, None]  # per axis: measured time since it stands still
         self._probe_from: tuple[tuple[float, float], tuple[float, float]] | None = None  # (commanded, measured)
 
-    def commanded(self, t: float, pan: float, tilt: float) -> None:
-        """A setpoint (pan, tilt) [rad] was sent at ``t``."""
-        self._sent.append((t, pan, tilt))
+    def commanded(self, t: float, pan: float, tilt: float, pan_rate: float = 0.0, tilt_rate: float = 0.0) -> None:
+        """A setpoint (pan, tilt [rad], rates [rad/s]) was sent at ``t``."""
+        self._sent.append((t, pan, tilt, pan_rate, tilt_rate))
 
     def restart(self) -> None:
         """The stream restarted from a measured state (or stopped): setpoints sent before say nothing about the
@@ -100,13 +102,28 @@ class TrackingErrorSupervisor:
         self._over_since = [None, None]
         self._within_since = self._probe_from = None
 
-    def _commanded_at(self, t: float) -> tuple[float, float] | None:
+    def _sent_at(self, t: float) -> tuple[float, float, float, float, float] | None:
         found = None
-        for sent_t, pan, tilt in self._sent:
-            if sent_t > t:
+        for entry in self._sent:
+            if entry[0] > t:
                 break
-            found = (pan, tilt)
+            found = entry
         return found
+
+    def _commanded_at(self, t: float) -> tuple[float, float] | None:
+        found = self._sent_at(t)
+        return None if found is None else (found[1], found[2])
+
+    def _closing_in(self, measured_time: float, pos: tuple[float, float], rate: tuple[float, float]) -> list[bool]:
+        """Per axis: whether it moves towards its setpoint (see the module docstring)."""
+        sent = self._sent_at(measured_time)
+        if sent is None:
+            return [False, False]
+        out = []
+        for i in range(2):
+            way = math.copysign(1.0, sent[1 + i] - pos[i])
+            out.append(way * rate[i] >= max(REST_RATE, 0.5 * way * sent[3 + i]))
+        return out
 
     def errors(self, measured_time: float, pan: float, tilt: float) -> tuple[float, float] | None:
         """|commanded − measured| per axis [rad] for a state measured at ``measured_time`` (None: no setpoint was
@@ -171,8 +188,9 @@ class TrackingErrorSupervisor:
                 self._set(TrackingState.OK, now)
                 self.reason = ""
             return Verdict()
+        closing = self._closing_in(measured_time, (pan, tilt), (pan_rate, tilt_rate))
         for i in range(2):
-            if err[i] <= s.bound:
+            if err[i] <= s.bound or closing[i]:
                 self._over_since[i] = None
             elif self._over_since[i] is None:
                 self._over_since[i] = measured_time
