@@ -131,6 +131,7 @@ class DeviceModel:
         self._started = False
         self._state_t0 = 0.0
         self._state_count = 0
+        self.stuck_until: dict[str, float] = {}  # axis name -> device time [s] it is held mechanically until
 
     # ----------------------------------------------------------------- input
     def feed(self, data: bytes, now: float) -> bytes:
@@ -229,6 +230,18 @@ class DeviceModel:
         if bits & FAULTS_SEVERE:
             self.mode = MODE_FAULT
 
+    def inject_stuck_axis(self, axis: str, seconds: float, now: float | None = None) -> None:
+        """Hold ``axis`` ("pan" or "tilt") mechanically for ``seconds`` from ``now`` (default: the device clock):
+        it does not move, its encoder reports the stuck position at rate 0, and no fault bit is set (a blocked
+        axis the firmware cannot tell from a slow one). Setpoints are still taken: when it frees, it tracks its
+        target from where it stands."""
+        if axis not in ("pan", "tilt"):
+            raise ValueError(f"axis must be 'pan' or 'tilt', got {axis!r}")
+        if not seconds >= 0:
+            raise ValueError(f"stuck seconds must be >= 0, got {seconds!r}")
+        start = self.now if now is None else now
+        self.stuck_until[axis] = start + seconds
+
     # ----------------------------------------------------------------- time
     def step(self, now: float) -> bytes:
         """Advance dynamics/watchdog to ``now`` [s]; return the STATE frames due up to ``now``."""
@@ -258,8 +271,23 @@ class DeviceModel:
             if c is None:
                 self.pan.vel = self.tilt.vel = 0.0
                 continue
+            held = self._stuck_axes() if self.stuck_until else ()
             self.pan.advance(dt, c.vmax_pan, c.amax_pan, tracking, c.pan_min, c.pan_max)
             self.tilt.advance(dt, c.vmax_tilt, c.amax_tilt, tracking, c.tilt_min, c.tilt_max)
+            for ax, pos in held:  # held mechanically: it did not move
+                ax.pos, ax.vel = pos, 0.0
+
+    def _stuck_axes(self) -> list[tuple[Axis, float]]:
+        """The axes held mechanically at this substep, with their positions (see :meth:`inject_stuck_axis`)."""
+        held = []
+        for name, until in list(self.stuck_until.items()):
+            if self.now > until:
+                if self.stuck_until.get(name) == until:  # not renewed meanwhile (inject_stuck_axis, any thread)
+                    del self.stuck_until[name]
+                continue
+            ax = self.pan if name == "pan" else self.tilt
+            held.append((ax, ax.pos))
+        return held
 
     def _check_watchdog(self) -> None:
         c = self.config

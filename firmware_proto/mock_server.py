@@ -180,6 +180,18 @@ def parse_fault_at(text: str) -> tuple[float, int]:
     return out
 
 
+def parse_stuck_axis(text: str) -> tuple[str, float, float]:
+    """``AXIS:AT:SECONDS`` -> (axis, seconds after start, seconds held)."""
+    try:
+        axis, at, seconds = text.split(":")
+        out = (axis, float(at), float(seconds))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--stuck-axis expects AXIS:AT:SECONDS, got {text!r}") from None
+    if axis not in ("pan", "tilt") or not out[1] >= 0 or not out[2] >= 0:
+        raise argparse.ArgumentTypeError(f"--stuck-axis {text!r}: AXIS must be pan or tilt, AT and SECONDS >= 0")
+    return out
+
+
 def add_fault_arguments(p: argparse.ArgumentParser, unit: str = "frame", fault_bit: str = "latch fault BIT",
                         disconnect: str = "close the port", reconnect: str = "reopen the port",
                         corrupt: bool = True, latency: str = "one-way delivery delay [ms]") -> None:
@@ -210,6 +222,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--link", metavar="PATH", help="pty mode: keep a symlink at PATH pointing to the current pty")
     p.add_argument("--state-hz", type=float, default=50.0, help="STATE rate [Hz] (default 50)")
     add_fault_arguments(p)
+    p.add_argument("--stuck-axis", type=parse_stuck_axis, action="append", default=[], metavar="AXIS:AT:SECONDS",
+                   help="hold AXIS (pan or tilt) mechanically for SECONDS from AT seconds after start (counted like "
+                        "--fault-at): it does not move, its encoder reports the stuck position, no fault bit "
+                        "(repeatable)")
     p.add_argument("--protocol-version", type=int, default=PROTOCOL_VERSION,
                    help=f"protocol version the device speaks (default {PROTOCOL_VERSION}; 1: no setpoint validity)")
     p.add_argument("--log", metavar="FILE", help="CSV log of every received and emitted message")
@@ -267,6 +283,7 @@ def main(argv: list[str] | None = None) -> int:
     device.start()
     disconnect_at = args.disconnect_after
     reconnect_at: float | None = None
+    stuck = sorted(args.stuck_axis, key=lambda s: s[1])
     try:
         while not stop.is_set():
             data = transport.read(0.02)
@@ -274,6 +291,10 @@ def main(argv: list[str] | None = None) -> int:
                 device.write(data)
             now = device.elapsed()
             t0 = device.first_frame_at if args.from_first_frame else 0.0
+            while stuck and t0 is not None and now - t0 >= stuck[0][1]:
+                axis, _, seconds = stuck.pop(0)
+                log.info("holding the %s axis mechanically for %.2f s at t=%.2f s", axis, seconds, now)
+                device.inject_stuck_axis(axis, seconds)
             if disconnect_at is not None and t0 is not None and now - t0 >= disconnect_at:
                 log.info("disconnecting at t=%.2f s", now)
                 device.sink = None

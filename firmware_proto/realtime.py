@@ -162,6 +162,13 @@ class RealTimeDevice:
             self.faults_at.insert(0, (self.elapsed(), int(bit)))
             self._cond.notify_all()
 
+    def inject_stuck_axis(self, axis: str, seconds: float) -> None:
+        """Hold ``axis`` ("pan"/"tilt") mechanically for ``seconds`` from now, no fault bit
+        (:meth:`DeviceModel.inject_stuck_axis`); callable from any thread."""
+        with self._cond:
+            self.model.inject_stuck_axis(axis, seconds, self.elapsed())
+            self._cond.notify_all()
+
     def write(self, data: bytes) -> None:
         """Bytes from the host (any chunking); faults are applied per frame."""
         with self._cond:

@@ -71,3 +71,84 @@ def plan_towards(direction, created: float, n: int = 5) -> Plan:
 def pose_at(rx_time: float, quat=IDENTITY) -> PoseSample:
     return PoseSample(stamp=rx_time, frame_id="map", position=np.array([0.0, 0.0, 0.7]), quat=np.asarray(quat),
                       rx_time=rx_time)
+
+
+class ModelGimbal:
+    """A GimbalInterface over the reference device model (firmware_proto.device.DeviceModel), stepped on the fake
+    clock: the host's frames are encoded and fed to it when sent, and a state is the latest STATE it emitted (no
+    transport delay; the device clock is the fake clock). Configured and enabled from ``cfg`` as the link's
+    handshake does; ``log_path``: the device's CSV message log, as the soak's (``check_device_log`` reads it)."""
+
+    def __init__(self, clock: FakeClock, cfg, log_path=None) -> None:
+        from firmware_proto.device import DeviceModel
+        from firmware_proto.messages import Enable, Hello
+        from firmware_proto.realtime import CsvMessageLog
+        from pivotd.config.settings import wire_config
+
+        self.clock = clock
+        self.msg_log = None if log_path is None else CsvMessageLog(log_path)
+        self.link_state = LinkState.UP
+        self.last_error = None
+        self.setpoints: list[tuple[float, float, float, float]] = []
+        self.states: list[GimbalState] = []  # every STATE the device emitted
+        self.heartbeats = 0
+        self._seq = 0
+        self.model = DeviceModel(state_hz=50.0, on_message=self._on_message)
+        for msg in (Hello(), wire_config(cfg.gimbal, cfg.motion), Enable(1)):
+            self._send(msg)
+        self.model.step(clock())
+
+    def _on_message(self, direction, msg, seq, now) -> None:
+        from firmware_proto.messages import State
+
+        if self.msg_log is not None:
+            self.msg_log(direction, msg, seq, now)
+        if direction == "tx" and isinstance(msg, State):
+            self.states.append(GimbalState(msg.pan, msg.tilt, msg.pan_rate, msg.tilt_rate, msg.mode, msg.faults,
+                                           msg.last_setpoint_seq, msg.device_time_us, rx_time=now, measured_at=now))
+
+    def _send(self, msg) -> int:
+        from firmware_proto import codec
+
+        seq, self._seq = self._seq, (self._seq + 1) & 0xFF
+        self.model.feed(codec.encode(msg, seq), self.clock())
+        return seq
+
+    @property
+    def state(self) -> GimbalState | None:
+        self.model.step(self.clock())
+        return self.states[-1] if self.states else None
+
+    def start(self) -> None:
+        self.link_state = LinkState.UP
+
+    def stop(self, disable: bool = True) -> None:
+        self.link_state = LinkState.STOPPED
+        if self.msg_log is not None:
+            self.msg_log.close()
+
+    def send_setpoint(self, pan, tilt, pan_rate=0.0, tilt_rate=0.0):
+        from firmware_proto.messages import Setpoint
+
+        if self.link_state != LinkState.UP:
+            return None
+        self.setpoints.append((pan, tilt, pan_rate, tilt_rate))
+        newest = self.state  # the setpoint echoes the newest STATE, valid for 200 ms on the device's clock
+        state_us = 0 if newest is None else newest.device_time_us
+        return self._send(Setpoint(pan, tilt, pan_rate, tilt_rate, round(self.clock() * 1e6) & 0xFFFFFFFF,
+                                   state_us, 200))
+
+    def send_heartbeat(self) -> None:
+        from firmware_proto.messages import Heartbeat
+
+        self.heartbeats += 1
+        self._send(Heartbeat())
+
+    def set_enabled(self, on, timeout=None) -> bool:
+        return True
+
+    def clear_fault(self, timeout=None) -> bool:
+        return True
+
+    def counters(self) -> dict:
+        return {"setpoints_sent": len(self.setpoints)}

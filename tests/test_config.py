@@ -119,6 +119,8 @@ def test_relative_paths_resolve_against_config_directory(tmp_path, monkeypatch):
         (MINIMAL + "pivot:\n  lambda: -0.1\n", r":5: pivot\.lambda: must be ≥ 0, got -0\.1"),
         (MINIMAL + "pivot:\n  smooth_knee_deg: 200\n", r":5: pivot\.smooth_knee_deg: must be ≤ 180, got 200"),
         (MINIMAL + "control:\n  rate_hz: 50\n", r":5: control\.rate_hz: must be ≥ 100, got 50"),
+        (MINIMAL + "control:\n  tracking_error_deg: 0\n", r":5: control\.tracking_error_deg: must be > 0"),
+        (MINIMAL + "control:\n  tracking_error_s: 0.01\n", r":5: control\.tracking_error_s: must be ≥ 0\.02"),
         (MINIMAL + "pivot:\n  fov_deg: .nan\n", r":5: pivot\.fov_deg: must be finite"),
         (MINIMAL + "motion:\n  tilt:\n    max_jerk_deg_s3: 0\n", r":6: motion\.tilt\.max_jerk_deg_s3: must be > 0"),
         (MINIMAL + "topics:\n  pose_type: nav_msgs/msg/Path\n", r":5: topics\.pose_type: must be one of"),

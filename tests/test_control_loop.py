@@ -11,7 +11,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from gimbal_fakes import IDENTITY, FakeClock, FakeGimbal, plan_towards, pose_at
+from gimbal_fakes import IDENTITY, FakeClock, FakeGimbal, ModelGimbal, plan_towards, pose_at
 from support import REPO
 
 from pivotd.config import load_config
@@ -241,24 +241,56 @@ def test_stall_that_tripped_the_device_watchdog_resumes_from_the_measured_state(
     assert resumed[-1, 2] > 0.1  # and it moves on towards the target
 
 
-def test_stall_with_the_device_still_enabled_restarts_from_the_measured_state(lag_rig):
-    """A stall longer than stall_s that the device's watchdog did not catch: restart from the measured state
-    (advanced by its rate to now), not from where the stream left off."""
+def test_stall_the_device_followed_through_continues_the_stream_from_the_last_setpoint(lag_rig):
+    """A stall longer than stall_s that the device's watchdog did not catch (no hold, no watchdog bit in the state
+    measured after it): the device kept following the last setpoint, so the stream goes on from that setpoint.
+    Restarting from the measured state (which lags the stream) was a rate step the device executed (issue 20,
+    item 7; this test asserted that restart before)."""
     cfg, clock, gimbal, loop = lag_rig
+    dt = cfg.control.dt
     _run(loop, clock, 40, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
     n = len(gimbal.setpoints)
+    assert abs(gimbal.setpoints[-1][2] - gimbal.state.pan_rate) > _limits(cfg)[0][0] * dt  # the lag
     clock.t += 2 * loop.settings.stall_s
     assert _run(loop, clock, 1, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))[0].setpoint is None
-    st = replace(gimbal.state, rx_time=clock.t)
-    gimbal.state = st
-    _run(loop, clock, 1, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
-    first = gimbal.setpoints[n]
-    amax, _ = _limits(cfg)
+    gimbal.state = replace(gimbal.state, rx_time=clock.t)  # measured after the stall: still enabled, no hold
+    _run(loop, clock, 30, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert loop.restarts == 1  # the initial one only
+    _assert_jerk_limited(cfg, np.array(gimbal.setpoints[n - 2:])[:, 2:], dt)
+
+
+def test_a_late_setpoint_then_a_stall_the_device_did_not_hold_through_keeps_every_executed_step_within_limits(
+        tmp_path):
+    """``make demo`` on a loaded machine (issue 20, item 7), against the reference device model on a fake clock:
+    mid-motion the thread is held up inside a tick, so its setpoint goes out 0.238 s after the previous one (under
+    stall_s: it is sent, and the device's 250 ms watchdog does not hold); the next tick comes 0.35 s after the
+    previous one. The old loop restarted the stream from a fresh measured state although the device never held:
+    the device executed a rate step of several times the acceleration limit, which the soak's corrected check
+    counts. The stream now goes on from the last setpoint the device got."""
+    from pivotd.bench.soak import check_device_log
+
+    cfg = load_config(REPO / "config" / "demo.yaml")
+    clock = FakeClock()
+    gimbal = ModelGimbal(clock, cfg, tmp_path / "gimbal.csv")
+    loop = build_control_loop(cfg, gimbal, clock=clock)
     dt = cfg.control.dt
-    assert abs(first[2] - st.pan_rate) <= amax[0] * dt * (1 + 1e-6)
-    # measured at the previous tick, advanced to this tick, then one period of motion
-    assert abs(first[0] - (st.pan + 2 * st.pan_rate * dt)) <= 0.5 * amax[0] * dt * dt + 1e-9
-    assert loop.restarts == 2
+    _run(loop, clock, 60, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert abs(gimbal.setpoints[-1][2]) > 0.5  # moving fast
+    n = len(gimbal.setpoints)
+    start = clock.t + dt  # the tick's deadline ...
+    clock.t = start + 0.228  # ... but the thread was held up: it sends 0.238 s after the previous setpoint
+    late = loop.tick(start, pose_at(clock.t), plan_towards([0.0, 1.0, 0.0], clock.t))
+    assert late.setpoint is not None and len(gimbal.setpoints) == n + 1
+    clock.t = start - dt + 0.35  # the next tick, 0.35 s after the previous one
+    ticks = [loop.tick(clock.t, pose_at(clock.t), plan_towards([0.0, 1.0, 0.0], clock.t))]
+    ticks += _run(loop, clock, 60, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    gimbal.stop()
+    assert not any(st.mode == GimbalMode.HOLDING for st in gimbal.states)  # the device never held
+    check = check_device_log(cfg, tmp_path / "gimbal.csv")
+    assert check.beyond_limits == 0, check
+    assert check.checked_pairs == len(gimbal.setpoints) - 1, check  # every executed pair was judged
+    _assert_jerk_limited(cfg, np.array(gimbal.setpoints)[:, 2:], dt)
+    assert ticks[-1].mode == DaemonState.TRACKING
 
 
 def test_late_states_of_the_same_watchdog_hold_do_not_restart_the_stream_again(lag_rig):
@@ -434,3 +466,52 @@ def test_a_setpoint_the_link_withholds_stops_the_stream_until_the_device_speaks_
     assert np.all(np.abs(resumed[0, :2] - rest) <= amax * dt * dt + 1e-9)
     _assert_jerk_limited(cfg, np.vstack([[0.0, 0.0], resumed[:, 2:]]), dt)
     assert resumed[-1, 2] > 0.1  # and it moves on towards the target
+
+
+@pytest.mark.parametrize("freed_in", ["hold", "probe"])
+def test_a_blocked_pan_axis_is_held_at_its_measured_state_and_resumes_jerk_limited_when_it_frees(tmp_path, freed_in):
+    """Issue 20, item 2, against the reference device model on a fake clock: mid-motion the pan axis is held
+    mechanically for 2 s (its encoder reports the stuck position, no fault bit). The old loop streamed on towards
+    the target (commanded and measured pan 85° apart) and, freed, the device closed that error at its full speed.
+    Now the tracking-error supervisor faults once the error exceeded the bound for the window: the status says so,
+    pan restarts from its measured state (tilt goes on and brakes) and the loop holds, then probes, so the commanded
+    pan never runs away from the measured one again; freed, the motion resumes jerk-limited from the measured state
+    and the fault clears. Every pair of setpoints the device executed is within the motion limits."""
+    from pivotd.bench.soak import check_device_log
+
+    cfg = load_config(REPO / "config" / "demo.yaml")
+    clock = FakeClock()
+    gimbal = ModelGimbal(clock, cfg, tmp_path / "gimbal.csv")
+    loop = build_control_loop(cfg, gimbal, clock=clock)
+    dt = cfg.control.dt
+    bound, window = cfg.control.tracking_error, cfg.control.tracking_error_s
+    vmax = cfg.motion.pan.max_velocity
+    target = [0.0, 1.0, 0.4]  # pan +90°, tilt up: both axes move
+    _run(loop, clock, 20, pose_at, lambda t: plan_towards(target, t))
+    assert abs(gimbal.state.pan_rate) > 0.3  # moving
+    # free it during the hold, or while the probe runs (phases of a 0.2 s window at a known time)
+    stuck_s = 1.93 if freed_in == "probe" else 2.02
+    gimbal.model.inject_stuck_axis("pan", stuck_s, clock.t)
+    stuck_at = gimbal.model.pan.pos
+    errors, modes = [], []
+    for _ in range(round(stuck_s / dt)):
+        modes += _run(loop, clock, 1, pose_at, lambda t: plan_towards(target, t))
+        errors.append(abs(gimbal.setpoints[-1][0] - gimbal.state.pan))
+    assert gimbal.state.pan == pytest.approx(stuck_at, abs=1e-6)  # it was stuck all along
+    # the commanded pan ran away from the measured one only until the fault (bound + the window at full speed) ...
+    assert max(errors) <= bound + vmax * (window + 0.06), np.degrees(max(errors))
+    faulted_at = next(k for k, t in enumerate(modes) if t.mode == DaemonState.TRACKING_ERROR)
+    status = loop.tracking.status()
+    assert status["episodes"] == 1 and status["reason"].startswith("pan does not follow"), status
+    # ... and after it never farther than the bound (plus one period of motion)
+    assert max(errors[faulted_at:]) <= bound + vmax * dt, np.degrees(max(errors[faulted_at:]))
+    freed_error = errors[-1]
+    after = _run(loop, clock, 300, pose_at, lambda t: plan_towards(target, t))
+    gimbal.stop()
+    pan, tilt, _ = world_direction_to_joints(np.array(target), IDENTITY, cfg.gimbal.mount, cfg.gimbal.limits)
+    assert freed_error <= bound + vmax * dt  # the device did not get an old target to slam towards
+    assert after[-1].mode == DaemonState.TRACKING and loop.tracking.state.value == "ok"
+    assert (gimbal.state.pan, gimbal.state.tilt) == pytest.approx((pan, tilt), abs=0.01)  # it reached the target
+    check = check_device_log(cfg, tmp_path / "gimbal.csv")
+    assert check.beyond_limits == 0 and check.axis_restarts >= 1, check
+    assert check.checked_pairs == len(gimbal.setpoints) - 1, check

@@ -218,7 +218,8 @@ def test_short_soak_has_no_setpoint_beyond_limits_no_traceback_and_recovers_from
 
 def test_check_device_log_counts_rate_steps_in_a_stream_and_positions_beyond_the_limits(tmp_path):
     """The soak's setpoint check can fail: a rate step inside one stream counts, the same step across a break of
-    the stream (a lost frame, a stall) does not, and a position beyond the joint limits always counts."""
+    the stream (a lost frame, a stall the device held through) does not, and a position beyond the joint limits
+    always counts."""
     from firmware_proto.realtime import LOG_COLUMNS
     from pivotd.config import load_config
     from pivotd.sim.launch import REPO
@@ -239,7 +240,8 @@ def test_check_device_log_counts_rate_steps_in_a_stream_and_positions_beyond_the
     log += [row(0.04, "rx", "SETPOINT", seq=4, rate=step)]  # a step inside the stream
     log += [row(0.06, "rx", "SETPOINT", seq=6, rate=0.0)]  # seq 5 lost: not judged against seq 4
     log += [row(0.07, "rx", "SETPOINT", seq=7, pan=cfg.gimbal.limits.pan_max + 0.01, rate=0.0)]
-    log += [row(0.5, "rx", "SETPOINT", seq=8, rate=step)]  # after a stall of the loop: a new stream
+    log += [row(0.35, "tx", "STATE", mode=MODE_HOLDING)]  # the loop stalled: the device's watchdog held it
+    log += [row(0.5, "rx", "SETPOINT", seq=8, rate=step)]  # after the hold: a new stream
     path = tmp_path / "log.csv"
     with open(path, "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=LOG_COLUMNS)
@@ -303,6 +305,30 @@ def test_device_stall_with_queued_setpoints_moves_nothing_on_resume_and_restarts
     assert pans and max(pans) - min(pans) <= 1e-6  # it held still from the resume to the restart
     assert_continuous_with_the_device(stack, setpoint, state)
     within_limits_and_no_tracebacks(stack)
+
+
+def test_a_stuck_pan_axis_is_reported_held_and_resumed_within_limits(stack):
+    """Issue 20, item 2, on the whole stack: the device model holds the pan axis mechanically mid-motion (its
+    encoder reports the stuck position, no fault bit) until the daemon reports the tracking error, with its reason,
+    and a while longer; then it frees. The episode is counted, the commanded pan did not run away from the measured
+    one, and the daemon tracks again, every setpoint the device executed within the limits."""
+    assert stack.wait(lambda st: moving(stack, time.time() - 1.0), RECOVER_S) is not None
+    stack.device.stuck("pan", RECOVER_S)
+    faulted = stack.wait(lambda st: st.get("state") == "tracking-error", RECOVER_S - 5.0)
+    assert faulted is not None, stack.status
+    block = stack.status["tracking_error"]
+    assert block["state"] in ("fault", "recovering") and block["reason"].startswith("pan does not follow"), block
+    assert stack.wait(lambda st: st["tracking_error"]["state"] != "fault", RECOVER_S) is not None, stack.status
+    stack.device.stuck("pan", 0.0)  # it frees
+    assert stack.wait_healthy(RECOVER_S) is not None, stack.status
+    status = stack.probe.query_status()
+    assert status["tracking_error"]["episodes"] >= 1 and status["tracking_error"]["state"] == "ok", status
+    bound = np.degrees(stack.cfg.control.tracking_error)
+    vmax = np.degrees(stack.cfg.motion.pan.max_velocity)
+    assert status["tracking_error"]["worst_deg"] <= bound + vmax * (stack.cfg.control.tracking_error_s + 0.1)
+    assert stack.stop_daemon() == 0
+    check = within_limits_and_no_tracebacks(stack)
+    assert check.axis_restarts >= 1, check
 
 
 def _write_log(path: Path, log: list[dict]) -> Path:
@@ -424,6 +450,57 @@ def test_check_device_log_keeps_the_stream_across_a_clear_fault(tmp_path, jerk_a
     check = check_device_log(cfg, _write_log(tmp_path / "log.csv", log))
     assert check.checked_pairs == len(rates) - 1, check
     assert check.beyond_jerk == (0 if jerk_across == 1.0 else 1), check
+
+
+@pytest.mark.parametrize("device", ["never_held", "held"])
+def test_check_device_log_judges_the_step_after_a_late_setpoint_and_heartbeats_when_the_device_never_held(
+        tmp_path, device):
+    """``make demo`` on a loaded machine (issue 20, item 7): after a host stall one late setpoint went out 0.238 s
+    after the previous one (under stall_s, so the device's 250 ms watchdog did not hold it), the loop sent
+    heartbeats while it waited for a fresh state, then restarted the stream from the measured state, which lagged
+    the stream: the device executed a rate step of 4.5x the acceleration limit. The old check took the late
+    setpoint (sent more than 0.1 s after the previous one) and the heartbeats for breaks of the stream and passed
+    the log. Every pair the device executed is judged now; the same restart after the device reported its hold
+    is judged from the held state and passes."""
+    from firmware_proto.messages import FAULT_WATCHDOG
+    from pivotd.config import load_config
+    from pivotd.sim.launch import REPO
+
+    cfg = load_config(REPO / "config" / "demo.yaml")
+    dt, a, j = cfg.control.dt, cfg.motion.pan.max_acceleration, cfg.motion.pan.max_jerk
+    v = 1.0  # [rad/s] the stream's pan rate
+    log = [_log_row(0.0, "tx", "STATE", mode=MODE_ENABLED)]
+    for k in range(1, 21):
+        log += [_log_row(0.01 * k, "rx", "SETPOINT", seq=k, pan=v * 0.01 * k, rate=v)]
+        if k % 2 == 0:
+            log += [_log_row(0.01 * k, "tx", "STATE", pan=v * 0.01 * k - 0.01, rate=v, mode=MODE_ENABLED)]
+    late = 0.2 + 0.238
+    log += [_log_row(late, "rx", "SETPOINT", seq=21, pan=v * 0.21, rate=v, host=round(late * 1e6))]
+    measured = dict(pan=v * 0.21 + 0.004, rate=v - 4.5 * a * dt)  # it slowed down on the stale target
+    if device == "held":
+        log += [_log_row(0.52, "tx", "STATE", pan=v * 0.21 + 0.01, rate=0.0, mode=MODE_HOLDING)]
+        log[-1]["faults"] = FAULT_WATCHDOG
+        measured = dict(pan=v * 0.21 + 0.01, rate=0.0)
+    log += [_log_row(0.55, "rx", "HEARTBEAT", seq=22), _log_row(0.56, "rx", "HEARTBEAT", seq=23)]
+    log += [_log_row(0.565, "tx", "STATE", mode=MODE_HOLDING if device == "held" else MODE_ENABLED, **measured)]
+    if device == "held":
+        log[-1]["faults"] = FAULT_WATCHDOG
+    # the restart from the measured state, jerk-limited from there
+    for i, r in enumerate([0.5, 2.0, 4.5]):
+        rate = measured["rate"] + r * j * dt**2
+        log += [_log_row(0.57 + 0.01 * i, "rx", "SETPOINT", seq=24 + i, pan=measured["pan"] + rate * dt * (i + 1),
+                         rate=rate)]
+        if i == 0 and device == "held":  # the setpoint resumed it
+            log += [_log_row(0.575, "tx", "STATE", pan=measured["pan"], rate=0.0, mode=MODE_ENABLED)]
+            log[-1]["faults"] = FAULT_WATCHDOG
+    check = check_device_log(cfg, _write_log(tmp_path / "log.csv", log))
+    if device == "never_held":
+        assert check.beyond_acceleration == 1 and check.beyond_jerk >= 1, check
+        assert check.worst["acceleration"] == pytest.approx(4.5 - 0.5 * j * dt / a, rel=1e-3), check
+        assert check.checked_pairs == 19 + 1 + 1 + 2, check  # the late pair and the step across the heartbeats
+    else:
+        assert check.beyond_limits == 0 and check.restarts == 1, check
+        assert check.checked_pairs == 19 + 1 + 2, check
 
 
 def test_device_reboot_behind_an_open_port_is_configured_and_enabled_again(tmp_path):

@@ -98,6 +98,27 @@ def test_bad_arguments_exit_2_with_a_message() -> None:
     assert r.returncode == 2 and "--drop must be a probability" in r.stderr
 
 
+def test_stuck_axis_option_holds_the_axis_without_a_fault_bit() -> None:
+    """--stuck-axis pan:0:5: pan does not follow the setpoints, no fault bit; a bad value exits 2 naming it."""
+    with MockGimbal("--stuck-axis", "pan:0:5", tcp=True) as mock:
+        port = serial.serial_for_url(mock.url, timeout=0.05)
+        try:
+            cfg = Config(-2.0, 2.0, -1.0, 1.0, 1.0, 1.0, 4.0, 4.0, 250)
+            exchange(port, [(cfg, 1), (Enable(1), 2)], wait=2.0,
+                     until=lambda fr: sum(isinstance(f.msg, Ack) for f in fr) >= 2)
+            frames = []
+            for k in range(30):
+                frames += exchange(port, [(Setpoint(0.01 * k, 0.01 * k, 0.5, 0.5), 3 + k)], wait=0.02)
+            frames += exchange(port, [], wait=2.0, until=lambda fr: sum(isinstance(f.msg, State) for f in fr) >= 5)
+        finally:
+            port.close()
+    states = [f.msg for f in frames if isinstance(f.msg, State)]
+    assert states and states[-1].tilt > 0.05 and states[-1].pan == 0.0 and states[-1].faults == 0
+    r = subprocess.run([sys.executable, str(MOCK_GIMBAL), "--stuck-axis", "roll:0:1"], capture_output=True,
+                       text=True, env={"PYTHONPATH": str(REPO)}, timeout=30)
+    assert r.returncode == 2 and "--stuck-axis" in r.stderr
+
+
 def test_drop_everything_means_silence() -> None:
     with MockGimbal("--drop", "1.0", "--seed", "3") as mock:
         port = serial.serial_for_url(mock.url, timeout=0.05)

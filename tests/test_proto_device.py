@@ -288,3 +288,24 @@ def test_version_1_device_executes_the_version_1_setpoint_and_drops_version_2_fr
     assert rig.dev.pan.target == 0.3 and rig.dev.mode == MODE_ENABLED
     rig.dev.feed(codec.encode(Setpoint(0.6, 0.0, 0.0, 0.0, 0, 0, 100), 9), 0.0)
     assert rig.dev.pan.target == 0.3 and rig.dev.decoder.drops["version"] == 1
+
+
+def test_a_stuck_axis_does_not_move_reports_its_position_and_no_fault_then_tracks_from_there() -> None:
+    """inject_stuck_axis: the pan axis is held mechanically (a blocked gimbal): it does not move while setpoints
+    ask it to, its encoder reports the stuck position at rate 0, no fault bit is set and the mode stays ENABLED;
+    tilt moves on. Freed, it tracks its target from where it stood."""
+    rig = Rig().enabled()
+    rig.dev.inject_stuck_axis("pan", 0.5, now=0.0)
+    for k in range(1, 50):
+        rig.send(Setpoint(0.01 * k, -0.01 * k, 1.0, -1.0), t=0.01 * k)
+    rig.run_to(0.5)
+    stuck = [s for s in rig.states if 0 < s.device_time_us <= 500_000]
+    assert {(s.pan, s.pan_rate) for s in stuck} == {(0.0, 0.0)}
+    assert {s.mode for s in stuck} == {MODE_ENABLED} and {s.faults for s in stuck} == {0}
+    assert stuck[-1].tilt < -0.3  # the other axis followed
+    for k in range(30):
+        rig.send(Setpoint(0.49, -0.49, 0.0, 0.0), t=0.5 + 0.05 * k)
+    rig.run_to(2.0)
+    assert rig.states[-1].pan == pytest.approx(0.49, abs=1e-3)  # freed: it went to its target
+    with pytest.raises(ValueError, match="axis must be"):
+        rig.dev.inject_stuck_axis("roll", 1.0)

@@ -4,8 +4,8 @@ Runs ``pivotd`` (config/demo.yaml) with ``tools/sim_pose`` walking the hallway i
 them, against the reference device model (firmware_proto) served on a loopback TCP port of this process, so
 that faults can be injected at any time: unplug/replug, bursts of bit flips and of lost frames, a device reboot
 (the port stays, the device forgets its configuration), every fault bit, a device stall (its process stopped
-while setpoints queue in its socket); and, on the bus, hostile input: NaN
-and teleported poses, poses from the past, floods, garbage payloads, empty, single-point, far-away, huge and
+while setpoints queue in its socket), a pan axis held mechanically (no fault bit); and, on the bus, hostile
+input: NaN and teleported poses, poses from the past, floods, garbage payloads, empty, single-point, far-away, huge and
 malformed paths; a storm of SIGHUPs (``reload_storm``, the config unchanged); and a recording that fails
 mid-run (the daemon records to a FIFO whose reader the soak closes: ``recorder_failure``, once per daemon
 start). One event at a time, at random intervals (seeded); after each the soak waits for the daemon to track
@@ -31,6 +31,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -48,16 +49,17 @@ DEVICE_EVENTS = {"unplug": 3, "bitflips": 2, "drops": 2, "reboot": 2, "fault_bit
 BUS_EVENTS = {"nan_pose": 1, "teleport": 1, "past_pose": 1, "pose_flood": 1, "garbage": 1, "path_empty": 1,
               "path_single": 1, "path_far": 1, "path_huge": 1, "path_garbage": 1}
 RANDOM_EXTRA_EVENTS = {"silent": 1, "stale_pose": 1, "planner_stall": 1, "off_path": 1, "device_stall": 1,
-                       "reload_storm": 1}
+                       "reload_storm": 1, "stuck_axis": 1}
 OFF_PATH_M = 5.0  # [m] how far to the side the off-path fault moves the route's path (max_path_offset: 3 m)
 OFF_PATH_HZ = 20.0  # [Hz] it outpaces tools/sim_pose re-publishing the true path every 2 s
 ONCE_EVENTS = {"recorder_failure": 1}  # at most once per daemon start (the recording stops for good)
 RELOAD_STORM = 300  # SIGHUPs in a reload storm
 RELOAD_STORM_GAP_S = 0.002  # [s] between them
+STUCK_SECONDS = 6.0  # [s] how long the stuck_axis fault holds the pan axis mechanically (a few 10° of turn)
 UNPLUG_SECONDS = {0.5: 4, 5.0: 4, 60.0: 1}  # replug after [s]: relative weights
 NOISE_SECONDS = 5.0
 RECOVERY_TIMEOUT_S = 60.0
-MAX_STREAM_GAP_S = 0.1  # [s] setpoints sent further apart than this are not one continuous stream
+AXIS_DECISION_S = 0.1  # [s] device time a tracking-error hold may come after the state the host decided on
 RESTART_WINDOW_S = 1.0  # [s] device time after it reported a stop during which a stream may restart from its states
 GRACE_S = 0.05  # [s] status documents made this soon after a fault may predate its effect
 
@@ -120,6 +122,10 @@ class SoakDevice:
     def fault(self, bit: int) -> None:
         self._commands.put(("fault", bit))
 
+    def stuck(self, axis: str, seconds: float) -> None:
+        """Hold ``axis`` mechanically for ``seconds`` (no fault bit; DeviceModel.inject_stuck_axis)."""
+        self._commands.put(("stuck", (axis, seconds)))
+
     def noise(self, drop: float, corrupt: float) -> None:
         self.injector.drop, self.injector.corrupt = drop, corrupt
 
@@ -141,6 +147,8 @@ class SoakDevice:
                     self.reboots += 1
                 elif kind == "fault":
                     self.device.inject_fault(int(value))
+                elif kind == "stuck":
+                    self.device.inject_stuck_axis(*value)
             if unplugged_until is not None:
                 if time.monotonic() < unplugged_until:
                     self._stop.wait(0.01)
@@ -212,6 +220,9 @@ class DeviceProcess:
 
     def fault(self, bit: int) -> None:
         self._conn.send(("fault", (bit,)))
+
+    def stuck(self, axis: str, seconds: float) -> None:
+        self._conn.send(("stuck", (axis, seconds)))
 
     def noise(self, drop: float, corrupt: float) -> None:
         self._conn.send(("noise", (drop, corrupt)))
@@ -292,6 +303,7 @@ class SetpointCheck:
     checked_pairs: int = 0
     restarts: int = 0  # segments judged from a measured state after the device reported a stop
     restarted_steps: int = 0  # of those, pairs that were a step from the previous setpoint (late frames before)
+    axis_restarts: int = 0  # pairs where an axis that did not follow restarted from its measured state at rest
     beyond_position: int = 0
     beyond_velocity: int = 0
     beyond_acceleration: int = 0
@@ -306,16 +318,19 @@ class SetpointCheck:
 def check_device_log(cfg, path: Path) -> SetpointCheck:
     """Check every SETPOINT in a device message log against ``cfg``'s joint and motion limits.
 
-    Position and velocity hold for every setpoint. Acceleration (rate difference / dt) and jerk hold between
-    setpoints of one continuous stream: consecutive frame numbers (no frame lost or corrupted between them; a
-    CLEAR_FAULT the daemon sent beside the stream takes one),
-    sent at most ``MAX_STREAM_GAP_S`` apart (a longer stall of the control loop restarts the stream), no device
-    reboot between them, and the device following the stream (mode ENABLED in its last STATE). Across a break
-    the controller restarts from the measured state, which the stream cannot show.
+    Position and velocity hold for every setpoint. Acceleration (rate difference / dt) and jerk hold between every
+    two consecutive setpoints the device executed while it followed the stream: consecutive frame numbers (no frame
+    lost or corrupted between them; a HEARTBEAT or CLEAR_FAULT the daemon sent between them takes one and the stream
+    goes on across it), no device reboot or new handshake (HELLO, CONFIG, ENABLE) between them, and the device
+    following (mode ENABLED in its last STATE, no newly latched watchdog bit). However late a setpoint comes after
+    the previous one, a device that did not stop executes it as the next step of the stream, so the pair is judged
+    as one control period apart (a restart from the measured state while the device never held was a 4.5x
+    acceleration and 69x jerk step that a rule "sent more than 0.1 s apart: a new stream" did not see).
 
     Restarts after the device stopped: when the device reported that it stopped following (a STATE with mode
-    HOLDING, DISABLED or FAULT), the host restarts the stream from a state the device measured after the stop;
-    setpoints it sent before it learnt of the stop may still reach the device after it (late, on a loaded host).
+    HOLDING, DISABLED or FAULT, or with the watchdog bit newly latched), the host restarts the stream from a state
+    the device measured after the stop; setpoints it sent before it learnt of the stop may still reach the device
+    after it (late, on a loaded host).
     So within ``RESTART_WINDOW_S`` of device time after a reported stop, the first setpoint that is continuous with
     one of the measured states reported since the stop (position within the distance the reported or commanded
     rate covers in ``stall_s`` plus a period; rate within one period of the acceleration limit, and that
@@ -326,8 +341,15 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
     previous one within the limits and a measured state (late frames of the old stream resumed the device, and the
     host restarted from a state in motion close to the old stream) may be either: the next pair's jerk is judged
     from the more favourable of the two, and the stop still allows its restart.
+
+    An axis that did not follow may restart from its measured state while the other axis goes on: the daemon's
+    tracking-error hold (pivotd.daemon.tracking_error). Such an axis stood still in every state the device reported
+    for the last ``control.tracking_error_s`` (rate within one period of the acceleration limit) while the previous
+    setpoint was farther than ``control.tracking_error_deg`` from it; its step is judged from its latest measured
+    state (counted in ``axis_restarts``). A device that overshot a stale setpoint and was still slowing down is
+    not such an axis: its step counts.
     """
-    from firmware_proto.messages import MODE_ENABLED
+    from firmware_proto.messages import FAULT_WATCHDOG, MODE_ENABLED
     from pivotd.daemon.control import ControlSettings
     from pivotd.sim.analysis import WIRE_RESOLUTION
 
@@ -339,16 +361,20 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
     vmax = np.array([cfg.motion.pan.max_velocity, cfg.motion.tilt.max_velocity])
     amax = np.array([cfg.motion.pan.max_acceleration, cfg.motion.tilt.max_acceleration])
     jmax = np.array([cfg.motion.pan.max_jerk, cfg.motion.tilt.max_jerk])
+    bound = cfg.control.tracking_error  # [rad] an axis farther than this from its setpoint did not follow ...
+    window = cfg.control.tracking_error_s  # [s] ... for this long
     res = WIRE_RESOLUTION
     allow_v, allow_a, allow_j = res / dt, 2 * res / dt, 4 * res / dt**2
     out = SetpointCheck()
     mode = -1
-    prev: tuple[int, int, np.ndarray] | None = None  # (seq, host time [µs], rate) of the previous setpoint
+    faults = 0
+    prev: tuple[int, np.ndarray, np.ndarray] | None = None  # (seq, position, rate) of the previous setpoint
     prev_acc: list[np.ndarray] = []  # the acceleration of the previous pair (several candidates at a restart)
     last_t = -np.inf
     last_mode = -1
     stop_t: float | None = None  # device time of the latest reported stop within the restart window
     measured: list[tuple[np.ndarray, np.ndarray]] = []  # (position, rate) of the states reported since that stop
+    recent: deque[tuple[float, np.ndarray, np.ndarray]] = deque()  # (t, position, rate) of the last states
     stop_restarted = False  # a setpoint continuous with one of them was seen (counted once per stop)
 
     def restart_accs(pos: np.ndarray, rate: np.ndarray) -> list[np.ndarray]:
@@ -363,21 +389,46 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                 found.append(acc)
         return sorted(found, key=lambda a: float(np.max(np.abs(a) / amax)))
 
+    def axis_restart(i: int, t: float, prev_pos: np.ndarray, pos: np.ndarray, rate: np.ndarray) -> float | None:
+        """Acceleration of axis ``i`` restarting from one of its latest measured states, if it stood still for the
+        tracking-error window up to that state, farther than the bound from the previous setpoint (a tracking-error
+        hold; the host decided on a state up to ``AXIS_DECISION_S`` old); or None."""
+        states = list(recent)
+        for k in range(len(states) - 1, -1, -1):
+            m_t, m_pos, m_rate = states[k]
+            if t - m_t > AXIS_DECISION_S:
+                break
+            window_states = [st for st in states[:k + 1] if st[0] >= m_t - window]
+            if m_t - states[0][0] < window or any(abs(r[i]) > amax[i] * dt for _, _, r in window_states):
+                continue
+            acc = (rate[i] - m_rate[i]) / dt
+            if (abs(prev_pos[i] - m_pos[i]) > bound and abs(pos[i] - m_pos[i]) <= amax[i] * dt * (stall + dt) + 2 * res
+                    and abs(acc) <= amax[i] + allow_a and abs(acc) / dt <= jmax[i] + allow_j):
+                return acc
+        return None
+
     with open(path, newline="") as fh:
         for row in csv.DictReader(fh):
             t = float(row["t_s"])
             if t < last_t - 1.0:  # the device clock restarted: a reboot
-                prev, prev_acc, stop_t, measured, last_mode = None, [], None, [], -1
+                prev, prev_acc, stop_t, measured, last_mode, faults = None, [], None, [], -1, 0
+                recent.clear()
             last_t = t
             if stop_t is not None and t - stop_t > RESTART_WINDOW_S:
                 stop_t, measured = None, []
             if row["dir"] == "tx" and row["type"] == "STATE":
                 mode = int(row["mode"])
+                new_faults = int(row["faults"] or 0)
+                watchdog_edge = bool(new_faults & FAULT_WATCHDOG) and not faults & FAULT_WATCHDOG
+                faults = new_faults
                 state = (np.array([float(row["pan"]), float(row["tilt"])]),
                          np.array([float(row["pan_rate"]), float(row["tilt_rate"])]))
-                if mode != MODE_ENABLED:
+                recent.append((t, *state))
+                while t - recent[0][0] > window + AXIS_DECISION_S + 0.05:
+                    recent.popleft()
+                if mode != MODE_ENABLED or watchdog_edge:
                     prev, prev_acc = None, []
-                if mode != MODE_ENABLED and mode != last_mode:  # it stopped following
+                if (mode != MODE_ENABLED and mode != last_mode) or watchdog_edge:  # it stopped following
                     stop_t, measured, stop_restarted = t, [state], False
                 elif stop_t is not None:
                     measured.append(state)
@@ -385,12 +436,14 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                 continue
             if row["dir"] != "rx":
                 continue
-            if row["type"] == "CLEAR_FAULT" and prev is not None:
-                # sent beside the stream (the daemon's supervision): it takes a sequence number, the stream goes on
-                prev = ((prev[0] + 1) & 0xFF, prev[1], prev[2])
+            if row["type"] in ("CLEAR_FAULT", "HEARTBEAT"):
+                if prev is not None:
+                    # sent beside or within the stream (supervision, a wait for a state): it takes a sequence
+                    # number, the device keeps executing the stream and the next setpoint continues it
+                    prev = ((prev[0] + 1) & 0xFF, prev[1], prev[2])
                 continue
             if row["type"] != "SETPOINT":
-                prev, prev_acc = None, []  # HELLO, CONFIG, ENABLE, HEARTBEAT: a new stream follows
+                prev, prev_acc = None, []  # HELLO, CONFIG, ENABLE: a new stream follows
                 continue
             out.setpoints += 1
             seq = int(row["seq"])
@@ -399,21 +452,22 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
             out.beyond_position += int(np.any(pos < lo) or np.any(pos > hi))
             out.worst["velocity"] = max(out.worst["velocity"], float(np.max(np.abs(rate) / vmax)))
             out.beyond_velocity += int(np.any(np.abs(rate) > vmax + allow_v))
-            host = int(row["host_time_us"])
             restarts = restart_accs(pos, rate) if measured else []
             restarted = restarts[0] if restarts else None
             if restarted is not None and not stop_restarted:  # a restart after this stop
                 out.restarts += 1
                 stop_restarted = True
-            if (prev is not None and seq == (prev[0] + 1) & 0xFF and mode == MODE_ENABLED
-                    and ((host - prev[1]) & 0xFFFFFFFF) <= MAX_STREAM_GAP_S * 1e6):
+            if prev is not None and seq == (prev[0] + 1) & 0xFF and mode == MODE_ENABLED:
                 acc = (rate - prev[2]) / dt
                 # the acceleration before may be one of several (a restart, which may also have continued the
                 # stream); the jerk is the one of the smallest ratio
                 jerks = [(acc - a) / dt for a in prev_acc]
                 jerk = min(jerks, key=lambda j: float(np.max(np.abs(j) / jmax))) if jerks else None
-                continuous = (np.all(np.abs(acc) <= amax + allow_a)
-                              and (jerk is None or np.all(np.abs(jerk) <= jmax + allow_j)))
+
+                def beyond(acc, jerk):
+                    return (np.abs(acc) > amax + allow_a) | (jerk is not None and np.abs(jerk) > jmax + allow_j)
+
+                continuous = not np.any(beyond(acc, jerk))
                 nxt = [acc]
                 if restarted is not None and not continuous:  # judged from the measured state it starts at
                     acc, jerk = restarted, restarted / dt
@@ -422,6 +476,16 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                     stop_t, measured = None, []  # the one restart this stop allows
                 elif restarted is not None:  # either the stream continued or it restarted here: both stay open
                     nxt = [acc, *restarts]
+                elif not continuous:  # an axis held at the measured state after it did not follow?
+                    axis_accs = {i: axis_restart(i, t, prev[1], pos, rate) for i in np.flatnonzero(beyond(acc, jerk))}
+                    if all(a is not None for a in axis_accs.values()):
+                        acc, jerk = acc.copy(), None if jerk is None else jerk.copy()
+                        for i, a in axis_accs.items():
+                            acc[i] = a
+                            if jerk is not None:
+                                jerk[i] = a / dt
+                        nxt = [acc]
+                        out.axis_restarts += 1
                 out.checked_pairs += 1
                 out.worst["acceleration"] = max(out.worst["acceleration"], float(np.max(np.abs(acc) / amax)))
                 out.beyond_acceleration += int(np.any(np.abs(acc) > amax + allow_a))
@@ -433,7 +497,7 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                 prev_acc = restarts
                 if restarted is not None:  # a new segment from a measured state: the one restart this stop allows
                     stop_t, measured = None, []
-            prev = (seq, host, rate)
+            prev = (seq, pos, rate)
     out.worst = {k: round(v, 3) for k, v in out.worst.items()}
     return out
 
@@ -683,6 +747,10 @@ class SoakStack:
                         time.sleep(params.get("seconds", 2.0))
                     finally:
                         os.kill(pid, signal.SIGCONT)
+        elif kind == "stuck_axis":  # the pan axis held mechanically: no fault bit, the encoder tells the truth
+            seconds = params.get("seconds", STUCK_SECONDS)
+            device.stuck(params.get("axis", "pan"), seconds)
+            time.sleep(seconds)
         elif kind == "stale_pose":  # the pose source stops publishing for a while
             self.sim.send_signal(signal.SIGSTOP)
             time.sleep(params.get("seconds", 2.0))
@@ -746,7 +814,7 @@ class SoakStack:
 
 
 EVENT_KINDS = (*DEVICE_EVENTS, *BUS_EVENTS, "silent", "stale_pose", "planner_stall", "off_path", "device_stall",
-               "reload_storm", *ONCE_EVENTS)
+               "reload_storm", "stuck_axis", *ONCE_EVENTS)
 
 
 def summarise(stack: SoakStack, events: list[dict], warmup: float, exit_code: int | None) -> dict:
@@ -767,7 +835,7 @@ def summarise(stack: SoakStack, events: list[dict], warmup: float, exit_code: in
     return {
         "events": len(events),
         "setpoints": check.setpoints, "checked_pairs": check.checked_pairs,
-        "restarts": check.restarts, "restarted_steps": check.restarted_steps,
+        "restarts": check.restarts, "restarted_steps": check.restarted_steps, "axis_restarts": check.axis_restarts,
         "setpoints_beyond_limits": check.beyond_limits,
         "beyond": {"position": check.beyond_position, "velocity": check.beyond_velocity,
                    "acceleration": check.beyond_acceleration, "jerk": check.beyond_jerk},
@@ -825,7 +893,8 @@ MATRIX: tuple[tuple[str, dict], ...] = (
     ("stale_pose", {"seconds": 2.0}), ("nan_pose", {}), ("teleport", {}), ("pose_flood", {}), ("past_pose", {}),
     ("garbage", {}), ("path_empty", {}), ("path_single", {}), ("path_far", {}), ("path_huge", {}),
     ("path_garbage", {}), ("planner_stall", {"seconds": 3.0}), ("off_path", {"seconds": 6.0}),
-    ("device_stall", {"seconds": 2.0}), ("reload_storm", {"count": RELOAD_STORM}), ("recorder_failure", {}),
+    ("device_stall", {"seconds": 2.0}), ("reload_storm", {"count": RELOAD_STORM}),
+    ("stuck_axis", {"seconds": STUCK_SECONDS}), ("recorder_failure", {}),
 )
 
 

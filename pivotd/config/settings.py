@@ -203,6 +203,8 @@ class ControlConfig:
     status_hz: float = 2.0
     joint_state_hz: float = 50.0
     realtime_priority: int = 0  # SCHED_FIFO priority of the control thread (0: normal scheduling)
+    tracking_error: float = math.radians(10.0)  # [rad] largest |commanded - measured| of an axis ...
+    tracking_error_s: float = 0.2  # [s] ... for longer than this: the axis does not follow (tracking-error hold)
 
     @property
     def dt(self) -> float:
@@ -742,6 +744,9 @@ def _control(s: Section) -> ControlConfig:
         status_hz=s.number("status_hz", d.status_hz, min=1.0, max=5.0),
         joint_state_hz=s.number("joint_state_hz", d.joint_state_hz, min=0.0, max=rate, min_open=True),
         realtime_priority=s.number("realtime_priority", d.realtime_priority, min=0, max=99, integer=True),
+        tracking_error=math.radians(s.number("tracking_error_deg", math.degrees(d.tracking_error), min=0.0,
+                                             max=180.0, min_open=True)),
+        tracking_error_s=s.number("tracking_error_s", d.tracking_error_s, min=2.0 / rate, max=10.0),
     )
     s.finish()
     return out

@@ -6,21 +6,30 @@ converts the plan's world direction to joint angles within limits, and lets the 
 motion generator produce the setpoint. A stale pose or a missing plan means a jerk-limited stop
 and hold; a lost link or a faulted gimbal means no motion at all.
 
-The setpoint stream is continuous while the device follows it. Whenever it did not (link down, fault,
-device disabled (no setpoints are sent then), its watchdog stopped it, or a stall of the loop longer than
-``stall_s``) the generator restarts from a state the device measured after the interruption (by its own clock,
-:class:`pivotd.gimbal.device_clock.DeviceClock`: states queued during a stall of the host are read late but were
-measured before it, while the device may have held since), so motion resumes
-from where the gimbal really is, jerk-limited, instead of where the stream left off. A restart requested while the
-device kept following (e.g. after clearing a latched fault bit) keeps the stream as it is: a restart
-from the measured state would only add the device's tracking lag as a step.
+The setpoint stream is continuous while the device follows it. It restarts from a state the device measured
+only where the device stopped following it, as measured: link down, fault, device disabled (no setpoints are sent
+then), or its watchdog stopped it (a HOLDING state, or a newly latched watchdog bit). The state is one measured
+after the interruption (by the device's own clock, :class:`pivotd.gimbal.device_clock.DeviceClock`: states queued
+during a stall of the host are read late but were measured before it, while the device may have held since), so
+motion resumes from where the gimbal really is, jerk-limited, instead of where the stream left off.
+
+An interruption the device may or may not have held through (a stall of the loop longer than ``stall_s``, a
+setpoint held up past ``stall_s`` before sending, a restart requested after clearing a latched fault bit) waits
+for a state measured after it and then decides by that state: the device held, so the stream restarts from the
+measured state; or it kept following the last setpoint it got, so the stream continues from that setpoint. A
+restart from the measured state while the device follows would add its tracking lag, or the distance it moved
+since, as a step it cannot follow within its limits (finding 7 and issue 20 item 7 in docs/RELIABILITY.md).
 
 A watchdog hold restarts the stream only if the device held while following the current stream: the hold's
 state echoes the last setpoint the device received, and a hold reported with a setpoint from before the current
 stream's first one (a state that was delayed on a loaded host) is the interruption the stream already restarted
 from. A setpoint is never sent more than ``stall_s`` after the previous one of its stream: if the thread was held up
-between computing and sending it, the device may have held meanwhile, so the stream restarts from a fresh state
-instead of resuming the device with a setpoint that continues the old one.
+between computing and sending it, the device may have held meanwhile; the setpoint is dropped, the generator goes
+back to the last setpoint sent, and the stream resumes after a fresh state as above.
+
+An axis that does not follow its setpoints (blocked: :mod:`pivotd.daemon.tracking_error`) is held: it restarts
+from its measured state, nothing moves towards the target until the hold has lasted the supervisor's window, and
+the stream then resumes jerk-limited from there.
 """
 
 from __future__ import annotations
@@ -33,12 +42,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from firmware_proto.messages import FAULT_WATCHDOG
 from pivotd.bus.messages import PoseSample
 from pivotd.daemon.planner import Plan, camera_positions
 from pivotd.daemon.states import DaemonState
+from pivotd.daemon.tracking_error import TrackingErrorSettings, TrackingErrorSupervisor, TrackingState
 from pivotd.gimbal.interface import GimbalInterface, GimbalMode, GimbalState, LinkState
 from pivotd.gimbal.kinematics import JointLimits, Mount, joints_to_world_direction, world_direction_to_joints
-from pivotd.gimbal.motion import MotionGenerator
+from pivotd.gimbal.motion import MotionGenerator, MotionSample
 
 log = logging.getLogger(__name__)
 
@@ -52,12 +63,13 @@ class ControlSettings:
     pose_timeout: float = 0.5
     lookahead: float = 0.2
     plan_timeout: float = 1.0
-    stall_s: float = 0.25  # [s] a gap between ticks longer than this restarts the stream from the measured state
+    stall_s: float = 0.25  # [s] a gap between ticks longer than this resynchronises the stream with the device
+    tracking_error: TrackingErrorSettings = field(default_factory=TrackingErrorSettings)
 
 
 @dataclass(frozen=True)
 class TickResult:
-    """What one tick decided: ``mode`` (WAITING, TRACKING, HOLDING, LINK_DOWN, FAULT or PARKING);
+    """What one tick decided: ``mode`` (WAITING, TRACKING, HOLDING, LINK_DOWN, FAULT, TRACKING_ERROR or PARKING);
     ``setpoint`` (pan, tilt, pan_rate, tilt_rate) [rad, rad/s] when one was sent."""
 
     mode: DaemonState
@@ -94,11 +106,15 @@ class ControlLoop:
         self._hard_reset = True  # the device did not follow the stream: restart even if it now follows again
         self._reset_after = -np.inf  # a restart needs a state measured at or after this time [s]
         self._seen_mode: int | None = None  # device mode in the newest state seen by a tick
+        self._seen_faults = 0  # its fault bits
         self._seen_rx = -np.inf  # its receive time [s]
         self._last_tick: float | None = None
         self._streaming = False  # the previous tick sent a setpoint
         self._segment_first: int | None = None  # seq of the first setpoint since the last restart
         self._last_send: float | None = None  # clock() when the previous setpoint of this stream was sent [s]
+        self._last_sample: MotionSample | None = None  # the last setpoint sent since the last restart
+        self.tracking = TrackingErrorSupervisor(settings.tracking_error)
+        self._judged_rx = -np.inf  # receive time of the newest state the tracking supervisor judged [s]
         self.restarts = 0  # restarts of the stream from a measured state
         self._last_pose_rx: float | None = None
         self._prev_pose: PoseSample | None = None
@@ -125,8 +141,30 @@ class ControlLoop:
             pos = pos + rate * float(np.clip(now - state.measured_time, 0.0, self.settings.stall_s))
         self.motion.reset(pos, rate)
         self._need_reset = self._hard_reset = False
-        self._segment_first = self._last_send = None
+        self._segment_first = self._last_send = self._last_sample = None
+        self.tracking.restart()
         self.restarts += 1
+
+    def _continue_stream(self) -> None:
+        """The device kept following the last setpoint it got: continue the stream from that setpoint."""
+        last = self._last_sample
+        if last is not None and not np.array_equal(self.motion.state.position, last.position):
+            self.motion.reset(last.position, last.velocity, last.acceleration)  # a computed one was not sent
+        self._need_reset = False
+        self._last_send = None  # the gap is over: the device still follows
+
+    def _hold_axes_at_measured(self, state: GimbalState, axes: tuple[int, ...]) -> None:
+        """Tracking-error hold: ``axes`` (standing still) restart from their measured state, the others go on from
+        the last setpoint (the device follows them); the tick then brakes and holds."""
+        cur = self._last_sample or self.motion.state
+        pos, vel, acc = cur.position.copy(), cur.velocity.copy(), cur.acceleration.copy()
+        measured = ((state.pan, state.pan_rate), (state.tilt, state.tilt_rate))
+        for i in axes:
+            pos[i], vel[i] = measured[i]
+            acc[i] = 0.0
+        self.motion.reset(pos, vel, acc)
+        self._last_sample = None
+        self.tracking.restart()
 
     def _held_on_this_stream(self, state: GimbalState) -> bool:
         """Whether a HOLDING ``state`` shows the device stopped while following the current stream: it echoes a
@@ -135,27 +173,26 @@ class ControlLoop:
             return True
         return (state.last_setpoint_seq - self._segment_first) & 0xFF < 0x80
 
-    def _resynchronise(self, now: float, state: GimbalState, gap: float, streaming: bool) -> bool:
-        """Restart the stream from ``state`` if needed (see the module docstring); False while a state measured
-        after the interruption is still missing. ``gap``: time since the previous tick [s]; ``streaming``: the
-        previous tick sent a setpoint."""
+    def _resynchronise(self, now: float, state: GimbalState, gap: float) -> bool:
+        """Restart or continue the stream after an interruption (see the module docstring); False while a state
+        measured after it is still missing. ``gap``: time since the previous tick [s]."""
         if gap > self.settings.stall_s:
-            log.info("control loop stalled for %.3f s: restarting the setpoint stream from a fresh measured state",
-                     gap)
-            self._request_reset(now, hard=True)  # the loop stalled: the device did not get the stream
+            log.info("control loop stalled for %.3f s: resynchronising the setpoint stream with the device", gap)
+            self._request_reset(now, hard=False)  # the device may have held meanwhile: its next state tells
         if state.rx_time > self._seen_rx:
-            if (state.mode == GimbalMode.HOLDING and self._seen_mode == GimbalMode.ENABLED
-                    and self._held_on_this_stream(state)):
+            watchdog_edge = bool(state.faults & FAULT_WATCHDOG) and not self._seen_faults & FAULT_WATCHDOG
+            hold_edge = state.mode == GimbalMode.HOLDING and self._seen_mode == GimbalMode.ENABLED
+            if (hold_edge or watchdog_edge) and self._held_on_this_stream(state):
                 # Its watchdog stopped it: restart once, from this state. Later states of the same hold were
                 # sent before the device got the restarted stream (which resumes it) and are not followed.
                 self._request_reset(state.measured_time, hard=True)
-            self._seen_mode, self._seen_rx = state.mode, state.rx_time
+            self._seen_mode, self._seen_faults, self._seen_rx = state.mode, state.faults, state.rx_time
         if not self._need_reset:
             return True
         if state.measured_time < self._reset_after:
             return False
-        if not self._hard_reset and streaming and state.mode == GimbalMode.ENABLED:
-            self._need_reset = False  # the device followed the stream all along: keep it continuous
+        if not self._hard_reset and self._last_sample is not None and state.mode == GimbalMode.ENABLED:
+            self._continue_stream()  # the device followed the stream all along: keep it continuous
             return True
         self._reset_from(state, now)
         return True
@@ -175,6 +212,7 @@ class ControlLoop:
         if settings.rate_hz != self.settings.rate_hz:
             raise ValueError("the control rate cannot change while running")
         self.settings = settings
+        self.tracking.settings = settings.tracking_error
         self.mount = mount
 
     def _target(self, pose: PoseSample, plan: Plan, mount: Mount) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
@@ -214,7 +252,6 @@ class ControlLoop:
         link_state = self.link.link_state
         state = self.link.state
         gap = 0.0 if self._last_tick is None else now - self._last_tick
-        streaming = self._streaming
         self._last_tick, self._streaming = now, False
         if link_state != LinkState.UP or state is None:
             self._request_reset(now, hard=True)
@@ -227,16 +264,26 @@ class ControlLoop:
         if state.mode == GimbalMode.DISABLED:
             # The device ignores setpoints until the daemon enables it; the stream then starts where it stands.
             self._request_reset(now, hard=True)
-            self._seen_mode, self._seen_rx = state.mode, state.rx_time
+            self._seen_mode, self._seen_faults, self._seen_rx = state.mode, state.faults, state.rx_time
             self.link.send_heartbeat()
             return TickResult(DaemonState.HOLDING)
-        if not self._resynchronise(now, state, gap, streaming):
+        if not self._resynchronise(now, state, gap):
             # Waiting (at most a state period) for a state measured after the interruption.
             self.link.send_heartbeat()
             return TickResult(DaemonState.HOLDING)
 
+        if state.rx_time > self._judged_rx:
+            self._judged_rx = state.rx_time
+            verdict = self.tracking.judge(now, state.measured_time, state.pan, state.tilt, state.pan_rate,
+                                          state.tilt_rate)
+            if verdict.entered_fault:
+                self._hold_axes_at_measured(state, verdict.restart)
+
         clamped = False
-        if self.override_target is not None:
+        if self.tracking.state is TrackingState.FAULT:
+            self.motion.hold()  # no motion towards the target while an axis does not follow
+            mode = DaemonState.TRACKING_ERROR
+        elif self.override_target is not None:
             self.motion.set_target(np.asarray(self.override_target, float), np.zeros(2))
             mode = DaemonState.PARKING
         elif pose is None:
@@ -258,19 +305,24 @@ class ControlLoop:
         sent_at = self.clock()
         if self._last_send is not None and sent_at - self._last_send > self.settings.stall_s:
             # Held up between computing and sending: the device may have held meanwhile, and this setpoint would
-            # resume it with the old stream. Restart from a state measured from now on instead.
-            log.info("control tick held up for %.3f s before sending: restarting the setpoint stream",
+            # resume it with the old stream. Drop it; a state measured from now on tells whether the stream goes on
+            # from the last setpoint sent (the device followed it) or restarts from the measured state.
+            log.info("control tick held up for %.3f s before sending: resynchronising the setpoint stream",
                      sent_at - self._last_send)
-            self._request_reset(sent_at, hard=True)
+            self._request_reset(sent_at, hard=False)
             self.link.send_heartbeat()
             return TickResult(DaemonState.HOLDING)
         seq = self.link.send_setpoint(pan, tilt, vp, vt)
         if seq is None:
-            # Not sent (the device went silent, or the link's queue is full): the device does not get this stream,
-            # so it restarts from a state the device measures after it answers again.
-            self._request_reset(sent_at, hard=True)
+            # Not sent (the device went silent, or the link's queue is full). Wait for a state the device measures
+            # after it answers again: if it held meanwhile the stream restarts from there, else it continues from
+            # the last setpoint the device got (this computed one is dropped), as after a stall of the loop.
+            self._request_reset(sent_at, hard=False)
             return TickResult(DaemonState.HOLDING)
         self._last_send = sent_at
+        if seq is not None:
+            self._last_sample = sample
+            self.tracking.commanded(sent_at, pan, tilt, vp, vt)
         if self._segment_first is None and seq is not None:
             self._segment_first = seq
         self._streaming = True
@@ -281,4 +333,6 @@ class ControlLoop:
                 self.stats.pose_latency.append(self.clock() - pose.rx_time)
                 self._last_pose_rx = pose.rx_time
             self.commanded_direction = joints_to_world_direction(pan, tilt, pose.quat, mount)
+        if self.tracking.state is not TrackingState.OK and mode == DaemonState.TRACKING:
+            mode = DaemonState.TRACKING_ERROR  # recovering: reported until the axes follow again
         return TickResult(mode, (pan, tilt, vp, vt), clamped)

@@ -462,6 +462,7 @@ class Daemon:
                 "clamped": 0 if ctl is None else ctl.clamped,
                 "pose_latency_ms_p99": None if ctl is None else _percentile_ms(list(ctl.pose_latency), 99),
             },
+            "tracking_error": None if self.control is None else self.control.tracking.status(),
             "map": {"landmarks": self.worker.map_info.landmarks, "version": self.worker.map_info.version,
                     "layers": self.worker.map_info.layers},
             "link_counters": link.counters() if link is not None else {},

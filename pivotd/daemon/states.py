@@ -14,6 +14,7 @@ class DaemonState(enum.StrEnum):
     HOLDING = "holding"  # pose or plan stale: jerk-limited stop and hold
     LINK_DOWN = "link-down"  # gimbal link not up: nothing is sent
     FAULT = "fault"  # gimbal faulted: heartbeats only, no motion
+    TRACKING_ERROR = "tracking-error"  # an axis does not follow its setpoints: held, then probed (status block)
     PARKING = "parking"  # moving to the park pose before shutdown
     STOPPED = "stopped"  # shut down
     FAILED = "failed"  # a thread that must not die has died (status ``threads_dead``): nothing is controlled

@@ -17,6 +17,7 @@ from pivotd.config.settings import wire_config
 from pivotd.daemon.control import ControlLoop, ControlSettings
 from pivotd.daemon.planner import PlannerSettings, RecedingHorizonPlanner
 from pivotd.daemon.replan_trigger import ReplanTrigger
+from pivotd.daemon.tracking_error import TrackingErrorSettings
 from pivotd.errors import ConfigError
 from pivotd.gimbal.dynamixel_link import DynamixelGimbal, DynamixelSettings
 from pivotd.gimbal.interface import GimbalInterface
@@ -140,11 +141,13 @@ def build_control_loop(cfg: Config, link: GimbalInterface, clock: Callable[[], f
 
 def build_control_settings(cfg: Config) -> ControlSettings:
     """The control tick's timing: rate, stale-pose and stale-plan timeouts (ten replanning periods, ≥ 1 s, and
-    with event-driven replanning at least twice its longest interval)."""
+    with event-driven replanning at least twice its longest interval); the tracking-error supervision."""
     pl = cfg.planner
     longest = 2.0 * pl.replan_max_interval if pl.replan_on_waypoint else 0.0
-    return ControlSettings(rate_hz=cfg.control.rate_hz, pose_timeout=cfg.control.pose_timeout_s,
-                           plan_timeout=max(1.0, 10.0 / pl.replan_hz, longest))
+    c = cfg.control
+    return ControlSettings(rate_hz=c.rate_hz, pose_timeout=c.pose_timeout_s,
+                           plan_timeout=max(1.0, 10.0 / pl.replan_hz, longest),
+                           tracking_error=TrackingErrorSettings(c.tracking_error, c.tracking_error_s))
 
 
 def build_mavlink_settings(cfg: Config) -> MavlinkSettings:
