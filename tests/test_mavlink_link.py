@@ -114,7 +114,7 @@ def test_a_manager_stall_finds_few_setpoints_queued_and_the_gimbal_executes_no_b
     sweeps pan at 0.5 rad/s with a setpoint every >= 10 ms. GIMBAL_MANAGER_SET_PITCHYAW has no validity, so the
     manager executes on resume whatever queued up: the host must stop sending 5 attitude-status periods (0.1 s at
     50 Hz, estimated from time_boot_ms) after the last status it received, not after the 0.5 s state timeout (before:
-    ~45 setpoints queued and executed in a burst). The host reconnects by itself and the sweep restarts from the
+    ~48 setpoints queued and executed in a burst). The host reconnects by itself and the sweep restarts from the
     state measured after the resume."""
     log_path = tmp_path / "gimbal.csv"
     device_log = CsvMessageLog(log_path)
