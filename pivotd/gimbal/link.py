@@ -74,7 +74,6 @@ class LinkConfig:
     setpoint_transit_s: float = 0.1  # [s] allowed for a STATE's and a SETPOINT's transit, in the validity
 
 
-
 class _Pending:
     """An outstanding request waiting for its ACK (or IDENTITY)."""
 
