@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import math
 import socket
 import threading
@@ -9,7 +10,7 @@ import time
 
 import pytest
 
-from firmware_proto.realtime import FaultInjector
+from firmware_proto.realtime import CsvMessageLog, FaultInjector
 from pivotd.gimbal.interface import GimbalMode, LinkState
 from pivotd.gimbal.kinematics import JointLimits
 from pivotd.gimbal.mavlink_link import MavlinkGimbal, MavlinkSettings
@@ -22,8 +23,12 @@ DEVICE = JointLimits(math.radians(-120), math.radians(120), math.radians(-30), m
 
 
 class SimThread:
-    def __init__(self, fault_duration=1.0) -> None:
-        self.model = MavlinkGimbalModel(DEVICE, state_hz=50.0)
+    """The simulator on its own thread; ``paused`` set: it neither reads nor sends (a stalled manager: datagrams
+    queue in its UDP socket until it runs again)."""
+
+    def __init__(self, fault_duration=1.0, log: CsvMessageLog | None = None) -> None:
+        self.model = MavlinkGimbalModel(DEVICE, state_hz=50.0, log=log)
+        self.paused = threading.Event()
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.bind(("127.0.0.1", 0))
         self.port = sock.getsockname()[1]
@@ -33,6 +38,9 @@ class SimThread:
 
     def _run(self) -> None:
         while not self.stop.is_set():
+            if self.paused.is_set():
+                time.sleep(0.005)
+                continue
             self.server.poll(min(0.02, self.server.next_due() - self.server.elapsed()))
 
     def __enter__(self) -> SimThread:
@@ -99,3 +107,79 @@ def test_control_is_taken_followed_released_and_a_failure_stops_motion():
         finally:
             g.stop()
         assert sim.model.primary == (0, 0), "stop() must release control"
+
+
+def test_a_manager_stall_finds_few_setpoints_queued_and_the_gimbal_executes_no_burst_on_resume(tmp_path):
+    """The simulated manager stops for 2 s (its thread paused, datagrams queue in its UDP socket) while the host
+    sweeps pan at 0.5 rad/s with a setpoint every >= 10 ms. GIMBAL_MANAGER_SET_PITCHYAW has no validity, so the
+    manager executes on resume whatever queued up: the host must stop sending 5 attitude-status periods (0.1 s at
+    50 Hz, estimated from time_boot_ms) after the last status it received, not after the 0.5 s state timeout (before:
+    ~48 setpoints queued and executed in a burst). The host reconnects by itself and the sweep restarts from the
+    state measured after the resume."""
+    log_path = tmp_path / "gimbal.csv"
+    device_log = CsvMessageLog(log_path)
+    silence = 5 * 0.02  # 5 periods of the simulator's 50 Hz status stream (a floor of 0.1 s too)
+    with SimThread(log=device_log) as sim:
+        g = gimbal(sim.port, JointLimits(math.radians(-90), math.radians(90), math.radians(-20), math.radians(60)))
+        g.start()
+        try:
+            assert g.wait_up(10), g.last_error
+            start = g.state
+            sent: list[tuple[int, float, float]] = []  # (count, send time, pan) of every setpoint sent
+            t0 = time.monotonic()
+            paused_at = None
+            while True:
+                now = time.monotonic()
+                if paused_at is None and now - t0 > 0.5:
+                    sim.paused.set()
+                    paused_at = time.monotonic()
+                if paused_at is not None and now - paused_at > 2.0:
+                    break
+                pan = start.pan + 0.5 * (now - t0)
+                n = g.send_setpoint(pan, start.tilt, 0.5, 0.0)
+                if n is not None:
+                    sent.append((n, now, pan))  # the link judged the silence at a time >= now
+                time.sleep(0.01)
+            last_rx = g.state.rx_time  # the newest status received (kept while the link is down)
+            into_silence = [(n, t) for n, t, _ in sent if t > last_rx]
+            # each setpoint sent had a status at most `silence` old; they were sent >= 10 ms apart
+            assert all(t - last_rx <= silence + 1e-3 for _, t in into_silence), (into_silence, last_rx)
+            assert len(into_silence) <= silence / 0.01 + 1, into_silence
+            c = g.counters()
+            assert c["setpoints_withheld"] > 0 and c["silences"] >= 1, c
+            assert g.silence_s() == pytest.approx(silence, abs=1e-3)  # not the 0.5 s state timeout
+            resumed = time.monotonic()
+            sim.paused.clear()
+            # the link was lost (no status for 0.5 s) and comes back by itself; the sweep restarts from there
+            assert g.wait_up(10), g.last_error
+            back = None
+            deadline = time.monotonic() + 5
+            while back is None and time.monotonic() < deadline:
+                st = g.state
+                back = st if st.rx_time > resumed and st.mode == GimbalMode.ENABLED else None
+                time.sleep(0.01)
+            assert back is not None, g.state
+            for i in range(20):
+                assert g.send_setpoint(back.pan + 0.005 * i, back.tilt, 0.0, 0.0) is not None
+                time.sleep(0.01)
+            assert g.counters()["reconnects"] == 1
+        finally:
+            g.stop()
+    device_log.close()
+    with open(log_path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    rx = [r for r in rows if r["dir"] == "rx"]
+    resume = next(i for i in range(1, len(rx)) if float(rx[i]["t_s"]) - float(rx[i - 1]["t_s"]) > 1.0)
+    burst = []  # what the manager executed on resuming, before the host's new handshake
+    for r in rx[resume:]:
+        if r["type"] != "SETPOINT":
+            break
+        burst.append(float(r["pan"]))
+    assert len(burst) <= silence / 0.01 + 1 + 5, len(burst)  # + those still unread when it stopped
+    # none aims beyond where the sweep was within `silence` of the last status the host received
+    reach = max(pan for _, t, pan in sent if t <= last_rx + silence + 1e-3)
+    assert not burst or max(burst) <= reach + 1e-5, (burst, reach)
+    # after the reconnect (control taken again) the sweep starts where the gimbal was measured to stand
+    taken = max(i for i, r in enumerate(rows) if r["type"] == "GIMBAL_MANAGER_CONFIGURE" and "on=1" in r["detail"])
+    first = next(r for r in rows[taken:] if r["dir"] == "rx" and r["type"] == "SETPOINT")
+    assert float(first["pan"]) == pytest.approx(back.pan, abs=1e-5)

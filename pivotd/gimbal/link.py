@@ -20,7 +20,6 @@ Importing this module registers the ``mock://`` URL scheme with pyserial.
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import logging
 import queue
@@ -52,6 +51,7 @@ from firmware_proto.messages import (
 )
 from firmware_proto.urlhandler import register as _register_mock_url
 from pivotd.gimbal.interface import GimbalState, LinkState
+from pivotd.gimbal.silence import SilenceRule
 from pivotd.gimbal.supervisor import Connection, SilenceClock, SupervisedLink
 
 _register_mock_url()
@@ -72,9 +72,6 @@ class LinkConfig:
     silence_periods: float = 5.0  # no STATE for this many device state periods -> no setpoints are sent
     silence_min_s: float = 0.1  # [s] floor of that bound (host scheduling jitter)
     setpoint_transit_s: float = 0.1  # [s] allowed for a STATE's and a SETPOINT's transit, in the validity
-
-
-_PERIOD_SAMPLES = 32  # consecutive-STATE intervals the state period is estimated from (their minimum)
 
 
 class _Pending:
@@ -113,10 +110,9 @@ class GimbalLink(SupervisedLink):
         self._opened_at = 0.0  # when the current connection was opened (monotonic) [s]
         self._wire_version = PROTOCOL_VERSION  # the version the device spoke at the last handshake
         self._warned_version: int | None = None
-        self._prev_state_us: int | None = None
-        self._intervals: collections.deque[int] = collections.deque(maxlen=_PERIOD_SAMPLES)  # [µs], reader thread
-        self._state_period_s: float | None = None  # smallest recent interval between STATEs, device clock [s]
-        self._silent_logged = -1.0  # _last_state_rx of the silence last logged
+        # the state period from consecutive STATE stamps on the device's clock (reader thread), and the silence
+        self._silence = SilenceRule(config.silence_periods, config.silence_min_s, config.state_timeout_s, url,
+                                    "STATE", log)
         self._rtt_last = self._rtt_sum = self._rtt_max = 0.0
         self._listeners: list[Callable[[GimbalState], None]] = []
 
@@ -157,11 +153,7 @@ class GimbalLink(SupervisedLink):
         """How long [s] without a STATE the device counts as silent: ``silence_periods`` of its state period (the
         smallest recent interval between STATEs on its clock), at least ``silence_min_s``, at most
         ``state_timeout_s`` (also before the period is known)."""
-        c = self.config
-        period = self._state_period_s
-        if period is None:
-            return c.state_timeout_s
-        return min(c.state_timeout_s, max(c.silence_min_s, c.silence_periods * period))
+        return self._silence.silence_s()
 
     def setpoint_max_age_s(self) -> float:
         """Validity [s] sent with each version-2 SETPOINT: a setpoint is sent only while the newest STATE is at most
@@ -171,16 +163,7 @@ class GimbalLink(SupervisedLink):
     def _silent(self, now: float, counter: str) -> bool:
         """Whether the device went silent (no STATE within :meth:`silence_s`); counts the withheld frame under
         ``counter`` and logs each silence once."""
-        last = self._last_state_rx
-        if self._state is not None and now - last <= self.silence_s():
-            return False
-        self._n[counter] += 1
-        if last != self._silent_logged:
-            self._silent_logged = last
-            self._n["silences"] += 1
-            log.info("gimbal at %s silent for %.3f s (no STATE): no setpoints until it answers again", self.url,
-                     now - last)
-        return True
+        return self._silence.silent(now, self._last_state_rx, self._state is not None, self._n, counter)
 
     def send_setpoint(self, pan: float, tilt: float, pan_rate: float = 0.0, tilt_rate: float = 0.0) -> int | None:
         """Queue a SETPOINT (pan/tilt [rad], feed-forward rates [rad/s]); return its seq, or None if the link
@@ -270,8 +253,7 @@ class GimbalLink(SupervisedLink):
         conn.tx.put_nowait(b"\x00")  # ends any partial frame the device still holds from before
         self._decoder.reset()
         self._opened_at = time.monotonic()
-        self._prev_state_us = None
-        self._intervals.clear()
+        self._silence.reset()
         self._conn = conn
         conn.start_threads(((self._reader, "gimbal-rx"), (self._writer, "gimbal-tx")))
         return conn
@@ -438,21 +420,11 @@ class GimbalLink(SupervisedLink):
                     self._n["frames_received"] += 1
                     self._dispatch(frame)
 
-    def _note_interval(self, device_time_us: int) -> None:
-        """Estimate the device's state period from consecutive STATE stamps (reader thread)."""
-        prev, self._prev_state_us = self._prev_state_us, device_time_us
-        if prev is None:
-            return
-        step = (device_time_us - prev) & 0xFFFFFFFF
-        if 0 < step < 1 << 31:  # forwards (a reboot restarts the clock)
-            self._intervals.append(step)
-            self._state_period_s = min(self._intervals) * 1e-6
-
     def _dispatch(self, frame: codec.Frame) -> None:
         msg = frame.msg
         if isinstance(msg, State):
             now = time.monotonic()
-            self._note_interval(msg.device_time_us)
+            self._silence.note(msg.device_time_us)
             st = GimbalState(msg.pan, msg.tilt, msg.pan_rate, msg.tilt_rate, msg.mode, msg.faults,
                              msg.last_setpoint_seq, msg.device_time_us, now,
                              self._device_clock.measured_at(msg.device_time_us, now))

@@ -11,6 +11,13 @@ flags the faults; GIMBAL_MANAGER_STATUS tells whether we are still in control (`
 attitude status for ``state_timeout_s`` → link down, reconnect with backoff. Disabling releases control
 (CONFIGURE with −3: "remove control if currently in control"), after which the manager holds or returns to its
 own inputs. Conversions live in :mod:`pivotd.gimbal.mavlink_frames`.
+
+GIMBAL_MANAGER_SET_PITCHYAW carries no validity: a manager that stalls executes, when it resumes, whatever queued
+up for it meanwhile. So the host's silence rule (:class:`pivotd.gimbal.silence.SilenceRule`, as for pivotd's own
+protocol) applies: after ``silence_periods`` attitude-status periods (estimated from ``time_boot_ms``, the
+manager's clock; at least ``silence_min_s``, at most ``state_timeout_s``) without a GIMBAL_DEVICE_ATTITUDE_STATUS,
+:meth:`MavlinkGimbal.send_setpoint` sends nothing and returns None (``setpoints_withheld``) and our HEARTBEAT is
+held back too (``heartbeats_withheld``); the control loop restarts from a state measured once the manager answers.
 """
 
 from __future__ import annotations
@@ -29,6 +36,7 @@ from pivotd.errors import ConfigError
 from pivotd.gimbal import mavlink_frames as mf
 from pivotd.gimbal.interface import GimbalMode, GimbalState, LinkState
 from pivotd.gimbal.kinematics import JointLimits
+from pivotd.gimbal.silence import SilenceRule
 from pivotd.gimbal.supervisor import Connection, SilenceClock, SupervisedLink
 
 log = logging.getLogger(__name__)
@@ -102,6 +110,8 @@ class MavlinkSettings:
     retries: int = 5
     heartbeat_period_s: float = 1.0
     reconnect_backoff_s: tuple = (0.1, 2.0)
+    silence_periods: float = 5.0  # no attitude status for this many of its periods -> no setpoints are sent
+    silence_min_s: float = 0.1  # [s] floor of that bound (host scheduling jitter)
 
 
 class MavlinkGimbal(SupervisedLink):
@@ -112,7 +122,8 @@ class MavlinkGimbal(SupervisedLink):
     def __init__(self, url: str, settings: MavlinkSettings, baudrate: int = 115200) -> None:
         super().__init__(url, settings.reconnect_backoff_s,
                          ("messages_sent", "messages_received", "setpoints_sent", "heartbeats_received", "retries",
-                          "reconnects", "link_losses", "command_failures", "tx_overflow", "rate_unknown"))
+                          "reconnects", "link_losses", "command_failures", "tx_overflow", "rate_unknown",
+                          "setpoints_withheld", "heartbeats_withheld", "silences"))
         self.url = url
         self.settings = settings
         self.baudrate = baudrate
@@ -125,6 +136,9 @@ class MavlinkGimbal(SupervisedLink):
         self._waiters: dict[str, list[tuple[Any, threading.Event, list]]] = {}
         self._last_state_rx = 0.0
         self._faults = 0
+        # the attitude-status period from consecutive time_boot_ms stamps (reader thread), and the silence
+        self._silence = SilenceRule(settings.silence_periods, settings.silence_min_s, settings.state_timeout_s, url,
+                                    "GIMBAL_DEVICE_ATTITUDE_STATUS", log)
 
     # ------------------------------------------------------------------ GimbalInterface
     @property
@@ -132,13 +146,23 @@ class MavlinkGimbal(SupervisedLink):
         """The joint ranges the manager reported at the last handshake."""
         return self._device_limits
 
+    def silence_s(self) -> float:
+        """How long [s] without a GIMBAL_DEVICE_ATTITUDE_STATUS the gimbal counts as silent: ``silence_periods`` of
+        its status period (the smallest recent interval between statuses on its ``time_boot_ms`` clock), at least
+        ``silence_min_s``, at most ``state_timeout_s`` (also before the period is known)."""
+        return self._silence.silence_s()
+
     def send_setpoint(self, pan: float, tilt: float, pan_rate: float = 0.0, tilt_rate: float = 0.0) -> int | None:
-        """Queue one GIMBAL_MANAGER_SET_PITCHYAW (joint limits enforced here too); its count, or None."""
+        """Queue one GIMBAL_MANAGER_SET_PITCHYAW (joint limits enforced here too); its count, or None if the link
+        is not up or the gimbal is silent (counted as ``setpoints_withheld``; see :meth:`silence_s`)."""
         conn, manager = self._conn, self._manager
         if self._link_state != LinkState.UP or conn is None or manager is None:
             return None
         if not all(math.isfinite(v) for v in (pan, tilt, pan_rate, tilt_rate)):
             raise ValueError("setpoint must be finite")
+        if self._silence.silent(time.monotonic(), self._last_state_rx, self._state is not None, self._n,
+                                "setpoints_withheld"):
+            return None
         msg = setpoint_message(self._mavutil.mavlink, manager, self.settings.gimbal_device_id, self.settings.limits,
                                pan, tilt, pan_rate, tilt_rate)
         if not self._enqueue(conn, msg):
@@ -189,6 +213,7 @@ class MavlinkGimbal(SupervisedLink):
             log.debug(self._last_error)
             return None
         conn = Connection(port)
+        self._silence.reset()
         self._conn = conn
         conn.start_threads(((self._reader, "gimbal-mavlink-rx"), (self._writer, "gimbal-mavlink-tx")))
         return conn
@@ -314,7 +339,9 @@ class MavlinkGimbal(SupervisedLink):
                 break
             if now >= next_hb:
                 next_hb += s.heartbeat_period_s
-                self._enqueue(conn, self._heartbeat_msg())
+                if not self._silence.silent(now, self._last_state_rx, self._state is not None, self._n,
+                                            "heartbeats_withheld"):
+                    self._enqueue(conn, self._heartbeat_msg())
             self._stopping.wait(0.02)
         self._last_error = conn.error
 
@@ -390,6 +417,7 @@ class MavlinkGimbal(SupervisedLink):
             pan_rate = tilt_rate = 0.0
         self._faults = mf.device_faults(msg.failure_flags)
         boot_us = (int(msg.time_boot_ms) * 1000) & 0xFFFFFFFF
+        self._silence.note(boot_us)
         st = GimbalState(pan, tilt, pan_rate, tilt_rate, self._mode(), self._faults, 0, boot_us, now,
                          self._device_clock.measured_at(boot_us, now))
         with self._changed:
