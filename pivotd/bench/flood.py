@@ -71,9 +71,10 @@ def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, chan
 
     ``forged_poses``: that many poses 700 m away from the robot are also published (one every 0.5 s), which the
     daemon's pose gate must refuse. ``repo``: run the daemon of another checkout (e.g. an earlier commit); the
-    flood, the pose source and the measurements stay this checkout's. ``until``: after ``seconds``, the flood goes
-    on (one message a second, as before) until ``until(status)`` holds for a status document, at most
-    ``until_timeout`` [s] longer (tests: a loaded machine may drop or delay some of the large messages)."""
+    flood, the pose source and the measurements stay this checkout's. ``until``: after ``seconds``, the flood (one
+    message a second) and the forged poses (one every 0.5 s) go on until ``until(status)`` holds for a status
+    document, at most ``until_timeout`` [s] longer (tests: a loaded machine may drop or delay a large message, and
+    the newest-only pose inbox may replace a forged pose by the robot's next one before it is judged)."""
     from pivotd.bench.control import _tree_rss_mb
     from pivotd.bus import large_messages as payloads
     from pivotd.bus import messages as m
@@ -143,7 +144,8 @@ def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, chan
                     if st is not None and until(st):
                         break
                 now = time.monotonic()
-            if forger is not None and forged_sent < forged_poses and now - t_start >= 0.5 * (forged_sent + 1):
+            more = forged_sent < forged_poses or now - t_start >= seconds  # (on while ``until`` waits)
+            if forger is not None and more and now - t_start >= 0.5 * (forged_sent + 1):
                 forger.put(forged)
                 forged_sent += 1
             if floods and now >= next_put:
