@@ -116,17 +116,17 @@ def test_tracking_run_end_to_end(tmp_path, backend):
                 good = config.read_text()
                 config.write_text(good.replace("fov_deg: 60", "fov_deg: 400"))
                 daemon.send_signal(signal.SIGHUP)
-                assert wait_until(lambda: probe.status.get("reload_errors") == 1, 10), daemon.output()
+                assert wait_until(lambda: probe.status.get("reload_errors") == 1, 30), daemon.output()
                 assert daemon.returncode is None
                 # A good reload: λ applies now, the device watchdog waits for a restart (and says so).
                 assert "lambda: 0.6" in good and "watchdog_ms: 250" in good
                 config.write_text(good.replace("lambda: 0.6", "lambda: 0.3").replace("watchdog_ms: 250",
                                                                                      "watchdog_ms: 300"))
                 daemon.send_signal(signal.SIGHUP)
-                assert wait_until(lambda: probe.status.get("reloads") == 1, 10), daemon.output()
+                assert wait_until(lambda: probe.status.get("reloads") == 1, 30), daemon.output()
                 assert probe.status["needs_restart"] == ["gimbal.watchdog_ms"]
-                assert wait_until(lambda: probe.status.get("state") == "tracking", 6), daemon.output()
-                assert daemon.wait_stderr("applied: pivot.lam", 5), daemon.output()
+                assert wait_until(lambda: probe.status.get("state") == "tracking", 30), daemon.output()
+                assert daemon.wait_stderr("applied: pivot.lam", 20), daemon.output()
                 config.write_text(good)
                 assert sim.stop(signal.SIGTERM, timeout=20) == 0, sim.output()
             # rmw_zenoh liveliness: the node and its JointState publisher are announced.
