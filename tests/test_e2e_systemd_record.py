@@ -5,13 +5,15 @@ from __future__ import annotations
 import os
 import signal
 import socket
-import time
 
 import pytest
 from mcap.reader import make_reader
 from support import PYTHON, REPO, ManagedProcess, child_env, free_tcp_port, wait_until
 
 from pivotd.bus.messages import JOINT_STATE, ODOMETRY, PATH, deserialize
+from pivotd.bus.session import open_session
+from pivotd.bus.topics import status_key_for
+from pivotd.cli.status import query_status
 from pivotd.sim.launch import derive_config
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(120)]
@@ -46,13 +48,22 @@ def test_notify_watchdog_and_mcap_recording(tmp_path):
             return any(m.startswith("STATUS=tracking; gimbal link up; ") and "landmarks in view" in m
                        for m in messages)
 
-        with ManagedProcess(sim_cmd, "sim_pose") as sim:
-            # systemctl status shows what the daemon does: a STATUS= line while tracking the simulated robot
-            # (waited for while the robot walks, at least 4 s of it; then the robot stops)
-            t_walk = time.monotonic()
-            assert wait_until(lambda: drain() or (tracking_reported() and time.monotonic() - t_walk > 4.0), 40), \
-                [m for m in messages if m.startswith("STATUS=")]
-            assert sim.stop(signal.SIGTERM, timeout=20) == 0, sim.output()
+        session = open_session(connect=[endpoint])
+
+        def poses_taken() -> int:  # poses the daemon decoded and accepted: the ones it records
+            doc = query_status(session, status_key_for("demo"), 1.0).get("demo", {})
+            return doc.get("bus", {}).get("/odom", {}).get("accepted", 0)
+
+        try:
+            with ManagedProcess(sim_cmd, "sim_pose") as sim:
+                # systemctl status shows what the daemon does: a STATUS= line while tracking the simulated robot
+                # (waited for while the robot walks, until the daemon has taken the poses the recording is checked
+                # for below; then the robot stops)
+                assert wait_until(lambda: drain() or (tracking_reported() and poses_taken() > 110), 60), \
+                    [m for m in messages if m.startswith("STATUS=")]
+                assert sim.stop(signal.SIGTERM, timeout=20) == 0, sim.output()
+        finally:
+            session.close()
         # the watchdog is fed at least every 0.5 s (WATCHDOG_USEC 1 s) while the control loop runs
         assert wait_until(lambda: drain() or sum("WATCHDOG=1" in m for m in messages) >= 6, 30), messages
         statuses = [m for m in messages if m.startswith("STATUS=")]
