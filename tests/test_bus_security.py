@@ -66,12 +66,15 @@ def daemon_side(certs):
         session.close()
 
 
-def publish_poses_then_query(peer: zenoh.Session, x: float) -> list:
-    """Publish five poses at ``x`` from ``peer``, then query pivotd's status over the same link (queries are
-    allowed to everyone); the replies come back after the poses were delivered or refused."""
+def publish_poses_then_query(peer: zenoh.Session, x: float, matched: bool = False) -> list:
+    """Publish five poses at ``x`` from ``peer`` (``matched``: once pivotd's subscription is known to the publisher),
+    then query pivotd's status over the same link (queries are allowed to everyone); the replies come back after the
+    poses were delivered or refused."""
     node = ros.RosNode(peer, "publisher", node_id=7)
     try:
         pub = node.publisher("/odom", m.ODOMETRY)
+        if matched:  # a new link: pivotd's subscription may reach the peer after the link is up
+            assert wait_for(pub.matched), "pivotd's pose subscription never reached the peer"
         for _ in range(5):
             pub.put(m.encode_odometry(0.0, "map", "base_link", [x, 0.0, 0.0], [0, 0, 0, 1]))
         return list(peer.get("pivot/pivotd/status", timeout=3.0))
@@ -116,7 +119,7 @@ def test_authorised_peer_is_accepted_and_others_are_not(certs, daemon_side):
     robot = open_session(connect=[endpoint], security=identity(good, "robot-localization", ca))
     try:
         assert wait_for(lambda: str(session.info.zid()) in {str(z) for z in robot.info.peers_zid()})
-        publish_poses_then_query(robot, 44.0)
+        publish_poses_then_query(robot, 44.0, matched=True)
         got = drain(events, 1)
         assert got and got[0].position[0] == 44.0
     finally:

@@ -16,13 +16,20 @@ pytestmark = [pytest.mark.timeout(240)]
 
 @pytest.mark.slow
 def test_flooded_daemon_keeps_control_counts_the_drops_and_parks_on_sigterm(tmp_path):
+    def judged(st: dict) -> bool:  # a loaded machine may drop or delay a large message, replace a forged pose
+        bus = st.get("bus", {})
+        return (bus.get("/plan", {}).get("dropped_too_large", 0) >= 2
+                and bus.get("/pivot/targets", {}).get("dropped_bad_fields", 0) >= 2
+                and (st.get("pose_gate") or {}).get("rejected", {}).get("jump", 0) >= 1)
+
     # a generous park timeout: on a loaded machine the park move itself may need more than the default 3 s
     r = run_phase("flood", seconds=5.0, flood_mb=8.0, tmp=tmp_path, forged_poses=4,
-                  changes={"gimbal.park_timeout_s": 15.0})
+                  changes={"gimbal.park_timeout_s": 15.0}, until=judged)
     assert r["messages_sent"] >= 4
     # a second publisher's poses 700 m away are refused by the pose gate; the robot's own are not
     gate = r["pose_gate"]
-    assert r["forged_sent"] == 4 and 1 <= gate["rejected"]["jump"] <= 4, gate  # (one may be replaced unread)
+    # (some may be replaced unread: they are sent until one was judged)
+    assert r["forged_sent"] >= 4 and 1 <= gate["rejected"]["jump"] <= r["forged_sent"], (r["forged_sent"], gate)
     assert gate["accepted"] > 50 and gate["rejected"]["speed"] == gate["rejected"]["turn"] == 0, gate
     path, targets = r["bus"]["/plan"], r["bus"]["/pivot/targets"]
     assert path.get("dropped_too_large", 0) >= 2, r

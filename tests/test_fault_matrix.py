@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from proto_support import link_config
+from support import wait_until
 
 from firmware_proto.messages import FAULT_WATCHDOG, FAULTS_SEVERE, MODE_DISABLED, MODE_ENABLED, MODE_FAULT, MODE_HOLDING
 from pivotd.bench.soak import SoakDevice, SoakStack, check_device_log, count_tracebacks, soak
@@ -171,7 +172,9 @@ def test_hostile_poses_and_paths_a_stale_pose_and_a_starved_planner_are_survived
     for kind, seconds in (("stale_pose", 2.0), ("planner_stall", 3.0)):
         t0 = time.time()
         stack.inject(kind, seconds=seconds)
-        assert any(s.get("state") == "holding" for s in stack.probe.statuses if s.get("time", 0) > t0), kind
+        # (the status document that says so may arrive after the injection ends)
+        assert wait_until(lambda t0=t0: any(s.get("state") == "holding" for s in list(stack.probe.statuses)
+                                            if s.get("time", 0) > t0), RECOVER_S), kind
         assert stack.wait_healthy(RECOVER_S) is not None, (kind, stack.status)
     status = stack.probe.query_status()
     odom = status["bus"][stack.cfg.topics.pose]
@@ -192,11 +195,13 @@ def test_sigkill_mid_motion_the_device_holds_and_a_restart_resumes_from_where_it
     assert stack.wait(lambda st: moving(stack, time.time() - 1.0), RECOVER_S) is not None
     stack.stop_daemon(signal.SIGKILL)
     n_rows = len(rows(stack.out / "gimbal.csv"))
-    time.sleep(1.0)
-    log = rows(stack.out / "gimbal.csv")
-    after = [r for r in log[n_rows:] if r["dir"] == "tx" and r["type"] == "STATE"]
-    assert after and int(after[-1]["mode"]) == MODE_HOLDING and int(after[-1]["faults"]) & FAULT_WATCHDOG
-    assert abs(float(after[-1]["pan_rate"])) < 1e-6  # the device's watchdog stopped the motion
+
+    def stopped_by_its_watchdog() -> bool:  # the device's watchdog stopped the motion (waited for, not slept on)
+        after = [r for r in rows(stack.out / "gimbal.csv")[n_rows:] if r["dir"] == "tx" and r["type"] == "STATE"]
+        return (bool(after) and int(after[-1]["mode"]) == MODE_HOLDING
+                and bool(int(after[-1]["faults"]) & FAULT_WATCHDOG) and abs(float(after[-1]["pan_rate"])) < 1e-6)
+
+    assert wait_until(stopped_by_its_watchdog, RECOVER_S, 0.2), rows(stack.out / "gimbal.csv")[-3:]
     stack.start_daemon()  # what Restart=on-failure does
     assert stack.wait_healthy(RECOVER_S, since=time.time()) is not None, stack.daemon_logs()[-1].read_text()[-3000:]
     setpoint, state = resumed_setpoints(rows(stack.out / "gimbal.csv"), n_rows)
@@ -208,7 +213,8 @@ def test_sigkill_mid_motion_the_device_holds_and_a_restart_resumes_from_where_it
 @pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_short_soak_has_no_setpoint_beyond_limits_no_traceback_and_recovers_from_every_fault(tmp_path):
-    r = soak(0.25, tmp_path, seed=11, mean_gap=1.0, max_unplug_s=5.0)  # the minute-long unplug has its own test
+    # the minute-long unplug has its own test; a loaded machine recovers slower: the run goes on until 4 faults
+    r = soak(0.25, tmp_path, seed=11, mean_gap=1.0, max_unplug_s=5.0, min_events=4)
     assert r["events"] >= 4 and r["setpoints"] > 700 and r["checked_pairs"] > 300, r
     assert r["setpoints_beyond_limits"] == 0, r["beyond"]
     assert r["tracebacks"] == 0, r["traceback_lines"]

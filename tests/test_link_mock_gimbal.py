@@ -22,7 +22,7 @@ from pivotd.gimbal.link import GimbalLink
 pytestmark = pytest.mark.slow  # subprocesses / real time
 
 
-def track(link: GimbalLink, pan: float, tilt: float, timeout: float = 5.0):
+def track(link: GimbalLink, pan: float, tilt: float, timeout: float = 20.0):
     """Stream one setpoint per received STATE until the gimbal is at (pan, tilt); return the final state."""
     seen: list = []
     link.subscribe(lambda st: seen.append(st) if len(seen) < 10_000 else None)
@@ -45,7 +45,7 @@ def test_handshake_tracking_echo_and_disable_on_stop(tmp_path, tcp) -> None:
             assert link.identity.version == PROTOCOL_VERSION == link.protocol_version
             seq = link.send_setpoint(0.3, -0.2)
             assert seq is not None
-            echoed = link.wait_state(lambda st: st.last_setpoint_seq == seq, 5.0)
+            echoed = link.wait_state(lambda st: st.last_setpoint_seq == seq, 20.0)
             assert echoed is not None and echoed.rx_time > 0
             final = track(link, 0.3, -0.2)
             assert final is not None and final.faults == 0
@@ -88,7 +88,7 @@ def test_unplug_and_replug_recovers_by_itself(tmp_path, tcp) -> None:
             assert final is not None and final.mode == MODE_ENABLED
             assert final.faults & FAULT_WATCHDOG  # the device noticed the outage and latched it
             assert link.clear_fault()
-            assert link.wait_state(lambda st: st.faults == 0, 5.0) is not None
+            assert link.wait_state(lambda st: st.faults == 0, 20.0) is not None
             c = link.counters()
             assert c["link_losses"] >= 1 and c["reconnects"] >= 1
         finally:
@@ -106,7 +106,7 @@ def test_watchdog_holds_and_a_setpoint_resumes() -> None:
             link.start()
             assert link.wait_up(10.0)
             assert track(link, 0.5, 0.0) is not None
-            held = link.wait_state(lambda st: st.mode == 2, 5.0)  # no more setpoints: holding
+            held = link.wait_state(lambda st: st.mode == 2, 20.0)  # no more setpoints: holding
             assert held is not None and held.faults & FAULT_WATCHDOG and held.pan_rate == 0.0
             assert track(link, 0.1, 0.0) is not None
         finally:
@@ -119,13 +119,13 @@ def test_device_fault_blocks_enable_until_cleared() -> None:
         try:
             link.start()
             assert link.wait_up(10.0)
-            st = link.wait_state(lambda st: st.mode == MODE_FAULT, 5.0)
+            st = link.wait_state(lambda st: st.mode == MODE_FAULT, 20.0)
             assert st is not None and st.faults & FAULT_OVERCURRENT
             assert link.set_enabled(True) is False  # NACK: fault active
             assert link.clear_fault() is True
-            assert link.wait_state(lambda st: st.mode == MODE_DISABLED and st.faults == 0, 5.0) is not None
+            assert link.wait_state(lambda st: st.mode == MODE_DISABLED and st.faults == 0, 20.0) is not None
             assert link.set_enabled(True) is True
-            assert link.wait_state(lambda st: st.mode == MODE_ENABLED, 5.0) is not None
+            assert link.wait_state(lambda st: st.mode == MODE_ENABLED, 20.0) is not None
         finally:
             link.stop()
 

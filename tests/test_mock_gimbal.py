@@ -72,7 +72,8 @@ def test_clean_exit_on_signals(sig) -> None:
 
 
 def test_tcp_announces_port_serves_one_client_and_fault_at() -> None:
-    with MockGimbal("--fault-at", "0.3:2", tcp=True) as mock:
+    # the fault comes 2 s after the start: this client is connected long before (even on a loaded machine)
+    with MockGimbal("--fault-at", "2.0:2", tcp=True) as mock:
         port_no = int(mock.first_line)
         assert 0 < port_no < 65536
         port = serial.serial_for_url(mock.url, timeout=0.05)
@@ -81,7 +82,8 @@ def test_tcp_announces_port_serves_one_client_and_fault_at() -> None:
             other.settimeout(2)
             assert other.recv(10) == b""  # a second client is refused while the first is connected
             other.close()
-            frames = exchange(port, [], wait=0.6)
+            frames = exchange(port, [], wait=30.0, until=lambda fr: any(
+                isinstance(f.msg, State) and f.msg.mode == MODE_FAULT for f in fr))
         finally:
             port.close()
     states = [f.msg for f in frames if isinstance(f.msg, State)]
@@ -138,7 +140,7 @@ def test_serial_mode_on_a_pty_pair_with_latency() -> None:
             os.write(master, codec.encode(Hello(1), 1))
             dec = codec.StreamDecoder()
             frames = []
-            deadline = time.monotonic() + 1.0
+            deadline = time.monotonic() + 20.0  # the loop ends at the first IDENTITY
             while time.monotonic() < deadline and not any(isinstance(f.msg, Identity) for f in frames):
                 if select.select([master], [], [], 0.05)[0]:
                     frames += dec.feed(os.read(master, 4096))
@@ -154,10 +156,14 @@ def test_from_first_frame_counts_faults_and_disconnect_from_the_hosts_first_fram
                     "--state-hz", "100", tcp=True) as mock:
         port = serial.serial_for_url(mock.url, timeout=0.05)
         try:
-            silent = exchange(port, [], wait=0.8)  # longer than both timers, and the host said nothing
-            spoken = exchange(port, [(Hello(1), 1)], wait=0.3)
+            # longer than both timers, and the host said nothing (at least 0.8 s and 20 states, however slow)
+            t_silent = time.monotonic()
+            silent = exchange(port, [], wait=30.0, until=lambda fr: time.monotonic() - t_silent >= 0.8
+                              and sum(isinstance(f.msg, State) for f in fr) >= 20)
+            spoken = exchange(port, [(Hello(1), 1)], wait=30.0, until=lambda fr: any(
+                isinstance(f.msg, State) and f.msg.mode == MODE_FAULT for f in fr))
             with pytest.raises(serial.SerialException, match="disconnected"):
-                exchange(port, [], wait=1.5)  # the disconnect is due 0.6 s after the Hello
+                exchange(port, [], wait=30.0)  # the disconnect is due 0.6 s after the Hello
         finally:
             port.close()
     quiet = [f.msg for f in silent if isinstance(f.msg, State)]

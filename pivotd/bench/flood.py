@@ -24,6 +24,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -64,12 +65,16 @@ def spacing_stats(times: np.ndarray, period: float) -> dict[str, float]:
 
 
 def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, changes: dict | None = None,
-              forged_poses: int = 0, repo: Path | None = None) -> dict:
+              forged_poses: int = 0, repo: Path | None = None,
+              until: Callable[[dict], bool] | None = None, until_timeout: float = 120.0) -> dict:
     """One daemon run: ``seconds`` of tracking (with a flood when ``flood_mb``), then SIGTERM mid-flood.
 
     ``forged_poses``: that many poses 700 m away from the robot are also published (one every 0.5 s), which the
     daemon's pose gate must refuse. ``repo``: run the daemon of another checkout (e.g. an earlier commit); the
-    flood, the pose source and the measurements stay this checkout's."""
+    flood, the pose source and the measurements stay this checkout's. ``until``: after ``seconds``, the flood (one
+    message a second) and the forged poses (one every 0.5 s) go on until ``until(status)`` holds for a status
+    document, at most ``until_timeout`` [s] longer (tests: a loaded machine may drop or delay a large message, and
+    the newest-only pose inbox may replace a forged pose by the robot's next one before it is judged)."""
     from pivotd.bench.control import _tree_rss_mb
     from pivotd.bus import large_messages as payloads
     from pivotd.bus import messages as m
@@ -117,16 +122,30 @@ def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, chan
             size = int(flood_mb * 1e6)
             floods = [(node.publisher(cfg.topics.path, m.PATH), payloads.large_path(size)),
                       (node.publisher(cfg.topics.targets, m.POINT_CLOUD2), payloads.cloud_with_fields(size))]
-            time.sleep(0.5)  # let the publishers match
         forger = node.publisher(cfg.topics.pose, cfg.topics.pose_type) if forged_poses else None
+        publishers = [pub for pub, _ in floods] + ([forger] if forger is not None else [])
+        t_match = time.monotonic()  # the daemon's subscribers are known to these publishers before the first put
+        while not all(pub.matched() for pub in publishers) and time.monotonic() - t_match < 30.0:
+            time.sleep(0.05)
         forged = m.encode_pose(cfg.topics.pose_type, 0.0, "map", np.array([500.0, 500.0, 0.0]),
                                np.array([0.0, 0.0, 0.0, 1.0]))
         t_start = time.monotonic()
         peak, k, next_put = 0.0, 0, t_start
         sent = forged_sent = 0
-        while time.monotonic() - t_start < seconds:
+        st: dict | None = None
+        checked = -1  # flood messages sent when ``until`` was last asked
+        while True:
             now = time.monotonic()
-            if forger is not None and forged_sent < forged_poses and now - t_start >= 0.5 * (forged_sent + 1):
+            if now - t_start >= seconds:
+                if until is None or now - t_start >= seconds + until_timeout:
+                    break
+                if checked != k and now >= next_put - 0.5:  # half-way to the next flood message: enough?
+                    checked, st = k, status()
+                    if st is not None and until(st):
+                        break
+                now = time.monotonic()
+            more = forged_sent < forged_poses or now - t_start >= seconds  # (on while ``until`` waits)
+            if forger is not None and more and now - t_start >= 0.5 * (forged_sent + 1):
                 forger.put(forged)
                 forged_sent += 1
             if floods and now >= next_put:
@@ -138,7 +157,7 @@ def run_phase(name: str, seconds: float, flood_mb: float | None, tmp: Path, chan
             peak = max(peak, _tree_rss_mb(daemon.pid)[0])
             time.sleep(0.1)
         t_end = time.monotonic()
-        st = status() or {}
+        st = (status() if until is None else st) or {}
         if floods:  # SIGTERM right after a flood message, as the next one arrives
             floods[k % len(floods)][0].put(floods[k % len(floods)][1])
         t_term = time.monotonic()

@@ -849,11 +849,12 @@ def summarise(stack: SoakStack, events: list[dict], warmup: float, exit_code: in
 
 
 def soak(minutes: float, out: Path, seed: int = 1, mean_gap: float = 6.0, warmup: float | None = None,
-         max_unplug_s: float | None = None) -> dict:
+         max_unplug_s: float | None = None, min_events: int = 0) -> dict:
     """Random faults for ``minutes`` with logs in ``out``; returns the results (see the module docstring).
 
     ``max_unplug_s``: leave out the unplug durations longer than this [s] (a short run that must not spend
-    a minute unplugged; the matrix and its test keep the long one)."""
+    a minute unplugged; the matrix and its test keep the long one). ``min_events``: go on after ``minutes``
+    until that many faults were injected (a short run on a loaded machine spends more of its time recovering)."""
     unplugs = {s: w for s, w in UNPLUG_SECONDS.items() if max_unplug_s is None or s <= max_unplug_s}
     duration = minutes * 60.0
     warmup = min(120.0, max(5.0, 0.1 * duration)) if warmup is None else warmup
@@ -863,12 +864,16 @@ def soak(minutes: float, out: Path, seed: int = 1, mean_gap: float = 6.0, warmup
         if stack.wait_healthy(90.0) is None:
             raise RuntimeError(f"pivotd never started tracking; see {out / 'pivotd.log'}")
         kinds = {**DEVICE_EVENTS, **BUS_EVENTS, **RANDOM_EXTRA_EVENTS, **ONCE_EVENTS}
-        while time.monotonic() - stack.t_start < duration:
+
+        def running() -> bool:
+            return time.monotonic() - stack.t_start < duration or len(events) < min_events
+
+        while running():
             gap_end = time.monotonic() + rng.uniform(0.5, 1.5) * mean_gap
             while time.monotonic() < gap_end:
                 stack.sample_rss()
                 time.sleep(0.1)
-            if time.monotonic() - stack.t_start >= duration:
+            if not running():
                 break
             if stack.recording is not None and not stack.recording.open:
                 kinds.pop("recorder_failure", None)  # it happened: the recording stopped for good

@@ -88,6 +88,9 @@ class DynamixelGimbal(SupervisedLink):
         self._requests: queue.Queue = queue.Queue()
         self._torque = (False, False)
         self._hw_errors = (0, 0)
+        # False from the start of a configuration until it completed: a failed write half-way (a lost status
+        # packet) leaves a rebooted servo without its profile and watchdog, so torque-on configures again first
+        self._configured = False
 
     # ------------------------------------------------------------------ GimbalInterface
     def send_setpoint(self, pan: float, tilt: float, pan_rate: float = 0.0, tilt_rate: float = 0.0) -> int | None:
@@ -225,6 +228,7 @@ class DynamixelGimbal(SupervisedLink):
                                 "Control Mode")
             log.error(self._last_error)
             return LinkState.INCOMPATIBLE
+        self._configured = False
         for dxl_id, *_ in self._axes():
             model, comm, error = self._ph.ping(self._port, dxl_id)
             self._check("ping", dxl_id, comm, error)
@@ -242,15 +246,21 @@ class DynamixelGimbal(SupervisedLink):
         self._goals.clear()
         self._read_state()
         if self._want_enabled and not any(self._hw_errors):
-            self._set_torque(True)
+            self._write_torque(True)
         for dxl_id, *_ in self._axes():
             self._write(dxl_id, ct.BUS_WATCHDOG, ct.watchdog_units(s.watchdog_ms))
         self._read_state()
+        self._configured = True
         log.info("servos %d (pan) and %d (tilt) at %s configured: model %d", s.pan_id, s.tilt_id, self.port_name,
                  model)
         return LinkState.UP
 
     def _set_torque(self, on: bool) -> bool:
+        if on and not self._configured:  # an earlier configuration failed half-way: complete it (it enables)
+            return self._configure() is LinkState.UP and self._torque == (True, True)
+        return self._write_torque(on)
+
+    def _write_torque(self, on: bool) -> bool:
         for dxl_id, *_ in self._axes():
             self._write(dxl_id, ct.TORQUE_ENABLE, 1 if on else 0)
         self._read_state()
@@ -259,7 +269,7 @@ class DynamixelGimbal(SupervisedLink):
     def _reboot_faulted(self) -> bool:
         self._read_state()
         if not any(self._hw_errors):
-            return True
+            return self._configured or self._configure() is LinkState.UP
         for (dxl_id, *_), err in zip(self._axes(), self._hw_errors, strict=True):
             if err:
                 comm, error = self._ph.reboot(self._port, dxl_id)

@@ -100,6 +100,14 @@ class DynamicsReport:
         """Largest of the raw ratios (quantization included)."""
         return float(max(self.velocity_ratio.max(), self.acceleration_ratio.max(), self.jerk_ratio.max()))
 
+    def allowed_ratio(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The largest velocity, acceleration and jerk ratio (2,) each that :attr:`within_limits` accepts: the
+        limit plus the resolution's allowance, over the limit."""
+        if self.limits is None:
+            return np.ones(2), np.ones(2), np.ones(2)
+        lv, la, lj = self.limits
+        return (1 + self.allowance_velocity / lv, 1 + self.allowance_acceleration / la, 1 + self.allowance_jerk / lj)
+
     @property
     def within_limits(self) -> bool:
         """Every derivative within its limit plus the wire-resolution allowance."""
@@ -158,6 +166,59 @@ def device_setpoint_dynamics(cfg: Config, dev: DeviceLog) -> DynamicsReport:
     return setpoint_dynamics(dev.sp_pos, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt, rates=dev.sp_rate)
 
 
+def commanded_setpoint_dynamics(cfg: Config, positions: np.ndarray, rates: np.ndarray) -> DynamicsReport:
+    """:func:`setpoint_dynamics` of the setpoints the daemon sent, as it computed them (``pivotd --record``'s
+    command channel: pan/tilt (N, 2) [rad] and rates (N, 2) [rad/s]), judged at the micro-radian resolution of
+    pivotd's own protocol: what was commanded before a backend's wire rounded it (DYNAMIXEL: to position ticks)."""
+    return setpoint_dynamics(positions, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt, rates=rates)
+
+
+def dynamics_report(cfg: Config, dev: DeviceLog, commanded: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
+    """The setpoint-dynamics part of :func:`analyse_run`'s report: worst velocity, acceleration and jerk per axis,
+    their ratios to the limits, whether they are within the limits, the ratios that verdict allows
+    (``allowed_ratio``) and what was judged (``dynamics_source``).
+
+    The device's log is judged, except on the DYNAMIXEL backend when ``commanded`` (angles (N, 2) [rad], rates
+    (N, 2) [rad/s] of the setpoints sent, from the recording) is given: that wire carries goal positions in ticks
+    of 0.088° and no rates, and differences of ticks show the quantisation (one tick between two periods reads as
+    hundreds of deg/s² and more than 10⁵ deg/s³), not the motion; the ticks are reported apart (``wire_*``)."""
+    ticks = cfg.gimbal.backend == "dynamixel"
+    tick_deg = float(np.degrees(POSITION_RESOLUTION))
+    if ticks and commanded is not None and len(commanded[0]) > 2:
+        dyn = commanded_setpoint_dynamics(cfg, commanded[0], commanded[1])
+        source = (f"the setpoints sent, as recorded before the wire rounds them to goal-position ticks of "
+                  f"{tick_deg:.4f}°")
+    else:
+        dyn = device_setpoint_dynamics(cfg, dev)
+        source = (f"finite differences of the goal positions the servos received: ticks of {tick_deg:.4f}°, the "
+                  "wire's quantisation, not the motion (no recording of the setpoints sent)" if ticks
+                  else "the setpoints the device received, acceleration and jerk from their rates")
+    allowed = dyn.allowed_ratio()
+    out = {
+        "dynamics_source": source,
+        "max_velocity_deg_s": np.degrees(dyn.max_velocity).round(2).tolist(),
+        "max_acceleration_deg_s2": np.degrees(dyn.max_acceleration).round(2).tolist(),
+        "max_jerk_deg_s3": np.degrees(dyn.max_jerk).round(1).tolist(),
+        "velocity_ratio": dyn.velocity_ratio.round(4).tolist(),
+        "acceleration_ratio": dyn.acceleration_ratio.round(4).tolist(),
+        "jerk_ratio": dyn.jerk_ratio.round(4).tolist(),
+        "allowed_ratio": {k: np.asarray(v).round(4).tolist() for k, v in zip(("velocity", "acceleration", "jerk"),
+                                                                              allowed, strict=True)},
+        "within_limits": dyn.within_limits,
+        "jerk_allowance_deg_s3": round(float(np.degrees(dyn.allowance_jerk)), 2),
+        "travel_deg": np.degrees(dyn.travel).round(1).tolist(),
+        "near_top_speed_share": np.round(dyn.near_top_speed, 4).tolist(),
+        "pan_range_deg": np.degrees([dyn.position_min[0], dyn.position_max[0]]).round(2).tolist(),
+        "tilt_range_deg": np.degrees([dyn.position_min[1], dyn.position_max[1]]).round(2).tolist(),
+    }
+    if ticks:
+        wire = device_setpoint_dynamics(cfg, dev)
+        out["wire_tick_deg"] = round(tick_deg, 4)
+        out["wire_goal_positions"] = int(dev.sp_pos.shape[0])
+        out["wire_max_velocity_deg_s"] = np.degrees(wire.max_velocity).round(2).tolist()
+    return out
+
+
 def visible_counts(points: np.ndarray, cameras: np.ndarray, directions: np.ndarray, half_angle: float,
                    min_range: float = 0.0, max_range: float = np.inf, chunk: int = 64) -> np.ndarray:
     """Hard count (T,) of ``points`` (M, 3) inside the cone of half-angle [rad] around ``directions`` (T, 3)
@@ -181,8 +242,10 @@ def in_cone(rel: np.ndarray, directions: np.ndarray, half_angle: float, min_rang
     return (dist >= min_range) & (dist <= max_range) & (dist > 1e-9) & (cos_t >= np.cos(half_angle))
 
 
-def analyse_run(cfg: Config, obs: Observations, device_log: Path) -> tuple[dict, dict]:
-    """Per-frame visibility (PIVOT vs forward-facing) and setpoint dynamics; returns (report, series)."""
+def analyse_run(cfg: Config, obs: Observations, device_log: Path,
+                commanded: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[dict, dict]:
+    """Per-frame visibility (PIVOT vs forward-facing) and setpoint dynamics (:func:`dynamics_report`, with the
+    recorded setpoints sent as ``commanded``); returns (report, series)."""
     cloud = load_landmarks(cfg.map.file)
     poses, joints = obs.poses, obs.joints
     if not poses or not joints:
@@ -202,7 +265,6 @@ def analyse_run(cfg: Config, obs: Observations, device_log: Path) -> tuple[dict,
     n_piv = visible_counts(cloud.points, cams, piv, cfg.pivot.half_angle, flt.min_range, flt.max_range)
     n_fwd = visible_counts(cloud.points, cams, fwd, cfg.pivot.half_angle, flt.min_range, flt.max_range)
     dev = read_device_log(device_log)
-    dyn = device_setpoint_dynamics(cfg, dev)
     lim = cfg.gimbal.limits
     report = {
         "frames": len(frames),
@@ -212,18 +274,7 @@ def analyse_run(cfg: Config, obs: Observations, device_log: Path) -> tuple[dict,
         "frames_pivot_below_10": int((n_piv < 10).sum()),
         "frames_forward_below_10": int((n_fwd < 10).sum()),
         "setpoints": int(dev.sp_pos.shape[0]),
-        "max_velocity_deg_s": np.degrees(dyn.max_velocity).round(2).tolist(),
-        "max_acceleration_deg_s2": np.degrees(dyn.max_acceleration).round(2).tolist(),
-        "max_jerk_deg_s3": np.degrees(dyn.max_jerk).round(1).tolist(),
-        "velocity_ratio": dyn.velocity_ratio.round(3).tolist(),
-        "acceleration_ratio": dyn.acceleration_ratio.round(3).tolist(),
-        "jerk_ratio": dyn.jerk_ratio.round(3).tolist(),
-        "within_limits": dyn.within_limits,
-        "jerk_allowance_deg_s3": round(float(np.degrees(dyn.allowance_jerk)), 2),
-        "travel_deg": np.degrees(dyn.travel).round(1).tolist(),
-        "near_top_speed_share": np.round(dyn.near_top_speed, 4).tolist(),
-        "pan_range_deg": np.degrees([dyn.position_min[0], dyn.position_max[0]]).round(2).tolist(),
-        "tilt_range_deg": np.degrees([dyn.position_min[1], dyn.position_max[1]]).round(2).tolist(),
+        **dynamics_report(cfg, dev, commanded),
         "joint_limits_deg": np.degrees([lim.pan_min, lim.pan_max, lim.tilt_min, lim.tilt_max]).round(1).tolist(),
     }
     series = {"t": np.array([f[0] for f in frames]), "cams": cams, "pivot": piv, "forward": fwd,

@@ -120,14 +120,36 @@ def run_demo(config_path: Path, out_dir: Path, speed: float = 1.2, timeout: floa
         if probe is not None:
             probe.close()
     obs = probe.observations()
-    report, _ = analyse_run(cfg, obs, device_log)
+    run = read_recording(recording, config_path)
+    report, _ = analyse_run(cfg, obs, device_log, (run.commanded.angles, run.commanded.rates))
     report["daemon_exit_code"] = exit_code
     report["final_status"] = obs.status
-    png = save_figure(build_figure(read_recording(recording, config_path), "all"), out_dir / "demo.png")
+    png = save_figure(build_figure(run, "all"), out_dir / "demo.png")
     (out_dir / "summary.json").write_text(json.dumps(report, indent=2, default=str))
     _print_summary(report, cfg, png)
     return DemoSummary(report["frames"], report["visible_mean_pivot"], report["visible_mean_forward"],
                        report["setpoints"], report["within_limits"], exit_code, report)
+
+
+def dynamics_lines(r: dict) -> list[str]:
+    """The summary's lines on setpoint dynamics (worst figures per axis, their share of the limits, the verdict
+    and what was judged), from :func:`pivotd.sim.analysis.dynamics_report`'s keys; the verdict is computed from
+    the figures printed, the share it allows is printed beside it."""
+    lines = []
+    for i, axis in enumerate(("pan", "tilt")):
+        lines.append(f"  {axis:<4} worst velocity {r['max_velocity_deg_s'][i]:7.2f} deg/s "
+                     f"({r['velocity_ratio'][i]:.1%} of limit), acceleration {r['max_acceleration_deg_s2'][i]:7.2f} "
+                     f"deg/s² ({r['acceleration_ratio'][i]:.1%}), jerk {r['max_jerk_deg_s3'][i]:8.1f} deg/s³ "
+                     f"({r['jerk_ratio'][i]:.1%})")
+    allowed = r["allowed_ratio"]
+    shares = "/".join(f"{max(allowed[k]):.1%}" for k in ("velocity", "acceleration", "jerk"))
+    lines.append(f"  judged: {r['dynamics_source']}")
+    lines.append(f"  within limits (the resolution allows velocity/acceleration/jerk up to {shares} of the limits): "
+                 f"{'yes' if r['within_limits'] else 'NO'}")
+    if "wire_tick_deg" in r:
+        lines.append(f"  wire: {r['wire_goal_positions']} goal positions in ticks of {r['wire_tick_deg']:g}°, no "
+                     f"rates; largest change per period {max(r['wire_max_velocity_deg_s']):.1f} deg/s")
+    return lines
 
 
 def _print_summary(r: dict, cfg: Config, png: Path) -> None:
@@ -139,15 +161,8 @@ def _print_summary(r: dict, cfg: Config, png: Path) -> None:
     print(f"  frames with < 10 landmarks visible: PIVOT {r['frames_pivot_below_10']}, "
           f"forward-facing {r['frames_forward_below_10']}")
     print(f"  setpoints sent: {r['setpoints']}")
-    for i, axis in enumerate(("pan", "tilt")):
-        print(f"  {axis:<4} worst velocity {r['max_velocity_deg_s'][i]:7.2f} deg/s ({r['velocity_ratio'][i]:.0%} "
-              f"of limit), acceleration {r['max_acceleration_deg_s2'][i]:7.2f} deg/s² "
-              f"({r['acceleration_ratio'][i]:.0%}), jerk {r['max_jerk_deg_s3'][i]:8.1f} deg/s³ "
-              f"({r['jerk_ratio'][i]:.0%})")
-    source = ("goal positions in ticks" if cfg.gimbal.backend == "dynamixel"
-              else "acceleration and jerk from the setpoint rates")
-    print(f"  within limits ({source}; the wire's resolution allows ±{r['jerk_allowance_deg_s3']} deg/s³): "
-          f"{'yes' if r['within_limits'] else 'NO'}")
+    for line in dynamics_lines(r):
+        print(line)
     print(f"  travel: pan {r['travel_deg'][0]:.0f} deg, tilt {r['travel_deg'][1]:.0f} deg; setpoints above 90 % of the "
           f"velocity limit: pan {r['near_top_speed_share'][0]:.1%}, tilt {r['near_top_speed_share'][1]:.1%}")
     print(f"  pan range {r['pan_range_deg']} deg, tilt range {r['tilt_range_deg']} deg "
