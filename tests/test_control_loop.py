@@ -515,3 +515,29 @@ def test_a_blocked_pan_axis_is_held_at_its_measured_state_and_resumes_jerk_limit
     check = check_device_log(cfg, tmp_path / "gimbal.csv")
     assert check.beyond_limits == 0 and check.axis_restarts >= 1, check
     assert check.checked_pairs == len(gimbal.setpoints) - 1, check
+
+
+def test_a_watchdog_bit_latched_while_the_device_follows_keeps_the_stream_continuous(tmp_path):
+    """The device reports the watchdog bit while ENABLED (a hold shorter than a state period that the stream's next
+    setpoint resumed, or a bit latched without a hold: the fault matrix injects it). It executes the stream, so the
+    stream goes on: a restart from its measured state would add its tracking lag as a step, which the soak's check
+    counted (14x the jerk limit in one loaded run), and the check judges the pair across the bit as one stream."""
+    from firmware_proto.messages import FAULT_WATCHDOG
+    from pivotd.bench.soak import check_device_log
+
+    cfg = load_config(REPO / "config" / "demo.yaml")
+    clock = FakeClock()
+    gimbal = ModelGimbal(clock, cfg, tmp_path / "gimbal.csv")
+    loop = build_control_loop(cfg, gimbal, clock=clock)
+    _run(loop, clock, 40, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    assert abs(gimbal.setpoints[-1][2]) > 0.3  # moving
+    restarts = loop.restarts
+    gimbal.model.inject_fault(FAULT_WATCHDOG)
+    ticks = _run(loop, clock, 40, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
+    gimbal.stop()
+    assert any(st.faults & FAULT_WATCHDOG and st.mode == GimbalMode.ENABLED for st in gimbal.states)
+    assert loop.restarts == restarts and all(t.setpoint is not None for t in ticks)
+    _assert_jerk_limited(cfg, np.array(gimbal.setpoints)[:, 2:], cfg.control.dt)
+    check = check_device_log(cfg, tmp_path / "gimbal.csv")
+    assert check.beyond_limits == 0, check
+    assert check.checked_pairs == len(gimbal.setpoints) - 1, check

@@ -426,8 +426,11 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                 recent.append((t, *state))
                 while t - recent[0][0] > window + AXIS_DECISION_S + 0.05:
                     recent.popleft()
-                if mode != MODE_ENABLED or watchdog_edge:
+                if mode != MODE_ENABLED:
                     prev, prev_acc = None, []
+                # A watchdog bit newly latched while ENABLED: the device may have held for less than a state period
+                # and resumed with the stream, so the next setpoint may continue it or restart from a measured state;
+                # both readings stay open (the pair is judged as a continuation, or as the stop's one restart).
                 if (mode != MODE_ENABLED and mode != last_mode) or watchdog_edge:  # it stopped following
                     stop_t, measured, stop_restarted = t, [state], False
                 elif stop_t is not None:

@@ -182,7 +182,11 @@ class ControlLoop:
         if state.rx_time > self._seen_rx:
             watchdog_edge = bool(state.faults & FAULT_WATCHDOG) and not self._seen_faults & FAULT_WATCHDOG
             hold_edge = state.mode == GimbalMode.HOLDING and self._seen_mode == GimbalMode.ENABLED
-            if (hold_edge or watchdog_edge) and self._held_on_this_stream(state):
+            # A watchdog bit that latched while the device reports it follows (ENABLED: a hold shorter than a state
+            # period, resumed by the stream's next setpoint, or a bit latched without a hold) is not a stop: the
+            # device executes the stream, and a restart from its measured state would step by its tracking lag.
+            stopped = hold_edge or (watchdog_edge and state.mode != GimbalMode.ENABLED)
+            if stopped and self._held_on_this_stream(state):
                 # Its watchdog stopped it: restart once, from this state. Later states of the same hold were
                 # sent before the device got the restarted stream (which resumes it) and are not followed.
                 self._request_reset(state.measured_time, hard=True)
