@@ -16,8 +16,7 @@ import pytest
 from pivotd.config import load_config
 from pivotd.gimbal.dynamixel_table import angle_to_ticks, ticks_to_angle
 from pivotd.gimbal.motion import MotionGenerator
-from pivotd.sim.analysis import DeviceLog, dynamics_report
-from pivotd.sim.demo import dynamics_lines
+from pivotd.sim.analysis import DeviceLog, dynamics_lines, dynamics_report
 from pivotd.sim.launch import REPO
 
 

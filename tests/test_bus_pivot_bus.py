@@ -238,7 +238,8 @@ def test_status_publication_and_queryable(sessions):
 
         assert wait_for(lambda: len(query()) == 1)
         first = query()[0]
-        assert first["state"] == "starting" and "/odom" in first["bus"]
+        # before the first status: the daemon names itself (`pivotd status --all` and fleets key on the name)
+        assert first["state"] == "starting" and first["name"] == bus.node_name and "/odom" in first["bus"]
         assert wait_for(lambda: bus.status_publisher.matching_status.matching)
         bus.publish_status({"state": "tracking", "pose_age_s": np.float64(0.25), "dir": np.array([1.0, 0, 0])})
         pushed = json.loads(drain(got, 1)[0])

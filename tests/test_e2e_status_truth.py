@@ -4,16 +4,25 @@
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import time
+from pathlib import Path
 
 import pytest
+from support import REPO
 
 from pivotd.bench.soak import SoakStack
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
 
 RECOVER_S = 60.0
+
+
+def touch(path: Path) -> None:
+    """Give ``path`` a later modification time (its content unchanged): the map file changed on disk."""
+    st = path.stat()
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
 
 
 def test_a_stall_of_the_daemon_is_a_host_stall_not_a_link_loss_nor_a_fault_episode(tmp_path):
@@ -37,14 +46,20 @@ def test_a_stall_of_the_daemon_is_a_host_stall_not_a_link_loss_nor_a_fault_episo
 
 
 def test_last_error_has_its_time_and_clears_and_the_map_version_grows_with_each_reload(tmp_path):
-    with SoakStack(tmp_path, seed=6) as stack:
+    map_file = tmp_path / "map.txt"  # a copy the test may touch: a reload reads a map again only if it changed
+    shutil.copyfile(REPO / "config" / "demo_hallway_map.txt", map_file)
+    with SoakStack(tmp_path, seed=6, changes={"map.file": str(map_file)}) as stack:
         assert stack.wait_healthy(90.0) is not None, stack.daemon_logs()
         st = stack.status
         assert st["last_error"] is None and st["map"]["version"] >= 1, st
         good = stack.config_path.read_text()
         versions = [st["map"]["version"]]
-        stack.daemon.send_signal(signal.SIGHUP)  # a good reload: a new map store in the planner process
+        stack.daemon.send_signal(signal.SIGHUP)  # nothing changed: the map is kept, and so is its version
         assert stack.wait(lambda s: s["reloads"] == 1, RECOVER_S) is not None, stack.status
+        assert stack.status["map"]["version"] == versions[0], stack.status["map"]
+        touch(map_file)
+        stack.daemon.send_signal(signal.SIGHUP)  # the map file changed: a new map store in the planner process
+        assert stack.wait(lambda s: s["reloads"] == 2, RECOVER_S) is not None, stack.status
         versions.append(stack.status["map"]["version"])
         stack.config_path.write_text(good + "\nplanner: [unclosed\n")
         t_bad = time.time()
@@ -55,8 +70,9 @@ def test_last_error_has_its_time_and_clears_and_the_map_version_grows_with_each_
         assert str(stack.config_path) in err["message"] and t_bad <= err["time"] <= time.time(), err
         assert stack.status["map"]["version"] == versions[-1]  # refused: the map did not change
         stack.config_path.write_text(good)
+        touch(map_file)
         stack.daemon.send_signal(signal.SIGHUP)
-        assert stack.wait(lambda s: s["reloads"] == 2, RECOVER_S) is not None, stack.status
+        assert stack.wait(lambda s: s["reloads"] == 3, RECOVER_S) is not None, stack.status
         cleared = stack.status["last_error"]
         assert cleared["message"] == err["message"] and cleared["time"] == err["time"], cleared
         assert cleared["resolved_time"] is not None and cleared["resolved_time"] >= err["time"], cleared

@@ -110,7 +110,7 @@ def test_stuck_axis_option_holds_the_axis_without_a_fault_bit() -> None:
                      until=lambda fr: sum(isinstance(f.msg, Ack) for f in fr) >= 2)
             frames = []
             for k in range(30):
-                frames += exchange(port, [(Setpoint(0.01 * k, 0.01 * k, 0.5, 0.5), 3 + k)], wait=0.02)
+                frames += exchange(port, [(Setpoint(0.01 * k, 0.01 * k, 0.5, 0.5, 0, 0, 65535), 3 + k)], wait=0.02)
             frames += exchange(port, [], wait=2.0, until=lambda fr: sum(isinstance(f.msg, State) for f in fr) >= 5)
         finally:
             port.close()

@@ -66,6 +66,7 @@ another) and should be short. ``on_raw(topic, msgtype,
         self._status_json = b""
         self._closed = False
         self._large_seen = threading.Event()
+        self.node_name = node_name
         self.node = RosNode(session, node_name, topics.domain_id, topics.namespace, humble=topics.humble)
         self._entities: list[Any] = []
         self._takers: dict[str, Callable[[bytes, float], None]] = {}
@@ -257,7 +258,7 @@ another) and should be short. ``on_raw(topic, msgtype,
         with self._lock:
             payload = self._status_json
         if not payload:
-            payload = json.dumps({"state": "starting", "bus": self.counters()}).encode()
+            payload = json.dumps({"name": self.node_name, "state": "starting", "bus": self.counters()}).encode()
         try:
             query.reply(self.topics.status_key, payload, encoding=zenoh.Encoding.APPLICATION_JSON)
         except zenoh.ZError as exc:

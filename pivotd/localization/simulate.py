@@ -38,9 +38,12 @@ class SimulatedGimbal:
         self.state = GimbalState(pan, tilt, 0.0, 0.0, MODE_ENABLED, 0, 0, 0, 0.0)
         self.setpoints: list[tuple[float, float, float, float]] = []
 
-    def send_setpoint(self, pan: float, tilt: float, pan_rate: float, tilt_rate: float) -> None:
+    def send_setpoint(self, pan: float, tilt: float, pan_rate: float, tilt_rate: float) -> int:
+        """Reach the setpoint at once; returns its sequence number (the link's, modulo 256: always sent)."""
         self.setpoints.append((pan, tilt, pan_rate, tilt_rate))
-        self.state = replace(self.state, pan=pan, tilt=tilt, pan_rate=pan_rate, tilt_rate=tilt_rate)
+        self.state = replace(self.state, pan=pan, tilt=tilt, pan_rate=pan_rate, tilt_rate=tilt_rate,
+                             last_setpoint_seq=(len(self.setpoints) - 1) & 0xFF)
+        return (len(self.setpoints) - 1) & 0xFF
 
     def send_heartbeat(self) -> None:
         pass

@@ -281,3 +281,24 @@ def analyse_run(cfg: Config, obs: Observations, device_log: Path,
               "n_pivot": n_piv, "n_forward": n_fwd, "pan": np.array([f[1] for f in frames]),
               "tilt": np.array([f[2] for f in frames]), "points": cloud.points}
     return report, series
+
+
+def dynamics_lines(r: dict) -> list[str]:
+    """The summary's lines on setpoint dynamics (worst figures per axis, their share of the limits, the verdict
+    and what was judged), from :func:`dynamics_report`'s keys; the verdict is computed from
+    the figures printed, the share it allows is printed beside it."""
+    lines = []
+    for i, axis in enumerate(("pan", "tilt")):
+        lines.append(f"  {axis:<4} worst velocity {r['max_velocity_deg_s'][i]:7.2f} deg/s "
+                     f"({r['velocity_ratio'][i]:.1%} of limit), acceleration {r['max_acceleration_deg_s2'][i]:7.2f} "
+                     f"deg/s² ({r['acceleration_ratio'][i]:.1%}), jerk {r['max_jerk_deg_s3'][i]:8.1f} deg/s³ "
+                     f"({r['jerk_ratio'][i]:.1%})")
+    allowed = r["allowed_ratio"]
+    shares = "/".join(f"{max(allowed[k]):.1%}" for k in ("velocity", "acceleration", "jerk"))
+    lines.append(f"  judged: {r['dynamics_source']}")
+    lines.append(f"  within limits (the resolution allows velocity/acceleration/jerk up to {shares} of the limits): "
+                 f"{'yes' if r['within_limits'] else 'NO'}")
+    if "wire_tick_deg" in r:
+        lines.append(f"  wire: {r['wire_goal_positions']} goal positions in ticks of {r['wire_tick_deg']:g}°, no "
+                     f"rates; largest change per period {max(r['wire_max_velocity_deg_s']):.1f} deg/s")
+    return lines

@@ -27,7 +27,7 @@ import numpy as np
 
 from pivotd.bus.probe import BusProbe
 from pivotd.config import Config, load_config
-from pivotd.sim.analysis import analyse_run
+from pivotd.sim.analysis import analyse_run, dynamics_lines
 from pivotd.sim.launch import REPO, SIMULATED_BACKENDS, derive_config, free_port, spawn, start_gimbal_simulator
 from pivotd.viz.figures import build_figure, save_figure
 from pivotd.viz.recording import read_recording
@@ -129,27 +129,6 @@ def run_demo(config_path: Path, out_dir: Path, speed: float = 1.2, timeout: floa
     _print_summary(report, cfg, png)
     return DemoSummary(report["frames"], report["visible_mean_pivot"], report["visible_mean_forward"],
                        report["setpoints"], report["within_limits"], exit_code, report)
-
-
-def dynamics_lines(r: dict) -> list[str]:
-    """The summary's lines on setpoint dynamics (worst figures per axis, their share of the limits, the verdict
-    and what was judged), from :func:`pivotd.sim.analysis.dynamics_report`'s keys; the verdict is computed from
-    the figures printed, the share it allows is printed beside it."""
-    lines = []
-    for i, axis in enumerate(("pan", "tilt")):
-        lines.append(f"  {axis:<4} worst velocity {r['max_velocity_deg_s'][i]:7.2f} deg/s "
-                     f"({r['velocity_ratio'][i]:.1%} of limit), acceleration {r['max_acceleration_deg_s2'][i]:7.2f} "
-                     f"deg/s² ({r['acceleration_ratio'][i]:.1%}), jerk {r['max_jerk_deg_s3'][i]:8.1f} deg/s³ "
-                     f"({r['jerk_ratio'][i]:.1%})")
-    allowed = r["allowed_ratio"]
-    shares = "/".join(f"{max(allowed[k]):.1%}" for k in ("velocity", "acceleration", "jerk"))
-    lines.append(f"  judged: {r['dynamics_source']}")
-    lines.append(f"  within limits (the resolution allows velocity/acceleration/jerk up to {shares} of the limits): "
-                 f"{'yes' if r['within_limits'] else 'NO'}")
-    if "wire_tick_deg" in r:
-        lines.append(f"  wire: {r['wire_goal_positions']} goal positions in ticks of {r['wire_tick_deg']:g}°, no "
-                     f"rates; largest change per period {max(r['wire_max_velocity_deg_s']):.1f} deg/s")
-    return lines
 
 
 def _print_summary(r: dict, cfg: Config, png: Path) -> None:
