@@ -1,5 +1,6 @@
 """GimbalLink against tools/mock_gimbal as a real subprocess over a pty and over TCP."""
 
+import itertools
 import signal
 import time
 
@@ -299,11 +300,14 @@ def test_a_device_stall_finds_no_burst_of_setpoints_when_it_resumes(tmp_path, ca
     executed = [r for r in rows if r["dir"] == "rx" and r["type"] == "SETPOINT"]
     stale = [r for r in rows if r["dir"] == "stale"]
     if version == 2:
-        assert stale and {int(r["seq"]) for r in stale} <= queued  # only those, all dropped
+        # only those are dropped as stale (a loaded host may have sent none into the silence: nothing then queued)
+        assert {int(r["seq"]) for r in stale} <= queued
         for r in executed:  # no setpoint was executed past its validity
             age, max_age = (int(kv.split("=")[1]) for kv in r["detail"].split())
             assert age <= max_age * 1000
-        resumed_at = float(stale[0]["t_s"])
+        # the device resumed where more than a second passed between two frames it received
+        rx = [r for r in rows if r["dir"] in ("rx", "stale")]
+        resumed_at = next(float(b["t_s"]) for a, b in itertools.pairwise(rx) if float(b["t_s"]) - float(a["t_s"]) > 1.0)
         assert not [r for r in executed if float(r["t_s"]) >= resumed_at]
         # it held still from the resume on: reconnect, ENABLE and DISABLE start from where it stands
         pans = [float(r["pan"]) for r in rows if r["dir"] == "tx" and r["type"] == "STATE"
