@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import queue
 import time
 from collections.abc import Callable, Iterator
@@ -15,6 +16,24 @@ from pivotd.bus import messages as m
 from pivotd.bus import ros
 from pivotd.bus.session import open_session
 from pivotd.bus.topics import BusTopics
+
+
+def open_router(endpoint: str) -> zenoh.Session:
+    """A Zenoh router listening on ``endpoint`` (loopback), multicast scouting off."""
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps("router"))
+    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(conf)
+
+
+def open_client(endpoint: str) -> zenoh.Session:
+    """A Zenoh client session connected to the router at ``endpoint``, multicast scouting off."""
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps("client"))
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(conf)
 
 
 def wait_for(predicate: Callable[[], bool], timeout: float = 10.0, interval: float = 0.02) -> bool:

@@ -10,7 +10,7 @@ import json
 import subprocess
 
 import pytest
-import zenoh
+from bus_support import open_client, open_router
 from support import PYTHON, REPO, ManagedProcess, child_env, free_tcp_port, wait_until
 
 from pivotd.cli.status import ALL_KEY, query_status
@@ -21,22 +21,6 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 DEMO = REPO / "config" / "demo.yaml"
 ROBOTS = ("robot1", "robot2", "robot3")
 WITH_POSES = ("robot1", "robot2")  # robot3 has no pose publisher: it must stay without a pose
-
-
-def open_router(endpoint: str) -> zenoh.Session:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps("router"))
-    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(conf)
-
-
-def open_client(endpoint: str) -> zenoh.Session:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps("client"))
-    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(conf)
 
 
 def status_cli(endpoint: str, *args: str) -> subprocess.CompletedProcess:

@@ -7,13 +7,12 @@ The router is a zenoh-python session in router mode on loopback (what ``zenohd``
 
 from __future__ import annotations
 
-import json
 import signal
 from pathlib import Path
 
 import numpy as np
 import pytest
-import zenoh
+from bus_support import open_client, open_router
 from support import PYTHON, REPO, ManagedProcess, free_tcp_port, wait_until
 
 from pivotd.cli.status import query_status
@@ -23,22 +22,6 @@ from pivotd.sim.launch import derive_config
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
 DEMO = REPO / "config" / "demo.yaml"
-
-
-def open_router(endpoint: str) -> zenoh.Session:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps("router"))
-    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(conf)
-
-
-def open_client(endpoint: str) -> zenoh.Session:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps("client"))
-    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(conf)
 
 
 def start_mock_gimbal(tmp: Path) -> tuple[ManagedProcess, str, Path]:
