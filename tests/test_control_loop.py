@@ -244,8 +244,8 @@ def test_stall_that_tripped_the_device_watchdog_resumes_from_the_measured_state(
 def test_stall_the_device_followed_through_continues_the_stream_from_the_last_setpoint(lag_rig):
     """A stall longer than stall_s that the device's watchdog did not catch (no hold, no watchdog bit in the state
     measured after it): the device kept following the last setpoint, so the stream goes on from that setpoint.
-    Restarting from the measured state (which lags the stream) was a rate step the device executed (issue 20,
-    item 7; this test asserted that restart before)."""
+    Restarting from the measured state (which lags the stream) was a rate step the device executed
+    (docs/RELIABILITY.md, case 9; this test asserted that restart before)."""
     cfg, clock, gimbal, loop = lag_rig
     dt = cfg.control.dt
     _run(loop, clock, 40, pose_at, lambda t: plan_towards([0.0, 1.0, 0.0], t))
@@ -261,7 +261,8 @@ def test_stall_the_device_followed_through_continues_the_stream_from_the_last_se
 
 def test_a_late_setpoint_then_a_stall_the_device_did_not_hold_through_keeps_every_executed_step_within_limits(
         tmp_path):
-    """``make demo`` on a loaded machine (issue 20, item 7), against the reference device model on a fake clock:
+    """``make demo`` on a loaded machine (docs/RELIABILITY.md, case 9), against the reference device model on a
+    fake clock:
     mid-motion the thread is held up inside a tick, so its setpoint goes out 0.238 s after the previous one (under
     stall_s: it is sent, and the device's 250 ms watchdog does not hold); the next tick comes 0.35 s after the
     previous one. The old loop restarted the stream from a fresh measured state although the device never held:
@@ -470,7 +471,7 @@ def test_a_setpoint_the_link_withholds_stops_the_stream_until_the_device_speaks_
 
 @pytest.mark.parametrize("freed_in", ["hold", "probe"])
 def test_a_blocked_pan_axis_is_held_at_its_measured_state_and_resumes_jerk_limited_when_it_frees(tmp_path, freed_in):
-    """Issue 20, item 2, against the reference device model on a fake clock: mid-motion the pan axis is held
+    """A blocked axis, against the reference device model on a fake clock: mid-motion the pan axis is held
     mechanically for 2 s (its encoder reports the stuck position, no fault bit). The old loop streamed on towards
     the target (commanded and measured pan 85° apart) and, freed, the device closed that error at its full speed.
     Now the tracking-error supervisor faults once the error exceeded the bound for the window: the status says so,

@@ -314,7 +314,7 @@ def test_device_stall_with_queued_setpoints_moves_nothing_on_resume_and_restarts
 
 
 def test_a_stuck_pan_axis_is_reported_held_and_resumed_within_limits(stack):
-    """Issue 20, item 2, on the whole stack: the device model holds the pan axis mechanically mid-motion (its
+    """A blocked axis, on the whole stack: the device model holds the pan axis mechanically mid-motion (its
     encoder reports the stuck position, no fault bit) until the daemon reports the tracking error, with its reason,
     and a while longer; then it frees. The episode is counted, the commanded pan did not run away from the measured
     one, and the daemon tracks again, every setpoint the device executed within the limits."""
@@ -461,8 +461,8 @@ def test_check_device_log_keeps_the_stream_across_a_clear_fault(tmp_path, jerk_a
 @pytest.mark.parametrize("device", ["never_held", "held"])
 def test_check_device_log_judges_the_step_after_a_late_setpoint_and_heartbeats_when_the_device_never_held(
         tmp_path, device):
-    """``make demo`` on a loaded machine (issue 20, item 7): after a host stall one late setpoint went out 0.238 s
-    after the previous one (under stall_s, so the device's 250 ms watchdog did not hold it), the loop sent
+    """``make demo`` on a loaded machine (docs/RELIABILITY.md, case 9): after a host stall one late setpoint went
+    out 0.238 s after the previous one (under stall_s, so the device's 250 ms watchdog did not hold it), the loop sent
     heartbeats while it waited for a fresh state, then restarted the stream from the measured state, which lagged
     the stream: the device executed a rate step of 4.5x the acceleration limit. The old check took the late
     setpoint (sent more than 0.1 s after the previous one) and the heartbeats for breaks of the stream and passed

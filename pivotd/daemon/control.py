@@ -18,7 +18,7 @@ setpoint held up past ``stall_s`` before sending, a restart requested after clea
 for a state measured after it and then decides by that state: the device held, so the stream restarts from the
 measured state; or it kept following the last setpoint it got, so the stream continues from that setpoint. A
 restart from the measured state while the device follows would add its tracking lag, or the distance it moved
-since, as a step it cannot follow within its limits (finding 7 and issue 20 item 7 in docs/RELIABILITY.md).
+since, as a step it cannot follow within its limits (finding 7 and case 9 in docs/RELIABILITY.md).
 
 A watchdog hold restarts the stream only if the device held while following the current stream: the hold's
 state echoes the last setpoint the device received, and a hold reported with a setpoint from before the current
