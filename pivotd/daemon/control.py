@@ -109,7 +109,6 @@ class ControlLoop:
         self._seen_faults = 0  # its fault bits
         self._seen_rx = -np.inf  # its receive time [s]
         self._last_tick: float | None = None
-        self._streaming = False  # the previous tick sent a setpoint
         self._segment_first: int | None = None  # seq of the first setpoint since the last restart
         self._last_send: float | None = None  # clock() when the previous setpoint of this stream was sent [s]
         self._last_sample: MotionSample | None = None  # the last setpoint sent since the last restart
@@ -256,7 +255,7 @@ class ControlLoop:
         link_state = self.link.link_state
         state = self.link.state
         gap = 0.0 if self._last_tick is None else now - self._last_tick
-        self._last_tick, self._streaming = now, False
+        self._last_tick = now
         if link_state != LinkState.UP or state is None:
             self._request_reset(now, hard=True)
             return TickResult(DaemonState.LINK_DOWN)
@@ -324,12 +323,10 @@ class ControlLoop:
             self._request_reset(sent_at, hard=False)
             return TickResult(DaemonState.HOLDING)
         self._last_send = sent_at
-        if seq is not None:
-            self._last_sample = sample
-            self.tracking.commanded(sent_at, pan, tilt, vp, vt)
-        if self._segment_first is None and seq is not None:
+        self._last_sample = sample
+        self.tracking.commanded(sent_at, pan, tilt, vp, vt)
+        if self._segment_first is None:
             self._segment_first = seq
-        self._streaming = True
         self.stats.setpoints += 1
         self.stats.clamped += int(clamped)
         if pose is not None:

@@ -269,10 +269,7 @@ class GimbalLink(SupervisedLink):
         self._last_state_rx = time.monotonic()
         silence = SilenceClock(self.config.state_timeout_s / 2)  # a stall of this process is not a silent device
         while not self._stopping.is_set() and conn.alive:
-            stalls = silence.stalls
-            silent = silence.silent(self._last_state_rx)
-            self._n["host_stalls"] += silence.stalls - stalls
-            if silent > self.config.state_timeout_s:
+            if self._silence_while_running(silence, self._last_state_rx) > self.config.state_timeout_s:
                 conn.error = f"no STATE for {self.config.state_timeout_s} s"
                 break
             self._stopping.wait(0.02)

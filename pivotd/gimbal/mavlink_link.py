@@ -331,10 +331,7 @@ class MavlinkGimbal(SupervisedLink):
         silence = SilenceClock(s.state_timeout_s / 2)  # a stall of this process is not a silent device
         while not self._stopping.is_set() and conn.alive:
             now = time.monotonic()
-            stalls = silence.stalls
-            silent = silence.silent(self._last_state_rx)
-            self._n["host_stalls"] += silence.stalls - stalls
-            if silent > s.state_timeout_s:
+            if self._silence_while_running(silence, self._last_state_rx) > s.state_timeout_s:
                 conn.error = f"no GIMBAL_DEVICE_ATTITUDE_STATUS for {s.state_timeout_s} s"
                 break
             if now >= next_hb:

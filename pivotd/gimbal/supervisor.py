@@ -108,6 +108,14 @@ class SupervisedLink:
         self._n: dict[str, int] = dict.fromkeys((*counters, "host_stalls"), 0)
         self._device_clock = DeviceClock()  # when each state was measured (reset on every connection)
 
+    def _silence_while_running(self, clock: SilenceClock, last_rx: float) -> float:
+        """The device's silence [s] that counts against the state timeout (:meth:`SilenceClock.silent`, called once per
+        loop of ``_monitor``), counting the host's stalls it saw in ``host_stalls``."""
+        stalls = clock.stalls
+        silent = clock.silent(last_rx)
+        self._n["host_stalls"] += clock.stalls - stalls
+        return silent
+
     # ------------------------------------------------------------------ GimbalInterface
     @property
     def link_state(self) -> LinkState:
