@@ -9,13 +9,8 @@ import numpy as np
 import pytest
 
 from pivotd.pivot.normalise import Normalisation, attainable_weights
-from pivotd.pivot.trajectory import (
-    TrajectoryOptions,
-    _dense_geometry,
-    _gather_pairs,
-    _ragged_geometry,
-    optimize_trajectory,
-)
+from pivotd.pivot.pairs import dense_geometry, gather_pairs, ragged_geometry
+from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
 
 
 def _patch(rng: np.random.Generator, direction, n: int, spread: float = 0.05, r: float = 100.0) -> np.ndarray:
@@ -25,8 +20,8 @@ def _patch(rng: np.random.Generator, direction, n: int, spread: float = 0.05, r:
 
 
 def _attainable(points, waypoints, retained, alpha, dist_w=False, weights=None):
-    pairs = _gather_pairs(points, weights, retained, waypoints.shape[0])
-    geom, total = _ragged_geometry(pairs, waypoints, dist_w)
+    pairs = gather_pairs(points, weights, retained, waypoints.shape[0])
+    geom, total = ragged_geometry(pairs, waypoints, dist_w)
     return attainable_weights(geom, alpha), total
 
 
@@ -43,7 +38,7 @@ def test_two_opposite_clusters_attainable_is_the_larger_cluster():
     np.testing.assert_allclose(total_w, 700.0)
     np.testing.assert_allclose(att_w, 400.0)
     # the shared (dense) geometry gives the same
-    geom, _ = _dense_geometry(P, T, np.ones(400), False)
+    geom, _ = dense_geometry(P, T, np.ones(400), False)
     np.testing.assert_allclose(attainable_weights(geom, math.radians(15)), 300.0)
 
 

@@ -186,13 +186,13 @@ def test_hallway_plan_is_smooth_and_sees_the_rich_wall():
 
 
 def test_ragged_bearings_match_float64_including_close_pairs():
-    from pivotd.pivot.trajectory import _gather_pairs, _ragged_geometry
+    from pivotd.pivot.pairs import gather_pairs, ragged_geometry
 
     rng = np.random.default_rng(2)
     path = np.column_stack([np.linspace(1000.0, 1010.0, 6), np.full(6, -500.0), np.ones(6)])  # far from the origin
     pts = np.vstack([path[2] + [0.003, 0.0, 0.0], path[0] + rng.normal(scale=8.0, size=(200, 3))])
     retained = [np.arange(len(pts))[: 50 + 20 * i] for i in range(len(path))]
-    geom, norm = _ragged_geometry(_gather_pairs(pts, None, retained, len(path)), path, False)
+    geom, norm = ragged_geometry(gather_pairs(pts, None, retained, len(path)), path, False)
     for i, r in enumerate(retained):
         ref = normalize(pts[r] - path[i])
         assert np.abs(geom.points[i, : r.size] - ref).max() < 2e-6

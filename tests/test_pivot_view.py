@@ -152,7 +152,7 @@ def test_alpha_outside_range_is_rejected():
 def test_options_are_honoured():
     rng = np.random.default_rng(6)
     B = _clustered(rng)
-    r = optimize_view(B, None, np.radians(20), options=ViewOptions(max_iterations=1, stages=1, refine=1))
+    r = optimize_view(B, None, np.radians(20), options=ViewOptions(max_iterations=1, refine=1))
     assert r.iterations <= 1
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pivotd.config import load_config
-from pivotd.daemon.planner import Plan, PlannerSettings, RecedingHorizonPlanner, Rescue
+from pivotd.daemon.planner import PathMode, Plan, PlannerSettings, RecedingHorizonPlanner, Rescue
 from pivotd.errors import PivotdError
 from pivotd.geometry import angle_between
 from pivotd.gimbal.kinematics import JointLimits, Mount
@@ -48,7 +48,7 @@ def planner(snap, warm: np.ndarray, rescue: float | None, max_step: float | None
     pl.set_path(path, None, 1)
     pl.last_plan = Plan(created=0.0, positions=path, directions=np.repeat(warm[None], N, 0),
                         body_quats=np.tile(IDENTITY, (N, 1)), visible=np.zeros(N, int), s=np.arange(N) * 0.5,
-                        map_version=snap.version, path_version=1, solve_s=0.0)
+                        map_version=snap.version, path_version=1, solve_s=0.0, path_mode=PathMode.ON_PATH)
     return pl
 
 

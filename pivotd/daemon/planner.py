@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from enum import Enum
 
 import numpy as np
@@ -40,14 +40,21 @@ from pivotd.gimbal.pan_unwrap import (
 )
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapSnapshot
-from pivotd.pivot._ascent import Geometry
 from pivotd.pivot.constraints import PanTiltConstraint
-from pivotd.pivot.normalise import attainable_weights
+from pivotd.pivot.normalise import attainable_counts
 from pivotd.pivot.rescue import blind_waypoints, rescue_init
-from pivotd.pivot.trajectory import TrajectoryOptions, TrajectoryResult, optimize_trajectory
+from pivotd.pivot.seeds import cold_seeds, derived_seeds
+from pivotd.pivot.trajectory import (
+    Seed,
+    SeedKind,
+    TrajectoryOptions,
+    TrajectoryProblem,
+    TrajectoryResult,
+    best_of,
+    trajectory_problem,
+)
 from pivotd.pivot.view import optimize_view
 from pivotd.pivot.visibility import hard_count, in_cone
-from pivotd.pivot.weights import SpreadSettings, waypoint_spread_weights
 from pivotd.robot_path import Polyline, project_onto_polyline
 
 #: Most landmarks a plan reports as inside its first cone (:attr:`Plan.in_view`, shown as live markers).
@@ -137,8 +144,6 @@ class PlannerSettings:
     ahead_window: float = 5.0
     max_step: float | None = None
     max_path_offset: float = 3.0
-    cold_polish: bool = False  # step-limited polish of cold starts (the warm replans after them do not polish)
-    spread: SpreadSettings | None = None  # per-waypoint spread weights of the retained landmarks (None: off)
     rescue_fraction: float | None = None  # blind warm starts (None: off): see RecedingHorizonPlanner._rescue
     rescue_reach: int = 2  # waypoints on either side of a blind run turned towards it in the rescue's start
     replan_budget: float | None = None  # [s] a replan slower than this halves the next one's horizon and cap
@@ -204,7 +209,6 @@ class RecedingHorizonPlanner:
         self.last_plan: Plan | None = None
         self._cache_key: tuple[int, int, int | None] | None = None
         self._cache: dict[int, np.ndarray] = {}
-        self._spread_cache: dict[int, np.ndarray] = {}
         self.unwind_target: np.ndarray | None = None  # world direction of an unwind slew under way
         self._attainable_cache: dict[int, float] = {}
         self._profile_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # pan profiles by grid key
@@ -294,7 +298,7 @@ class RecedingHorizonPlanner:
             return [np.zeros(0, np.int64) for _ in range(cams.shape[0])]
         key = (self._path_version, snapshot.version, self._cap())
         if self._cache_key != key:
-            self._cache_key, self._cache, self._spread_cache, self._attainable_cache = key, {}, {}, {}
+            self._cache_key, self._cache, self._attainable_cache = key, {}, {}
             self._profile_cache = {}
             self._rejected = (0, set())
         keys = _grid_keys(s)
@@ -310,22 +314,6 @@ class RecedingHorizonPlanner:
             if r is not None:
                 out[i] = r
         self._cache = {keys[i]: out[i] for i in range(1, s.shape[0])}
-        return out
-
-    def _spread_weights(self, snapshot: MapSnapshot, cams: np.ndarray, s: np.ndarray,
-                        retained: list[np.ndarray]) -> list[np.ndarray] | None:
-        """Spread weights (pivotd.pivot.weights) of each waypoint's retained landmarks (None when off); grid
-        waypoints reuse theirs while the path and map versions (the retained cache's key) hold."""
-        st = self.settings.spread
-        if st is None:
-            return None
-        keys = _grid_keys(s)
-        out: list[np.ndarray | None] = [None if i == 0 else self._spread_cache.get(k) for i, k in enumerate(keys)]
-        todo = [i for i, w in enumerate(out) if w is None or w.shape[0] != retained[i].shape[0]]
-        fresh = waypoint_spread_weights(snapshot.points, cams[todo], [retained[i] for i in todo], st)
-        for i, w in zip(todo, fresh, strict=True):
-            out[i] = w
-        self._spread_cache = {k: out[i] for i, k in enumerate(keys) if i > 0}
         return out
 
     def _in_view(self, snapshot: MapSnapshot, cam: np.ndarray, direction: np.ndarray,
@@ -380,26 +368,23 @@ class RecedingHorizonPlanner:
             body_pos, quats = body_position[None, :], body_quat[None, :]
         cams = camera_positions(body_pos, quats, self.mount)
         retained = self._retained(snapshot, cams, s)
-        pair_weights = self._spread_weights(snapshot, cams, s, retained)
-        init = self._warm_start(s, cams.shape[0], mode)
-        if init is None and anchor is not None:
-            init = np.repeat(np.asarray(anchor, float)[None, :], cams.shape[0], axis=0)
+        warm = self._warm_start(s, cams.shape[0], mode)
         if self.unwind_target is not None and (
-                anchor is None or init is None or angle_between(anchor, self.unwind_target) <= 0.5 * st.alpha):
+                anchor is None or warm is None or angle_between(anchor, self.unwind_target) <= 0.5 * st.alpha):
             self.unwind_target = None  # the camera got there (or the plan restarts)
-        solve = dict(
-            weights=snapshot.weights,
-            retained=retained,
+        problem = trajectory_problem(
+            snapshot.points, cams, st.alpha, st.lam, weights=snapshot.weights, retained=retained,
             anchor=anchor if self.unwind_target is None else None,  # an unwind slew is not pulled back
-            constraint=self._constraint(quats),
-            max_step=st.max_step,
-            options=st.options if st.cold_polish else replace(st.options or TrajectoryOptions(), step_polish_deg=0.0),
-            pair_weights=pair_weights,
+            constraint=self._constraint(quats), max_step=st.max_step, options=st.options,
         )
-        result = self._solve(snapshot, cams, init, solve)
+        result = self._solve(problem, self._seeds(problem, warm, anchor))
+        if warm is None:
+            derived = derived_seeds(problem, result)
+            if derived:
+                result = best_of([result, *self._solve_each(problem, derived)])
         rescue = Rescue.NOT_TRIED
-        if init is not None and st.rescue_fraction is not None:
-            result, rescue = self._rescue(snapshot, cams, s, retained, result, solve)
+        if warm is not None and st.rescue_fraction is not None:
+            result, rescue = self._rescue(snapshot, cams, s, retained, result, problem)
         self.last_objective = result.objective
         directions, visible, pans = self._joint_plan(snapshot, cams, s, retained, quats, result.directions,
                                                      np.asarray(result.visible), anchor)
@@ -425,18 +410,29 @@ class RecedingHorizonPlanner:
         self._adapt(plan.solve_s)
         return plan
 
-    def _solve(self, snapshot: MapSnapshot, cams: np.ndarray, init: np.ndarray | None,
-               solve: dict) -> TrajectoryResult:
-        """One :func:`optimize_trajectory` call from ``init`` (N, 3) (None: cold) with the keyword arguments
-        ``solve``; counted in :attr:`solves`."""
-        self.solves += 1
-        return optimize_trajectory(snapshot.points, cams, self.settings.alpha, self.settings.lam,
-                                   init_directions=init, **solve)
+    @staticmethod
+    def _seeds(problem: TrajectoryProblem, warm: np.ndarray | None, anchor: np.ndarray | None) -> list[Seed]:
+        """The seeds of a replan: the previous plan when there is one for this path and mode (warm); otherwise
+        the commanded direction (when there is one) and the cold seeds (pivotd.pivot.seeds.cold_seeds)."""
+        if warm is not None:
+            return [Seed("warm", warm, SeedKind.WARM)]
+        out = [] if anchor is None else [Seed("anchor", np.repeat(np.asarray(anchor, float)[None, :], problem.n,
+                                                                  axis=0), SeedKind.WARM)]
+        return out + cold_seeds(problem)
+
+    def _solve_each(self, problem: TrajectoryProblem, seeds: list[Seed]) -> list[TrajectoryResult]:
+        """Each seed solved (:meth:`TrajectoryProblem.solve`); counted in :attr:`solves`."""
+        self.solves += len(seeds)
+        return [problem.solve(seed) for seed in seeds]
+
+    def _solve(self, problem: TrajectoryProblem, seeds: list[Seed]) -> TrajectoryResult:
+        """The best plan (the objective) of ``seeds``."""
+        return best_of(self._solve_each(problem, seeds))
 
     def _attainable(self, snapshot: MapSnapshot, cams: np.ndarray, s: np.ndarray,
                     retained: list[np.ndarray]) -> np.ndarray:
         """Estimated most retained landmarks (N,) one cone holds at each waypoint
-        (:func:`pivotd.pivot.normalise.attainable_weights`, unit weights); grid waypoints reuse theirs while the
+        (:func:`pivotd.pivot.normalise.attainable_counts`, unit weights); grid waypoints reuse theirs while the
         retained cache's key holds, so a replan estimates only the ones entering the horizon. The first waypoint
         (the robot's position, new at every replan) takes the estimate of the next one, less than ``spacing`` ahead.
         """
@@ -455,8 +451,7 @@ class RecedingHorizonPlanner:
                 ok = n > 1e-9
                 B[r, :rel.shape[0]][ok] = rel[ok] / n[ok, None]
                 W[r, :rel.shape[0]] = ok
-            geom = Geometry(B, np.zeros((todo.size, 3), np.float32), None, W, lambda r, c, C: np.zeros(0))
-            out[todo] = attainable_weights(geom, self.settings.alpha)
+            out[todo] = attainable_counts(B, W, self.settings.alpha)
         if s.shape[0] > 1:
             out[0] = out[1]
         out[np.isnan(out)] = 0.0
@@ -464,7 +459,7 @@ class RecedingHorizonPlanner:
         return out
 
     def _rescue(self, snapshot: MapSnapshot, cams: np.ndarray, s: np.ndarray, retained: list[np.ndarray],
-                result: TrajectoryResult, solve: dict) -> tuple[TrajectoryResult, Rescue]:
+                result: TrajectoryResult, problem: TrajectoryProblem) -> tuple[TrajectoryResult, Rescue]:
         """The warm plan ``result``, or a second solve from a start where its blind waypoints look at their best
         single-cone axis when that one reaches the higher objective (both solved with the same options).
 
@@ -490,7 +485,7 @@ class RecedingHorizonPlanner:
             w = None if snapshot.weights is None else snapshot.weights[idx]
             axes[k] = optimize_view(snapshot.points[idx] - cams[i], w, st.alpha,
                                     init=result.directions[i]).direction
-        constraint = solve["constraint"]
+        constraint = problem.constraint
         if constraint is not None:  # the best reachable axis: blind only if it still sees the share asked for
             axes = constraint.project(_scatter(result.directions, blind, axes))[blind]
             reach = np.array([self._count(snapshot, cams[i], retained[i], a) for i, a in zip(blind, axes, strict=True)])
@@ -502,7 +497,7 @@ class RecedingHorizonPlanner:
         init = rescue_init(result.directions, blind, axes, st.rescue_reach)
         if constraint is not None:
             init = constraint.project(init)
-        alt = self._solve(snapshot, cams, init, solve)
+        alt = self._solve(problem, [Seed("rescue", init, SeedKind.WARM)])
         if alt.objective > result.objective:
             self.rescues += 1
             self._rejected = (0, set())

@@ -28,7 +28,6 @@ from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.fingerprint import MapIdentity, map_identity
 from pivotd.maps.store import MapStore, load_map_store
 from pivotd.pivot.trajectory import TrajectoryOptions
-from pivotd.pivot.weights import SpreadSettings
 
 
 def build_retained_filter(cfg: Config) -> RetainedFilter:
@@ -103,8 +102,6 @@ def build_planner(cfg: Config) -> RecedingHorizonPlanner:
         max_step=pl.max_step,
         max_path_offset=pl.max_path_offset,
         retained_filter=build_retained_filter(cfg),
-        spread=None if pl.spread_cell is None else SpreadSettings(pl.spread_cell, pl.spread_depth_ratio,
-                                                                  pl.spread_saturation),
         options=TrajectoryOptions(width_deg=math.degrees(p.transition_width), max_iterations=p.iterations,
                                   warm_iterations=min(p.iterations, TrajectoryOptions.warm_iterations),
                                   distance_weights=p.distance_weights, normalise=pl.normalise,

@@ -78,21 +78,15 @@ class Geometry:
 class AscentSettings:
     """Numbers steering :func:`ascend` (angles in radians)."""
 
-    stages: list[float]  # half-angle per stage, the last one is the target α
-    width: float  # target angular transition width of the sigmoid
-    wide_width_ratio: float  # widened stages use width max(width, ratio · α_q)
-    stage_iters: int  # iterations per widened stage
-    final_iters: int  # iteration budget at α
+    alpha: float  # the FoV half-angle α
+    width: float  # angular transition width of the sigmoid
+    iterations: int  # iteration budget
     step_init: float  # first step bound
     step_max: float  # largest step bound
     tol: float  # converged when every step bound is below this
-    active_cap: int  # widened stages: at most this many landmarks per row (strided subsample)
-    final_cap: int  # target stage: at most this many landmarks per row
+    cap: int  # at most this many landmarks per row in the active set
     drift: float  # rebuild the active set when an axis moved more than this since it was built
-    narrow_last: bool = True  # False: every stage (also the last) is run as a widened stage
     settle_frac: float = 0.0  # converged when at most this fraction of rows still takes steps ≥ tol
-    lam_boost: float = 1.0  # smoothness weight multiplier, decaying geometrically over the stages to 1 at α
-    freeze_settled: bool = False  # final stage: rows whose bound fell below tol rest until a neighbour moves
 
 
 def _nonzero2d(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -268,7 +262,6 @@ def ascend(
     lam: float = 0.0,
     anchor: np.ndarray | None = None,
     project: Projector | None = None,
-    coarse: Geometry | None = None,
     knee: float = 0.0,
 ) -> tuple[np.ndarray, int]:
     """Maximise Σ_k F_k(R_k)/norm_k + λ Σ_k v(c_{k+1}·c_k) (+ λ v(anchor·c_0)) over rotations R (K, 3, 3), with
@@ -278,10 +271,9 @@ def ascend(
     (eqs. 12, 18, 19) normalised by each row's feature weight ``norm`` (K,); its length is clipped to a
     per-row bound h_k that grows ×1.2 while successive gradients agree and halves when they reverse
     (overshoot; the step after a reversal keeps its bound, as in iRprop), between ``tol`` and
-    ``step_max``. A stage ends when at most ``settle_frac`` of the rows still step by ≥ tol.
+    ``step_max``. It ends when at most ``settle_frac`` of the rows still step by ≥ tol.
     ``project`` (optional) maps axes onto the reachable set after every step (projected gradient
-    ascent). ``coarse`` (optional) is a subsample of ``geom`` with weights scaled to the same totals,
-    used for the widened stages. Returns the rotations and the iteration count.
+    ascent). Returns the rotations and the iteration count.
 
     Only the axes are tracked: a step exp((h û)^) with û ⟂ c moves the axis to c cos h + (û × c) sin h,
     and the roll about the axis does not enter the objective. The returned rotations are the inputs
@@ -295,105 +287,64 @@ def ascend(
         C = project(C)
     total = 0
     coupled = (lam > 0 and K > 1) or (lam > 0 and anchor is not None)
-    last = len(settings.stages) - 1
-    for q, a_q in enumerate(settings.stages):
-        final = q == last and settings.narrow_last
-        lam_q = lam * settings.lam_boost ** (1.0 - q / last) if last > 0 else lam
-        width = settings.width if final else max(settings.width, settings.wide_width_ratio * a_q)
-        ks = ks_from_width(a_q, width)
-        w_eff = min(width, a_q, np.pi - a_q)
-        margin = 2.0 * w_eff + settings.drift
-        cos_lo = float(np.cos(min(np.pi, a_q + margin)))
-        cos_hi = float(np.cos(max(0.0, a_q - margin))) if a_q - margin > 0 else 1.0
-        cap = settings.final_cap if final else settings.active_cap
-        if not final and coarse is not None:
-            cos_lo, cos_hi = -2.0, 1.0  # the subsample is small: keep all of it, never rebuild
-        iters = settings.final_iters if final else settings.stage_iters
-        cos_a = np.float32(np.cos(a_q))
-        half_ks = np.float32(0.5 * ks)
-        quarter_ks = np.float32(0.25 * ks)
-        h0 = min(settings.step_init, max(a_q, settings.tol))
-        if final:
-            h0 = min(h0, 0.5 * settings.drift)
-        h = np.full(K, h0)
-        J_prev = np.zeros((K, 3))
-        g_stage = geom if final or coarse is None else coarse
-        B, Wa = _active(g_stage, C, cos_lo, cos_hi, cap)
-        C_ref = C.copy()
-        cos_drift = np.cos(settings.drift)
-        freeze = final and settings.freeze_settled
-        rows = None  # rows evaluated in this iteration (None: all)
-        for _ in range(iters):
-            total += 1
-            if rows is None:
-                Bq, Wq, Cq, inv_q = B, Wa, C, inv_norm
+    a_q, width = settings.alpha, settings.width
+    ks = ks_from_width(a_q, width)
+    w_eff = min(width, a_q, np.pi - a_q)
+    margin = 2.0 * w_eff + settings.drift
+    cos_lo = float(np.cos(min(np.pi, a_q + margin)))
+    cos_hi = float(np.cos(max(0.0, a_q - margin))) if a_q - margin > 0 else 1.0
+    cap = settings.cap
+    cos_a = np.float32(np.cos(a_q))
+    half_ks = np.float32(0.5 * ks)
+    quarter_ks = np.float32(0.25 * ks)
+    h = np.full(K, min(settings.step_init, max(a_q, settings.tol), 0.5 * settings.drift))
+    J_prev = np.zeros((K, 3))
+    B, Wa = _active(geom, C, cos_lo, cos_hi, cap)
+    C_ref = C.copy()
+    cos_drift = np.cos(settings.drift)
+    for _ in range(settings.iterations):
+        total += 1
+        t = np.matmul(B, C.astype(np.float32)[:, :, None])[..., 0]  # cos θ (K, L)
+        t -= cos_a
+        t *= half_ks
+        np.tanh(t, out=t)
+        t *= t
+        g = np.subtract(np.float32(1.0), t, out=t)
+        g *= Wa  # ∝ s_j v (1 − v): the k_s/4 factor is applied to the (K, 3) sum
+        S = np.matmul(g[:, None, :], B)[:, 0, :].astype(float)
+        S *= (float(quarter_ks) * inv_norm)[:, None]
+        if coupled:  # J = c × (S_vis / W + Σ_neighbours w · c_nb): one cross product for both terms
+            # w = λ × the pair value's slope at the current step (λ itself without a knee)
+            if knee > 0:
+                pair_w = lam * pair_slope(np.einsum("ij,ij->i", C[1:], C[:-1]), knee)  # (K − 1,)
+                anchor_w = lam * float(pair_slope(float(anchor @ C[0]), knee)) if anchor is not None else 0.0
             else:
-                Bq, Wq, Cq, inv_q = B[rows], Wa[rows], C[rows], inv_norm[rows]
-            t = np.matmul(Bq, Cq.astype(np.float32)[:, :, None])[..., 0]  # cos θ (n, L)
-            t -= cos_a
-            t *= half_ks
-            np.tanh(t, out=t)
-            t *= t
-            g = np.subtract(np.float32(1.0), t, out=t)
-            g *= Wq  # ∝ s_j v (1 − v): the k_s/4 factor is applied to the (n, 3) sum
-            S = np.matmul(g[:, None, :], Bq)[:, 0, :].astype(float)
-            S *= (float(quarter_ks) * inv_q)[:, None]
-            if coupled:  # J = c × (S_vis / W + Σ_neighbours w · c_nb): one cross product for both terms
-                # w = λ × the pair value's slope at the current step (λ itself without a knee)
-                if knee > 0:
-                    pair_w = lam_q * pair_slope(np.einsum("ij,ij->i", C[1:], C[:-1]), knee)  # (K − 1,)
-                    anchor_w = lam_q * float(pair_slope(float(anchor @ C[0]), knee)) if anchor is not None else 0.0
-                else:
-                    pair_w, anchor_w = np.full(K - 1, lam_q), lam_q
-                if rows is None:
-                    S[1:] += pair_w[:, None] * C[:-1]
-                    S[:-1] += pair_w[:, None] * C[1:]
-                    if anchor is not None:
-                        S[0] += anchor_w * anchor
-                else:
-                    has_prev, has_next = rows > 0, rows < K - 1
-                    S[has_prev] += pair_w[rows[has_prev] - 1, None] * C[rows[has_prev] - 1]
-                    S[has_next] += pair_w[rows[has_next], None] * C[rows[has_next] + 1]
-                    if anchor is not None and rows[0] == 0:
-                        S[0] += anchor_w * anchor
-            J = _cross(Cq, S)
-            nJ = np.sqrt(np.einsum("ij,ij->i", J, J))
-            Jp = J_prev if rows is None else J_prev[rows]
-            hq = h if rows is None else h[rows]
-            agree = np.einsum("ij,ij->i", J, Jp)
-            hq = np.where(agree < 0, 0.5 * hq, np.where(agree > 0, np.minimum(1.2 * hq, settings.step_max), hq))
-            Jp = np.where((agree < 0)[:, None], 0.0, J)  # after a reversal the next step neither grows nor shrinks
-            if rows is None:
-                h, J_prev = hq, Jp
-            else:
-                h[rows], J_prev[rows] = hq, Jp
-            live = nJ > 1e-12
-            moving = live & (hq >= settings.tol)
-            if np.count_nonzero(moving) <= settings.settle_frac * K:  # rows at rest have bounds below tol
-                break
-            hs = np.where(live, hq, 0.0)
-            u = J / np.where(live, nJ, 1.0)[:, None]
-            Cn = Cq * np.cos(hs)[:, None] + _cross(u, Cq) * np.sin(hs)[:, None]
-            if project is None:
-                Cn /= np.sqrt(np.einsum("ij,ij->i", Cn, Cn))[:, None]
-            if rows is None:
-                C = Cn
-            else:
-                C[rows] = Cn
-            if project is not None:
-                C = project(C)  # returns unit rows (rows at rest are reachable already and stay as they are)
-            if freeze:  # next: the rows still taking steps ≥ tol and their neighbours (their smoothness term moved)
-                mov = np.flatnonzero(moving) if rows is None else rows[moving]
-                nxt = np.zeros(K, dtype=bool)
-                nxt[mov] = True
-                nxt[mov[mov > 0] - 1] = True
-                nxt[mov[mov < K - 1] + 1] = True
-                rows = None if nxt.all() else np.flatnonzero(nxt)
-            if cos_lo > -1.0:
-                moved = np.flatnonzero(np.einsum("ij,ij->i", C, C_ref) < cos_drift)
-                if moved.size:
-                    B, Wa = _refresh_rows(g_stage, C, moved, B, Wa, cos_lo, cos_hi, cap)
-                    C_ref[moved] = C[moved]
+                pair_w, anchor_w = np.full(K - 1, lam), lam
+            S[1:] += pair_w[:, None] * C[:-1]
+            S[:-1] += pair_w[:, None] * C[1:]
+            if anchor is not None:
+                S[0] += anchor_w * anchor
+        J = _cross(C, S)
+        nJ = np.sqrt(np.einsum("ij,ij->i", J, J))
+        agree = np.einsum("ij,ij->i", J, J_prev)
+        h = np.where(agree < 0, 0.5 * h, np.where(agree > 0, np.minimum(1.2 * h, settings.step_max), h))
+        J_prev = np.where((agree < 0)[:, None], 0.0, J)  # after a reversal the next step neither grows nor shrinks
+        live = nJ > 1e-12
+        moving = live & (h >= settings.tol)
+        if np.count_nonzero(moving) <= settings.settle_frac * K:  # rows at rest have bounds below tol
+            break
+        hs = np.where(live, h, 0.0)
+        u = J / np.where(live, nJ, 1.0)[:, None]
+        C = C * np.cos(hs)[:, None] + _cross(u, C) * np.sin(hs)[:, None]
+        if project is None:
+            C /= np.sqrt(np.einsum("ij,ij->i", C, C))[:, None]
+        else:
+            C = project(C)  # returns unit rows (rows at rest are reachable already and stay as they are)
+        if cos_lo > -1.0:
+            moved = np.flatnonzero(np.einsum("ij,ij->i", C, C_ref) < cos_drift)
+            if moved.size:
+                B, Wa = _refresh_rows(geom, C, moved, B, Wa, cos_lo, cos_hi, cap)
+                C_ref[moved] = C[moved]
     return _turn_to(R, C), total
 
 

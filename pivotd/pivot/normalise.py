@@ -127,3 +127,11 @@ def attainable_weights(geom: Geometry, alpha: float, *, candidates: int = 6, shi
         n = np.linalg.norm(sums, axis=2, keepdims=True)
         C = np.where(n > 1e-12, sums / np.maximum(n, 1e-300), C)
     return best
+
+
+def attainable_counts(bearings: np.ndarray, weights: np.ndarray, alpha: float) -> np.ndarray:
+    """:func:`attainable_weights` (N,) of unit ``bearings`` (N, L, 3) float32 with ``weights`` (N, L) (0: padding)."""
+    B = np.ascontiguousarray(bearings, dtype=np.float32)
+    geom = Geometry(B, np.zeros((B.shape[0], 3), np.float32), None, np.asarray(weights, np.float32),
+                    lambda r, c, C: np.zeros(0))
+    return attainable_weights(geom, alpha)

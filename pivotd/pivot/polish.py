@@ -1,23 +1,12 @@
-"""Hard-count polish of a trajectory: pattern search on the discrete objective the plan is judged by.
+"""Step-limited polish of a trajectory: dynamic programming on the discrete objective the plan is judged by.
 
 The gradient ascent maximises a smoothed visibility (sigmoid of width ~3°), whose optimum can sit a
-fraction of a degree off the optimum of the hard count, and where a turn between clusters has to be
-made, the smoothed objective blurs how many landmarks the turning views still hold. This pass
-maximises the exact per-waypoint objective
-
-    Φ_hard = Σ_i V_i(c_i) / W_i  +  λκ Σ_i c_{i+1}·c_i  (+ λκ a·c_0)
-
-(V_i: hard visible weight, W_i: the waypoint's total weight) by a red-black pattern search: all even
-waypoints try 8 directions on each ring of radius r, r/2, … ≥ tol around their axis at once, with
-their neighbours fixed, and move to the best strict improvement; then the odd ones. Every accepted
-move raises Φ_hard, so the polish never makes the plan worse by the measure it is judged by.
-
-:func:`step_limited_polish` is the same idea for a plan with a largest step S: at every waypoint the
-axis and the directions on two rings around it are candidates, and dynamic programming picks the
-sequence of candidates with the largest total hard visible weight whose consecutive directions (and
-the step from the anchor) stay within S: exact over the candidates, so whole runs of waypoints move
-together (a red-black move is blocked wherever the step is already at S), and the current plan is one
-of the sequences, so the count never drops and no step exceeds S.
+fraction of a degree off the optimum of the hard count. For a plan with a largest step S,
+:func:`step_limited_polish` takes at every waypoint the axis and the directions on two rings around it as
+candidates, and dynamic programming picks the sequence of candidates with the largest total hard visible
+weight (or Φ_hard = Σ_i V_i(c_i)/W_i + λκ Σ_i v(c_{i+1}·c_i)) whose consecutive directions (and the step from
+the anchor) stay within S: exact over the candidates, so whole runs of waypoints move together, and the
+current plan is one of the sequences, so the score never drops and no step exceeds S.
 """
 
 from __future__ import annotations
@@ -50,82 +39,6 @@ def _tangents(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     t1[polar, 1], t1[polar, 2] = c[polar, 2], -c[polar, 1]
     t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
     return t1, np.cross(c, t1)
-
-
-def polish_trajectory(
-    B: np.ndarray,
-    Wa: np.ndarray,
-    C: np.ndarray,
-    norm: np.ndarray,
-    alpha: float,
-    smooth: float,
-    radius: float,
-    tol: float,
-    *,
-    sweeps: int = 4,
-    anchor: np.ndarray | None = None,
-    reachable: Reachable | None = None,
-    knee: float = 0.0,
-) -> tuple[np.ndarray, int]:
-    """Red-black pattern search on Φ_hard (module docstring); returns the new axes (N, 3) and the moves made.
-
-    B (N, L, 3) float32 unit bearings of the landmarks that can change state within the search (the
-    band around each cone), Wa (N, L) their weights (0 for padding); C (N, 3) unit axes; norm (N,) the
-    totals W_i; smooth = λκ; radius / tol [rad]: the largest and smallest ring; at most ``sweeps``
-    red-black sweeps. ``reachable(rows, directions (n, K, 3)) -> (n, K) bool`` restricts the moves.
-    """
-    C = np.array(C, dtype=float)
-    N = C.shape[0]
-    if N == 0 or B.shape[1] == 0:
-        return C, 0
-    cos_r, sin_r, ca, sa = ring_offsets(radius, tol)
-    cos_a = np.float32(np.cos(alpha) - 1e-7)
-    inv = 1.0 / np.maximum(norm, 1e-12)
-    coupled = smooth > 0 and (N > 1 or anchor is not None)
-    moves = 0
-    dirty = np.ones(N, dtype=bool)  # rows whose own axis or a neighbour changed since they were last tried
-    for _ in range(sweeps):
-        moved = 0
-        for parity in (0, 1):
-            rows = np.arange(parity, N, 2)
-            rows = rows[dirty[rows]]
-            if rows.size == 0:
-                continue
-            dirty[rows] = False
-            c = C[rows]
-            t1, t2 = _tangents(c)
-            ring = cos_r[None] * c[:, None, :] + sin_r[None] * (ca[None] * t1[:, None, :] + sa[None] * t2[:, None, :])
-            cand = np.concatenate([c[:, None, :], ring], axis=1)  # (n, K + 1, 3); column 0: stay
-            inside = np.matmul(cand.astype(np.float32), B[rows].transpose(0, 2, 1)) >= cos_a  # (n, K + 1, L)
-            val = np.matmul(inside.astype(np.float32), Wa[rows][:, :, None])[..., 0].astype(float) * inv[rows, None]
-            if coupled:  # each neighbour's pair value (:mod:`pivotd.pivot.smoothness`)
-                prev, nxt = rows - 1, rows + 1
-                has_prev, has_next = prev >= 0, nxt < N
-                if np.any(has_prev):
-                    cos_p = np.einsum("nkj,nj->nk", cand[has_prev], C[prev[has_prev]])
-                    val[has_prev] += smooth * pair_value(cos_p, knee)
-                if np.any(has_next):
-                    cos_n = np.einsum("nkj,nj->nk", cand[has_next], C[nxt[has_next]])
-                    val[has_next] += smooth * pair_value(cos_n, knee)
-                if anchor is not None and rows[0] == 0:
-                    val[0] += smooth * pair_value(cand[0] @ anchor, knee)
-            if reachable is not None:
-                val[:, 1:][~reachable(rows, cand[:, 1:])] = -np.inf
-            k = np.argmax(val, axis=1)
-            better = val[np.arange(rows.size), k] > val[:, 0] + 1e-12
-            if np.any(better):
-                new = cand[better, k[better]]
-                changed = rows[better]
-                C[changed] = new / np.linalg.norm(new, axis=1, keepdims=True)
-                moved += int(changed.size)
-                dirty[changed] = True
-                dirty[changed[changed > 0] - 1] = True
-                dirty[changed[changed < N - 1] + 1] = True
-        moves += moved
-        if moved == 0:
-            break
-    return C, moves
-
 
 
 def _ring_candidates(C: np.ndarray, radius: float) -> np.ndarray:
@@ -227,9 +140,9 @@ def step_limited_polish(
     all levels together (the axes move by < 2 × radius in all); each level narrows the previous level's
     band to α ± 2.02 r around its axes (it held α ± 4.04 r around axes that have moved ≤ 2 r since) and
     scores all waypoints × candidates in one batched product on the part within α ± 1.01 r (the landmarks
-    whose state a move of ≤ r can change). ``reachable`` as in
-    :func:`polish_trajectory`. With ``smooth`` = λκ > 0 it maximises Φ_hard (visible weight / ``norm``
-    (N,) plus λκ Σ c_{i+1}·c_i) within the limit instead of the visible weight alone.
+    whose state a move of ≤ r can change). ``reachable(rows, directions (n, K, 3)) -> (n, K) bool``
+    (optional) restricts the candidates to the reachable ones. With ``smooth`` = λκ > 0 it maximises Φ_hard
+    (visible weight / ``norm`` (N,) plus λκ Σ c_{i+1}·c_i) within the limit instead of the visible weight alone.
     """
     C = np.array(C, dtype=float)
     N = C.shape[0]

@@ -9,9 +9,8 @@ axes, the centroid, landmarks and a coarse lattice, shifted on the landmarks the
 are ranked by their hard visible weight on all landmarks; the best one and the rivals whose widened-cone
 bound could still beat it are refined by gradient ascent on the smooth objective; a coarse-to-fine
 hard-count search on spirals of directions (:func:`local_search`: a wide cap for flat landscapes with
-many shallow maxima close together, then finer ones) finishes. An optional FoV schedule starts wide and
-narrows to α with k_s recomputed from a target transition width; steps are normalised, clipped and
-adaptively scaled (see :func:`pivotd.pivot._ascent.ascend`). Narrow cones (α < ``narrow_deg``) take another
+many shallow maxima close together, then finer ones) finishes. Steps are normalised, clipped and
+adaptively scaled (as in :func:`pivotd.pivot._ascent.ascend`). Narrow cones (α < ``narrow_deg``) take another
 path, whatever the number of landmarks: a branch and bound over a 3-D hash of the bearings in cubes of the
 cone's chord, with exact local searches on the landmarks of the cone's edge (:func:`_narrow_view`).
 """
@@ -24,7 +23,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from pivotd.geometry import optical_frame_from_direction
-from pivotd.pivot import _ascent
 from pivotd.pivot._checks import feature_weights, finite_array, half_angle, unit_vector
 from pivotd.pivot.cone_kernel import ConeKernel, cell_keys, cone_kernel
 from pivotd.pivot.visibility import ks_from_width
@@ -36,10 +34,6 @@ class ViewOptions:
 
     width_deg: float = 2.0  # sigmoid transition width at α (k_s from ks_from_width) ...
     width_ratio: float = 0.1  # ... but at least this fraction of α (wide cones need softer edges)
-    fov_start_deg: float | None = None  # widest half-angle of the schedule; None: min(90, α + 10)
-    stages: int = 1  # FoV schedule stages including the final one at α (1: no widening)
-    wide_width_ratio: float = 0.25  # widened stages use width max(width, ratio · α_q)
-    stage_iters: int = 5
     max_iterations: int = 40  # iteration budget at α
     step_init_deg: float = 4.0
     step_max_deg: float = 15.0
@@ -58,8 +52,6 @@ class ViewOptions:
     reach_ratio: float = 0.25  # a candidate is refined when its weight within α(1 + ratio) can beat the best
     final_candidates: int = 2  # at most this many go on to the refinement at α
     keep_ratio: float = 0.5  # drop candidates whose subsample score is < ratio · best
-    active_cap: int = 1024
-    final_cap: int = 8192
     drift_deg: float = 5.0
     cap_ratio: float = 0.5  # hard-count search (local_search): first a spiral of directions within ratio · α ...
     cap_points: int = 32  # ... of the best with this many directions (flat landscapes: the best peak nearby; 0: off)
@@ -484,12 +476,7 @@ def optimize_view(
         C = _histogram_candidates(BT, w, alpha, opts, init_v, uniform, kernel)
     else:
         C = _candidates(B, BT, w, alpha, opts, init_v, weights is None)
-    rad = np.radians
-    start = rad(opts.fov_start_deg) if opts.fov_start_deg is not None else min(np.pi / 2, alpha + rad(10.0))
-    stages = schedule(alpha, start, opts.stages)
     iters = 0
-    if len(stages) > 1:  # widened stages on a strided subsample with weights scaled to the same total
-        C, iters = _widened(BT.T, w, C, stages, alpha, opts)
     shifts = opts.full_shift if B.shape[0] <= opts.sample else 0  # above: shifted on the histogram instead
     C, cos_c, score, bound = _full_shift(C, BT, w32, alpha, shifts, opts.reach_ratio, uniform)
     cos_a32 = np.float32(np.cos(alpha))
@@ -605,41 +592,6 @@ def _row_weights(mask: np.ndarray, w32: np.ndarray, uniform: bool) -> np.ndarray
     if mask.shape[0] == 1:
         return np.array([np.count_nonzero(mask)], np.float32) * unit
     return np.array([np.count_nonzero(r) for r in mask], np.float32) * unit
-
-
-def _widened(
-    B32: np.ndarray, w: np.ndarray, C: np.ndarray, stages: list[float], alpha: float, opts: ViewOptions
-) -> tuple[np.ndarray, int]:
-    """The widened FoV stages (all but the last of ``stages``) for candidate axes C (K, 3) on a strided
-    subsample of float32 bearings B32 (n, 3); returns the moved axes (K, 3) and the iteration count."""
-    rad = np.radians
-    settings = _ascent.AscentSettings(
-        stages=stages[:-1],
-        width=_width(alpha, opts),
-        wide_width_ratio=opts.wide_width_ratio,
-        stage_iters=opts.stage_iters,
-        final_iters=opts.max_iterations,
-        step_init=rad(opts.step_init_deg),
-        step_max=rad(opts.step_max_deg),
-        tol=rad(opts.tol_deg),
-        active_cap=opts.active_cap,
-        final_cap=opts.final_cap,
-        drift=rad(opts.drift_deg),
-        narrow_last=False,
-    )
-    total = float(w.sum())
-    n = B32.shape[0]
-    idx = np.linspace(0, n - 1, opts.sample).astype(np.intp) if n > opts.sample else np.arange(n)
-    Bc = np.ascontiguousarray(B32[idx])
-    wc = w[idx] * (total / max(float(w[idx].sum()), 1e-300))
-
-    def exact(rows: np.ndarray, cols: np.ndarray, Cx: np.ndarray) -> np.ndarray:
-        return np.einsum("ij,ij->i", Bc[cols].astype(float), Cx[rows])
-
-    K = C.shape[0]
-    coarse = _ascent.Geometry(Bc, np.zeros((K, 3), np.float32), None, wc.astype(np.float32), exact)
-    R, iters = _ascent.ascend(coarse, optical_frame_from_direction(C), np.full(K, total), settings, coarse=coarse)
-    return R[:, :, 2].copy(), iters
 
 
 def _unit_bearings(bearings: np.ndarray, weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -886,12 +838,3 @@ def _edge_band(
     if sel.size == 0:
         return None
     return BT.take(sel, axis=1), w.take(sel).astype(np.float32)
-
-
-def schedule(alpha: float, start: float, stages: int) -> list[float]:
-    """FoV half-angles [rad] narrowing geometrically from ``start`` (≤ 90°) to α over ``stages`` steps."""
-    start = min(max(start, alpha), np.pi / 2) if alpha < np.pi / 2 else alpha
-    if stages <= 1 or start <= alpha * (1 + 1e-9):
-        return [alpha]
-    f = np.linspace(1.0, 0.0, stages)
-    return [float(alpha * (start / alpha) ** x) for x in f]
