@@ -22,7 +22,6 @@ from scipy.ndimage import maximum_filter1d
 from pivotd.geometry import pan_tilt_to_direction
 
 _EPS = 1e-9  # slack on cell-count divisions and reach tests
-_CHUNK = 1 << 22  # cells × landmarks per matmul block in cell_counts
 
 
 def _even(lo: float, hi: float, step: float) -> np.ndarray:
@@ -143,26 +142,85 @@ def cell_counts(rel: np.ndarray, weights: np.ndarray | None, grid: JointGrid, ba
     """Hard count (or weight sum) (P, T) of landmarks within ``alpha`` [rad] of each cell's direction.
 
     ``rel`` (L, 3): landmark minus camera [m], world frame (landmarks at the camera are ignored); ``weights``
-    (L,) or None (count). Range filtering is the caller's job. Computed in float32 blocks.
+    (L,) or None (count). Range filtering is the caller's job.
+
+    Exact and O(L·T + P·T): the angle between a cell (p, t) and a landmark at base angles (p_l, t_l) is within
+    alpha iff cos t cos t_l cos(p − p_l) + sin t sin t_l ≥ cos alpha, so on every tilt row the landmark covers
+    one pan interval around p_l (around p_l + π where cos t < 0), added as a difference array and summed.
     """
     rel = np.asarray(rel, dtype=float).reshape(-1, 3)
     w = np.ones(rel.shape[0]) if weights is None else np.asarray(weights, dtype=float).reshape(-1)
     if w.shape[0] != rel.shape[0]:
         raise ValueError(f"weights must have shape ({rel.shape[0]},), got {w.shape}")
+    R = np.asarray(base_from_world, dtype=float)
+    if R.shape != (3, 3):
+        raise ValueError(f"base_from_world must be (3, 3), got {R.shape}")
+    P, T = grid.shape
     norm = np.linalg.norm(rel, axis=1)
     keep = norm > 1e-9
-    units = (rel[keep] / norm[keep, None]).astype(np.float32)
-    w = w[keep].astype(np.float32)
-    dirs = grid.directions(base_from_world).astype(np.float32)
-    out = np.zeros(dirs.shape[0])
-    if units.shape[0] == 0:
-        return out.reshape(grid.shape)
-    cos_a = np.float32(math.cos(alpha))
-    rows = max(1, _CHUNK // units.shape[0])
-    for s in range(0, dirs.shape[0], rows):
-        inside = (dirs[s:s + rows] @ units.T) >= cos_a
-        out[s:s + rows] = inside.astype(np.float32) @ w
-    return out.reshape(grid.shape)
+    if not keep.any():
+        return np.zeros((P, T))
+    b = rel[keep] @ R.T  # base frame (L, 3)
+    w = w[keep]
+    pl = np.arctan2(b[:, 1], b[:, 0])
+    tl = np.arctan2(-b[:, 2], np.hypot(b[:, 0], b[:, 1]))
+    ct, st = np.cos(grid.tilts), np.sin(grid.tilts)
+    A = ct[None, :] * np.cos(tl)[:, None]  # (L, T)
+    B = math.cos(alpha) - st[None, :] * np.sin(tl)[:, None]
+    flat = np.abs(A) <= 1e-12  # the cell or the landmark at a pole: pan does not matter
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = np.where(flat, np.where(B <= 0, -np.inf, np.inf), B / np.abs(A))
+    centre = pl[:, None] + np.where(A < 0, math.pi, 0.0)
+    half = np.arccos(np.clip(c, -1.0, 1.0))  # (L, T) half-width of the pan interval [rad]
+    some = c <= 1.0
+    full = some & (c <= -1.0 + 1e-12)
+    part = some & ~full
+    rows = np.broadcast_to(np.arange(T), c.shape)
+    ww = np.broadcast_to(w[:, None], c.shape)
+    out = np.zeros((T, P))
+    if full.any():
+        out += np.bincount(rows[full], ww[full], minlength=T)[:, None]
+    if part.any():
+        out += _pan_intervals(grid, centre[part], half[part], rows[part], ww[part])
+    return out.T.copy()
+
+
+def _pan_intervals(grid: JointGrid, centre: np.ndarray, half: np.ndarray, rows: np.ndarray,
+                   w: np.ndarray) -> np.ndarray:
+    """(T, P) sums of ``w`` (K,) over the pans within ``half`` (K,) of ``centre`` (K,) [rad] on tilt row ``rows``
+    (K,) (pan angles compared modulo 2π; half < π)."""
+    P, T = grid.shape
+    p0 = float(grid.pans[0])
+    step = grid.pan_step if P > 1 else 1.0
+    diff = np.zeros((T, 2 * P + 1) if grid.continuous_pan else (T, P + 1))
+    lo_a, hi_a = centre - half, centre + half
+    if grid.continuous_pan:
+        lo = np.ceil((lo_a - p0) / step - _EPS).astype(np.int64)
+        hi = np.floor((hi_a - p0) / step + _EPS).astype(np.int64)
+        n = np.minimum(hi - lo + 1, P)
+        ok = n > 0
+        start = np.remainder(lo[ok], P)
+        _scatter(diff, rows[ok], start, start + n[ok], w[ok])
+        run = np.cumsum(diff, axis=1)
+        return run[:, :P] + run[:, P:2 * P]
+    two_pi = 2.0 * math.pi
+    shift = p0 + np.remainder(centre - p0, two_pi) - centre  # centres into [p0, p0 + 2π)
+    lo_a, hi_a = lo_a + shift, hi_a + shift
+    for k in range(-1, math.ceil((float(grid.pans[-1]) - p0) / two_pi) + 1):
+        lo = np.ceil((lo_a + two_pi * k - p0) / step - _EPS).astype(np.int64)
+        hi = np.floor((hi_a + two_pi * k - p0) / step + _EPS).astype(np.int64)
+        lo, hi = np.maximum(lo, 0), np.minimum(hi, P - 1)
+        ok = lo <= hi
+        if ok.any():
+            _scatter(diff, rows[ok], lo[ok], hi[ok] + 1, w[ok])
+    return np.cumsum(diff, axis=1)[:, :P]
+
+
+def _scatter(diff: np.ndarray, rows: np.ndarray, start: np.ndarray, stop: np.ndarray, w: np.ndarray) -> None:
+    """diff[rows, start] += w and diff[rows, stop] -= w (repeated indices accumulate)."""
+    width = diff.shape[1]
+    idx = np.concatenate([rows * width + start, rows * width + stop])
+    diff += np.bincount(idx, np.concatenate([w, -w]), minlength=diff.size).reshape(diff.shape)
 
 
 @dataclass(frozen=True)
