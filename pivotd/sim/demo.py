@@ -5,7 +5,8 @@ mavlink`` / ``dynamixel`` the MAVLink gimbal manager on UDP / the DYNAMIXEL serv
 ``tools/mock_gimbal``, logging the same CSV) and
 ``tools/sim_pose`` on the S-shaped hallway, both talking Zenoh on loopback only. While the robot
 walks, a live status line shows what the daemon reports. Afterwards it prints a summary: landmarks
-visible per frame with PIVOT versus a forward-facing camera on the same route, setpoints sent, worst
+visible per frame with PIVOT versus a forward-facing camera on the same route, the share of the achievable view
+(``pivotd bench achievable`` on its recording) the daemon saw, setpoints sent, worst
 velocity/acceleration/jerk versus the limits, and draws its recording (``run.mcap``) as ``pivotd plot``
 does.
 """
@@ -25,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pivotd.bench.achievable import achievable, summary_line
 from pivotd.bus.probe import BusProbe
 from pivotd.config import Config, load_config
 from pivotd.sim.analysis import analyse_run, dynamics_lines
@@ -124,7 +126,9 @@ def run_demo(config_path: Path, out_dir: Path, speed: float = 1.2, timeout: floa
     report, _ = analyse_run(cfg, obs, device_log, (run.commanded.angles, run.commanded.rates))
     report["daemon_exit_code"] = exit_code
     report["final_status"] = obs.status
-    png = save_figure(build_figure(run, "all"), out_dir / "demo.png")
+    ach = achievable(run)
+    report["achievable"] = ach.report
+    png = save_figure(build_figure(run, "all", achievable=ach.series), out_dir / "demo.png")
     (out_dir / "summary.json").write_text(json.dumps(report, indent=2, default=str))
     _print_summary(report, cfg, png)
     return DemoSummary(report["frames"], report["visible_mean_pivot"], report["visible_mean_forward"],
@@ -139,6 +143,8 @@ def _print_summary(r: dict, cfg: Config, png: Path) -> None:
           f"{r['visible_mean_forward']:.1f}  ->  {r['visible_ratio']:.2f}x")
     print(f"  frames with < 10 landmarks visible: PIVOT {r['frames_pivot_below_10']}, "
           f"forward-facing {r['frames_forward_below_10']}")
+    if "achievable" in r:
+        print(summary_line(r["achievable"]))
     print(f"  setpoints sent: {r['setpoints']}")
     for line in dynamics_lines(r):
         print(line)
