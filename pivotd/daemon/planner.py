@@ -41,6 +41,7 @@ from pivotd.gimbal.pan_unwrap import (
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapSnapshot
 from pivotd.pivot.constraints import PanTiltConstraint
+from pivotd.pivot.joint_dp import JointGrid, best_joint_path, cell_counts
 from pivotd.pivot.normalise import attainable_counts
 from pivotd.pivot.rescue import blind_waypoints, rescue_init
 from pivotd.pivot.seeds import cold_seeds, derived_seeds
@@ -147,6 +148,10 @@ class PlannerSettings:
     rescue_fraction: float | None = None  # blind warm starts (None: off): see RecedingHorizonPlanner._rescue
     rescue_reach: int = 2  # waypoints on either side of a blind run turned towards it in the rescue's start
     replan_budget: float | None = None  # [s] a replan slower than this halves the next one's horizon and cap
+    axis_speeds: tuple[float, float] | None = None  # [rad/s] pan and tilt speed limits: the joint-grid seed
+    # (None: no such seed), the best pan/tilt path over the horizon whose moves fit these speeds
+    joint_grid_step: float = math.radians(2.0)  # [rad] the joint grid's largest spacing
+    nominal_speed: float = 1.0  # [m/s] the robot's speed assumed until it has been measured
 
     #: Most halvings of the horizon and of the landmarks per waypoint after late replans.
     MAX_DEGRADE = 3
@@ -217,6 +222,10 @@ class RecedingHorizonPlanner:
         self.last_objective = math.nan  # the trajectory objective of the last replan's plan (before the unwinds)
         self.rescues = 0  # replans whose rescue candidate was kept
         self.degrade = 0  # halvings of horizon and landmark cap in force (late replans; see _adapt)
+        self._joint_scores: dict[int, np.ndarray] = {}  # joint-grid cell shares (P, T) by grid key
+        self._grid: JointGrid | None = None
+        self._moved: tuple[float, np.ndarray] | None = None  # (time [s], body position) of the last replan
+        self.speed: float | None = None  # [m/s] the robot's measured speed (smoothed over replans)
 
     def set_path(self, positions: np.ndarray | None, quats: np.ndarray | None, version: int) -> None:
         """Install a new translation path (None clears it); progress restarts from the nearest point."""
@@ -299,6 +308,7 @@ class RecedingHorizonPlanner:
         key = (self._path_version, snapshot.version, self._cap())
         if self._cache_key != key:
             self._cache_key, self._cache, self._attainable_cache = key, {}, {}
+            self._joint_scores = {}
             self._profile_cache = {}
             self._rejected = (0, set())
         keys = _grid_keys(s)
@@ -342,16 +352,18 @@ class RecedingHorizonPlanner:
         return prev.direction_at_s(s)
 
     def replan(self, snapshot: MapSnapshot, body_position: np.ndarray, body_quat: np.ndarray,
-               anchor: np.ndarray | None) -> Plan:
+               anchor: np.ndarray | None, now: float | None = None) -> Plan:
         """Plan the horizon ahead of the robot at ``body_position`` / ``body_quat`` (x, y, z, w).
 
-        ``anchor`` is the world direction currently being commanded (None before the first command).
+        ``anchor`` is the world direction currently being commanded (None before the first command); ``now``
+        [s] the time of the pose (default: the monotonic clock), for the robot's speed.
         With the robot farther than ``max_path_offset`` from the path the plan is for its pose alone, as
         without a path (:class:`PathMode`), until it comes back within that distance.
         """
         t0 = time.perf_counter()
         st = self.settings
         body_position = np.asarray(body_position, float)
+        self._measure_speed(time.monotonic() if now is None else float(now), body_position)
         body_quat = normalize(np.asarray(body_quat, float))
         mode, offset = PathMode.NO_PATH, None
         if self._tracker is not None:
@@ -377,7 +389,11 @@ class RecedingHorizonPlanner:
             anchor=anchor if self.unwind_target is None else None,  # an unwind slew is not pulled back
             constraint=self._constraint(quats), max_step=st.max_step, options=st.options,
         )
-        result = self._solve(problem, self._seeds(problem, warm, anchor))
+        seeds = self._seeds(problem, warm, anchor)
+        joint = self._joint_seed(problem, s, quats, anchor)
+        if joint is not None:
+            seeds.append(joint)
+        result = self._solve(problem, seeds)
         if warm is None:
             derived = derived_seeds(problem, result)
             if derived:
@@ -419,6 +435,56 @@ class RecedingHorizonPlanner:
         out = [] if anchor is None else [Seed("anchor", np.repeat(np.asarray(anchor, float)[None, :], problem.n,
                                                                   axis=0), SeedKind.WARM)]
         return out + cold_seeds(problem)
+
+    def _measure_speed(self, now: float, body_position: np.ndarray) -> None:
+        """Update :attr:`speed` from the travel since the last replan (an average over about a second)."""
+        last, self._moved = self._moved, (now, body_position.copy())
+        if last is None or now <= last[0]:
+            return
+        dt = now - last[0]
+        v = float(np.linalg.norm(body_position - last[1])) / dt
+        k = min(1.0, dt)  # weight of this sample: its share of a second
+        self.speed = v if self.speed is None else (1.0 - k) * self.speed + k * v
+
+    def _joint_seed(self, problem: TrajectoryProblem, s: np.ndarray, quats: np.ndarray,
+                    anchor: np.ndarray | None) -> Seed | None:
+        """The best pan/tilt path over the horizon on a joint grid inside the limits (pivotd.pivot.joint_dp), each
+        move within the axis speeds at the robot's speed (:attr:`speed`, else ``nominal_speed``), starting from
+        the commanded joints; scored by each cell's hard visible share of the waypoint (the objective's terms).
+        None without ``axis_speeds`` or landmarks. Grid waypoints keep their scores while the cache key holds."""
+        st, geom = self.settings, problem.geom
+        if st.axis_speeds is None or geom is None:
+            return None
+        if self._grid is None:
+            lim = self.limits
+            self._grid = JointGrid.inside(lim.pan_min, lim.pan_max, lim.tilt_min, lim.tilt_max, st.joint_grid_step,
+                                          continuous_pan=lim.continuous_pan)
+        grid = self._grid
+        R = base_from_world(quats, self.mount)
+        keys = _grid_keys(s)
+        scores = np.empty((s.shape[0], *grid.shape))
+        fresh: dict[int, np.ndarray] = {}
+        for i, key in enumerate(keys):
+            sc = self._joint_scores.get(key) if i > 0 else None
+            if sc is None:
+                n = int(problem.lengths[i])
+                B, W = geom.points[i, :n], geom.weights[i, :n]
+                sc = cell_counts(B, W, grid, R[i], st.alpha) / max(float(problem.norm[i]), 1e-12)
+            if i > 0:
+                fresh[key] = sc
+            scores[i] = sc
+        self._joint_scores = fresh
+        speed = max(self.speed if self.speed is not None else st.nominal_speed, 1e-3)
+        dt = np.diff(s) / speed
+        start = None
+        if anchor is not None:
+            pan, tilt, _ = world_direction_to_joints(np.asarray(anchor, float), quats[0], self.mount, self.limits,
+                                                     None if self.last_plan is None or self.last_plan.pans is None
+                                                     else float(self.last_plan.pans[0]))
+            start = (pan, tilt)
+        path = best_joint_path(scores, st.axis_speeds[0] * dt, st.axis_speeds[1] * dt, grid, start=start)
+        dirs = np.einsum("nji,nj->ni", R, grid.base_directions()[path.cells[:, 0] * grid.shape[1] + path.cells[:, 1]])
+        return Seed("joint_grid", dirs, SeedKind.GRID)
 
     def _solve_each(self, problem: TrajectoryProblem, seeds: list[Seed]) -> list[TrajectoryResult]:
         """Each seed solved (:meth:`TrajectoryProblem.solve`); counted in :attr:`solves`."""

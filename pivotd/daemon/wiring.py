@@ -108,6 +108,7 @@ def build_planner(cfg: Config) -> RecedingHorizonPlanner:
                                   smooth_knee_deg=math.degrees(p.smooth_knee)),
         rescue_fraction=pl.rescue_fraction if pl.rescue_blind else None,
         replan_budget=pl.replan_budget,
+        axis_speeds=(cfg.motion.pan.max_velocity, cfg.motion.tilt.max_velocity),
     )
     return RecedingHorizonPlanner(settings, cfg.gimbal.mount, cfg.gimbal.limits)
 
