@@ -1,7 +1,6 @@
 """Spread weights (pivotd.pivot.weights): dense clumps saturate, spread landmarks count fully."""
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -121,23 +120,6 @@ def test_pair_weights_are_checked():
                             pair_weights=[np.ones(10), np.ones(10), -np.ones(10)])
     with pytest.raises(ValueError, match="needs retained"):
         optimize_trajectory(pts, wps, 0.5, 0.6, pair_weights=[np.ones(len(pts))] * 3)
-
-
-def test_planner_settings_from_the_config(tmp_path):
-    from pivotd.config import load_config
-    from pivotd.daemon.wiring import build_planner
-
-    repo = Path(__file__).resolve().parent.parent
-    base = (repo / "config" / "demo.yaml").read_text().replace("demo_hallway_map.txt",
-                                                               str(repo / "config" / "demo_hallway_map.txt"))
-    on = tmp_path / "on.yaml"
-    on.write_text(base.replace("  replan_hz: 5\n", "  replan_hz: 5\n  spread_cell_deg: 12\n  spread_saturation: 3\n"))
-    st = build_planner(load_config(on)).settings.spread
-    assert st == SpreadSettings(cell=math.radians(12.0), depth_ratio=2.0, saturation=3.0)
-    off = tmp_path / "off.yaml"
-    off.write_text(base.replace("  replan_hz: 5\n", "  replan_hz: 5\n  spread_cell_deg: 0\n"))
-    assert build_planner(load_config(off)).settings.spread is None
-    assert build_planner(load_config(repo / "config" / "demo.yaml")).settings.spread is None
 
 
 def test_the_receding_horizon_planner_applies_the_spread_weights():

@@ -28,7 +28,6 @@ from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.fingerprint import MapIdentity, map_identity
 from pivotd.maps.store import MapStore, load_map_store
 from pivotd.pivot.trajectory import TrajectoryOptions
-from pivotd.pivot.weights import SpreadSettings
 
 
 def build_retained_filter(cfg: Config) -> RetainedFilter:
@@ -91,28 +90,53 @@ def return_large_frees_to_the_os() -> None:
         ctypes.CDLL("libc.so.6").mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
 
 
-def build_planner(cfg: Config) -> RecedingHorizonPlanner:
-    """Receding-horizon planner from the ``pivot`` and ``planner`` sections and the gimbal geometry."""
+#: Planner settings no config key sets (the same for every daemon): the stretch of the path searched behind and
+#: ahead of the last progress [m], the step-limited polish of cold starts, and the waypoints on either side of a
+#: blind run the rescue turns towards it (pivotd.daemon.planner.PlannerSettings).
+PROGRESS_BACK_WINDOW_M = 1.0
+PROGRESS_AHEAD_WINDOW_M = 5.0
+COLD_POLISH = False
+RESCUE_REACH = 2
+
+
+def trajectory_options(cfg: Config) -> TrajectoryOptions:
+    """The optimizer's options from the ``pivot`` and ``planner`` sections (the others keep the optimizer's own
+    tuning: no config key sets them). Warm-started replans iterate at most min(``pivot.iterations``, the
+    optimizer's warm budget)."""
     p, pl = cfg.pivot, cfg.planner
-    settings = PlannerSettings(
+    return TrajectoryOptions(width_deg=math.degrees(p.transition_width), max_iterations=p.iterations,
+                             warm_iterations=min(p.iterations, TrajectoryOptions.warm_iterations),
+                             distance_weights=p.distance_weights, normalise=pl.normalise,
+                             smooth_knee_deg=math.degrees(p.smooth_knee))
+
+
+def planner_settings(cfg: Config) -> PlannerSettings:
+    """Every planner setting from ``cfg``: the ``pivot`` and ``planner`` sections and the map filters, each passed
+    explicitly, so the daemon plans with the config's defaults and never with those of
+    :class:`~pivotd.daemon.planner.PlannerSettings` (the ones no key sets are the constants above)."""
+    p, pl = cfg.pivot, cfg.planner
+    return PlannerSettings(
         fov=p.fov,
         lam=p.lam,
         spacing=pl.waypoint_spacing,
         horizon=pl.horizon,
         max_landmarks_per_waypoint=pl.max_landmarks_per_waypoint,
+        retained_filter=build_retained_filter(cfg),
+        options=trajectory_options(cfg),
+        back_window=PROGRESS_BACK_WINDOW_M,
+        ahead_window=PROGRESS_AHEAD_WINDOW_M,
         max_step=pl.max_step,
         max_path_offset=pl.max_path_offset,
-        retained_filter=build_retained_filter(cfg),
-        spread=None if pl.spread_cell is None else SpreadSettings(pl.spread_cell, pl.spread_depth_ratio,
-                                                                  pl.spread_saturation),
-        options=TrajectoryOptions(width_deg=math.degrees(p.transition_width), max_iterations=p.iterations,
-                                  warm_iterations=min(p.iterations, TrajectoryOptions.warm_iterations),
-                                  distance_weights=p.distance_weights, normalise=pl.normalise,
-                                  smooth_knee_deg=math.degrees(p.smooth_knee)),
+        cold_polish=COLD_POLISH,
         rescue_fraction=pl.rescue_fraction if pl.rescue_blind else None,
+        rescue_reach=RESCUE_REACH,
         replan_budget=pl.replan_budget,
     )
-    return RecedingHorizonPlanner(settings, cfg.gimbal.mount, cfg.gimbal.limits)
+
+
+def build_planner(cfg: Config) -> RecedingHorizonPlanner:
+    """Receding-horizon planner with :func:`planner_settings` and the gimbal's mount and joint limits."""
+    return RecedingHorizonPlanner(planner_settings(cfg), cfg.gimbal.mount, cfg.gimbal.limits)
 
 
 def build_replan_trigger(cfg: Config) -> ReplanTrigger:
