@@ -12,6 +12,8 @@ import math
 import time
 from collections.abc import Callable
 
+import numpy as np
+
 from pivotd.config import Config
 from pivotd.config.settings import wire_config
 from pivotd.daemon.control import ControlLoop, ControlSettings
@@ -21,6 +23,7 @@ from pivotd.daemon.tracking_error import TrackingErrorSettings
 from pivotd.errors import ConfigError
 from pivotd.gimbal.dynamixel_link import DynamixelGimbal, DynamixelSettings
 from pivotd.gimbal.interface import GimbalInterface
+from pivotd.gimbal.kinematics import joints_to_world_direction
 from pivotd.gimbal.link import GimbalLink, LinkConfig
 from pivotd.gimbal.mavlink_link import MavlinkGimbal, MavlinkSettings
 from pivotd.gimbal.motion import MotionGenerator
@@ -206,3 +209,11 @@ def build_gimbal(cfg: Config) -> GimbalInterface:
 def park_joints(cfg: Config) -> tuple[float, float]:
     """The park pose (pan, tilt) [rad], inside the joint limits."""
     return cfg.gimbal.limits.clamp(cfg.gimbal.park_pan, cfg.gimbal.park_tilt)
+
+
+def replan_anchor(cfg: Config, commanded_joints: tuple[float, float] | None, body_quat: np.ndarray) -> np.ndarray:
+    """The direction a replan is anchored to (3,): the joints being commanded (pan, tilt) [rad] for a body at
+    ``body_quat`` (x, y, z, w), the attitude the replan plans for; before the first setpoint the park pose (where
+    the daemon left the gimbal when it stopped), as ``pivotd plan --config`` anchors its first replan."""
+    joints = park_joints(cfg) if commanded_joints is None else commanded_joints
+    return joints_to_world_direction(joints[0], joints[1], np.asarray(body_quat, float), cfg.gimbal.mount)
