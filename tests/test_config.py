@@ -296,3 +296,27 @@ def test_the_mavlink_backend_needs_a_mavlink_connection_and_builds_its_gimbal(tm
     assert isinstance(g, MavlinkGimbal) and g.settings.system_id == 2 and g.settings.limits == cfg.gimbal.limits
     with pytest.raises(InputError, match="--port: 'socket://x:1' is not a MAVLink connection"):
         cfg.with_overrides(port="socket://x:1")
+
+
+@pytest.mark.parametrize("key", ["spread_cell_deg", "spread_saturation", "spread_depth_ratio"])
+def test_a_removed_key_is_an_unknown_key_that_says_why_it_went(tmp_path, key):
+    message = load_error(tmp_path, MINIMAL + f"planner:\n  horizon: 10\n  {key}: 3\n")
+    assert re.search(rf":6: planner\.{key}: unknown key \(removed: measured and not kept, see "
+                     r"docs/experiments/spread-weights\.md\)$", message), message
+
+
+def test_a_removed_key_elsewhere_than_its_section_is_only_unknown(tmp_path):
+    message = load_error(tmp_path, MINIMAL + "pivot:\n  spread_cell_deg: 3\n")
+    assert re.search(r":5: pivot\.spread_cell_deg: unknown key", message) and "(removed:" not in message, message
+
+
+def test_every_removed_key_is_gone_from_the_docs_keys_and_the_shipped_configs():
+    from pivotd.config.yaml_reader import REMOVED_KEYS
+
+    config_doc = (REPO / "docs" / "CONFIG.md").read_text()
+    for dotted in REMOVED_KEYS:
+        assert f"`{dotted}`" in config_doc, f"docs/CONFIG.md lists no removed key {dotted}"
+        leaf = dotted.rsplit(".", 1)[1]
+        assert f"| `{leaf}` |" not in config_doc, f"docs/CONFIG.md still documents {dotted} as a key"
+        for yaml_file in CONFIG_DIR.glob("*.yaml"):
+            assert f"{leaf}:" not in yaml_file.read_text(), f"{yaml_file} still sets {dotted}"

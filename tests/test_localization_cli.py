@@ -62,14 +62,10 @@ def test_ablation_flags_change_the_daemon_config_and_bad_values_are_one_line_err
 
     parser = argparse.ArgumentParser()
     configure(parser)
-    st = _settings(parser.parse_args(["--replan-on-waypoint", "--spread-cell-deg", "12", "--spread-saturation", "3",
-                                      "--lambda", "0.25"]))
-    pl = st.cfg.planner
-    assert pl.replan_on_waypoint and pl.spread_cell == pytest.approx(math.radians(12)) and pl.spread_saturation == 3
-    assert st.cfg.pivot.lam == 0.25
+    st = _settings(parser.parse_args(["--replan-on-waypoint", "--lambda", "0.25"]))
+    assert st.cfg.planner.replan_on_waypoint and st.cfg.pivot.lam == 0.25
     default = _settings(parser.parse_args([])).cfg
-    assert not default.planner.replan_on_waypoint and default.planner.spread_cell is None
-    assert _settings(parser.parse_args(["--spread-cell-deg", "0"])).cfg.planner.spread_cell is None
+    assert not default.planner.replan_on_waypoint
     assert default.planner.normalise == "total"
     assert _settings(parser.parse_args(["--normalise", "attainable"])).cfg.planner.normalise == "attainable"
     assert default.pivot.smooth_knee == pytest.approx(math.radians(1.0)) and default.planner.rescue_blind

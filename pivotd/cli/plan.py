@@ -1,4 +1,7 @@
-"""``pivotd plan``: optimise one viewing direction per waypoint of a path against a landmark map, offline."""
+"""``pivotd plan``: optimise one viewing direction per waypoint of a path against a landmark map, offline.
+
+Without ``--config`` the paper's trajectory PIVOT on the whole path at once (the paper mode); with it the
+daemon's own replans along the path (:mod:`pivotd.cli.plan_config`)."""
 
 from __future__ import annotations
 
@@ -25,17 +28,30 @@ WEIGHTS_HELP = (
 )
 
 
+#: The paper mode's settings (without --config): FoV [deg], λ, smoothness knee [deg], weights column.
+PAPER_FOV_DEG = 30.0
+PAPER_LAMBDA = 0.6
+PAPER_KNEE_DEG = 0.0
+PAPER_WEIGHTS_FROM = "auto"
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--map", required=True, metavar="MAP",
-                        help="landmark map (.npy, .txt, .csv, .xyz, .ply, .pcd, COLMAP)")
+    parser.add_argument("--config", default=None, metavar="CFG",
+                        help="plan as the daemon configured by CFG does: its map, filters, planner, mount and joint "
+                             "limits, one receding-horizon replan every planner.waypoint_spacing along the path "
+                             "(docs/CLI.md); the paper-mode options below are then errors")
+    parser.add_argument("--map", default=None, metavar="MAP",
+                        help="landmark map (.npy, .txt, .csv, .xyz, .ply, .pcd, COLMAP); required without --config, "
+                             "default with it: the config's map.file")
     parser.add_argument("--path", required=True, metavar="PATH", help="path CSV: x,y,z or t,x,y,z,qw,qx,qy,qz rows")
-    parser.add_argument("--fov-deg", type=float, default=30.0, help="full cone opening angle [deg] (default 30)")
+    parser.add_argument("--fov-deg", type=float, default=None,
+                        help=f"full cone opening angle [deg] (default {PAPER_FOV_DEG:g})")
     parser.add_argument(
-        "--lambda", dest="lam", type=float, default=0.6, metavar="LAMBDA",
-        help="smoothness weight λ ≥ 0 (default 0.6); 0 optimises every waypoint independently",
+        "--lambda", dest="lam", type=float, default=None, metavar="LAMBDA",
+        help=f"smoothness weight λ ≥ 0 (default {PAPER_LAMBDA:g}); 0 optimises every waypoint independently",
     )
     parser.add_argument(
-        "--smooth-knee-deg", type=float, default=0.0, metavar="DEG",
+        "--smooth-knee-deg", type=float, default=None, metavar="DEG",
         help="steps beyond about DEG cost in proportion to their size, not its square (0–180; default 0: the "
              "paper's 1 − cos per step; the daemon's pivot.smooth_knee_deg defaults to 1)",
     )
@@ -46,7 +62,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--min-range", type=float, default=None, metavar="M", help="ignore landmarks closer than M")
     parser.add_argument("--max-range", type=float, default=None, metavar="M", help="ignore landmarks farther than M")
-    parser.add_argument("--weights-from", default="auto", metavar="COLUMN", help=WEIGHTS_HELP)
+    parser.add_argument("--weights-from", default=None, metavar="COLUMN", help=WEIGHTS_HELP)
     parser.add_argument("--weight-property", default=None, metavar="NAME",
                         help="the feature weight's vertex property (PLY), field (PCD) or header column (text maps)")
     parser.add_argument("--max-view-angle-deg", type=float, default=None, metavar="DEG",
@@ -57,8 +73,23 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "occupancy grid is built from the map itself or from --occupancy")
     parser.add_argument("--occupancy", default=None, metavar="FILE",
                         help="separate occupancy cloud (any map format) for --occlusion-voxel")
-    parser.add_argument("--out", default=None, metavar="OUT.csv", help="write i,x,y,z,dx,dy,dz,visible rows here")
+    parser.add_argument("--out", default=None, metavar="OUT.csv",
+                        help="write i,x,y,z,dx,dy,dz,visible rows here (with --config also pan_deg,tilt_deg)")
+    parser.add_argument("--first-plan-out", default=None, metavar="FILE.json",
+                        help="with --config: write the first replan (every waypoint of its horizon) as JSON")
     parser.add_argument("--json", action="store_true", help="print one JSON object with the summary on stdout")
+
+
+def _paper_defaults(args: argparse.Namespace) -> None:
+    """Fill the paper mode's defaults into the options left out (they are None so --config can tell)."""
+    if args.map is None:
+        raise InputError("--map MAP is required (or --config CFG, whose map.file is the default)")
+    if args.first_plan_out is not None:
+        raise InputError("--first-plan-out needs --config (without it there is one plan, written by --out)")
+    for dest, value in (("fov_deg", PAPER_FOV_DEG), ("lam", PAPER_LAMBDA), ("smooth_knee_deg", PAPER_KNEE_DEG),
+                        ("weights_from", PAPER_WEIGHTS_FROM)):
+        if getattr(args, dest) is None:
+            setattr(args, dest, value)
 
 
 def check_max_step_deg(value: float | None, what: str = "--max-step-deg") -> None:
@@ -153,10 +184,15 @@ def load_filtered(args: argparse.Namespace, waypoints: np.ndarray):
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.config is not None:
+        from pivotd.cli.plan_config import run_config
+
+        return run_config(args)
     from pivotd.maps.formats import LandmarkCloud, load_landmarks
     from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
     from pivotd.robot_path import load_path
 
+    _paper_defaults(args)
     _check_args(args)
     path = load_path(args.path)
     waypoints = path.positions
@@ -183,7 +219,7 @@ def run(args: argparse.Namespace) -> int:
     steps = np.degrees(np.arctan2(np.linalg.norm(np.cross(C[1:], C[:-1]), axis=1), np.sum(C[1:] * C[:-1], axis=1)))
     largest = float(steps.max()) if steps.size else 0.0
     if args.out:
-        _write_csv(Path(args.out), waypoints, C, result.visible)
+        write_csv(Path(args.out), waypoints, C, result.visible)
     summary = {
         "waypoints": int(waypoints.shape[0]),
         "landmarks": int(points.shape[0]),
@@ -212,11 +248,17 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_csv(out: Path, waypoints: np.ndarray, dirs: np.ndarray, visible: np.ndarray) -> None:
+def write_csv(out: Path, waypoints: np.ndarray, dirs: np.ndarray, visible: np.ndarray,
+              joints_deg: np.ndarray | None = None) -> None:
+    """Rows ``i,x,y,z,dx,dy,dz,visible`` of positions (N, 3) [m], directions (N, 3) and counts (N,), with
+    ``pan_deg,tilt_deg`` after them when ``joints_deg`` (N, 2) is given."""
     try:
         with out.open("w") as fh:
-            fh.write("i,x,y,z,dx,dy,dz,visible\n")
+            fh.write("i,x,y,z,dx,dy,dz,visible" + (",pan_deg,tilt_deg" if joints_deg is not None else "") + "\n")
             for i, (p, d, v) in enumerate(zip(waypoints, dirs, visible, strict=True)):
-                fh.write(f"{i},{p[0]:.6f},{p[1]:.6f},{p[2]:.6f},{d[0]:.9f},{d[1]:.9f},{d[2]:.9f},{int(v)}\n")
+                row = f"{i},{p[0]:.6f},{p[1]:.6f},{p[2]:.6f},{d[0]:.9f},{d[1]:.9f},{d[2]:.9f},{int(v)}"
+                if joints_deg is not None:
+                    row += f",{joints_deg[i, 0]:.6f},{joints_deg[i, 1]:.6f}"
+                fh.write(row + "\n")
     except OSError as exc:
         raise InputError(f"{out}: cannot write ({exc.strerror or exc})") from None

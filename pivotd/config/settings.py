@@ -130,9 +130,6 @@ class PlannerConfig:
     max_path_offset: float = 3.0  # [m]: progress along the path advances only with the pose this close to it
     replan_on_waypoint: bool = False  # replan when the body moved one waypoint spacing (else at every tick)
     replan_max_interval: float = 1.0  # [s] with replan_on_waypoint: replan at least this often
-    spread_cell: float | None = None  # [rad] bearing cell of the spread weights (pivotd.pivot.weights); None: off
-    spread_saturation: float = 1.0  # most weight one bearing × depth cell contributes
-    spread_depth_ratio: float = 2.0  # depth shells of the spread weights: [d, d · ratio)
     normalise: Normalisation = Normalisation.TOTAL  # per-waypoint visible term over total or attainable weight
     rescue_blind: bool = True  # a second solve where the warm plan sees < rescue_fraction of one cone's best
     rescue_fraction: float = 0.25  # (0, 1]: a waypoint is blind below this share of its attainable count
@@ -572,12 +569,6 @@ def _radians_or_none(deg: float | None) -> float | None:
     return None if deg is None else math.radians(deg)
 
 
-def _spread_cell(s: Section, default: float | None) -> float | None:
-    """``spread_cell_deg``: 0 turns the spread weights off; else a bearing cell in (0, 180] degrees."""
-    deg = s.number("spread_cell_deg", None if default is None else math.degrees(default), min=0.0, max=180.0)
-    return None if deg is None or deg == 0 else math.radians(deg)
-
-
 def _planner(s: Section, control: ControlConfig) -> PlannerConfig:
     d = PlannerConfig()
     out = PlannerConfig(
@@ -591,9 +582,6 @@ def _planner(s: Section, control: ControlConfig) -> PlannerConfig:
         max_path_offset=s.number("max_path_offset", d.max_path_offset, min=0.0, min_open=True),
         replan_on_waypoint=s.boolean("replan_on_waypoint", d.replan_on_waypoint),
         replan_max_interval=s.number("replan_max_interval_s", d.replan_max_interval, min=0.0, min_open=True, max=10.0),
-        spread_cell=_spread_cell(s, d.spread_cell),
-        spread_saturation=s.number("spread_saturation", d.spread_saturation, min=0.0, min_open=True, max=1e6),
-        spread_depth_ratio=s.number("spread_depth_ratio", d.spread_depth_ratio, min=1.0, min_open=True, max=1e3),
         normalise=Normalisation(s.string("normalise", d.normalise.value, choices=tuple(Normalisation))),
         rescue_blind=s.boolean("rescue_blind", d.rescue_blind),
         rescue_fraction=s.number("rescue_fraction", d.rescue_fraction, min=0.0, min_open=True, max=1.0),

@@ -2,7 +2,8 @@
 
 :func:`read_yaml` parses a file into :class:`Node` values (Python value + 1-based line). A :class:`Section`
 reads the keys of one mapping with type and range checks and, in :meth:`Section.finish`, rejects keys
-nobody asked for. Every problem raises :class:`~pivotd.errors.ConfigError` as
+nobody asked for (a key of :data:`REMOVED_KEYS` with the reason it went). Every problem raises
+:class:`~pivotd.errors.ConfigError` as
 ``<file>:<line>: <key.path>: <what is wrong>``.
 """
 
@@ -31,6 +32,14 @@ class Node:
     value: Any
     line: int | None
 
+
+#: Keys that existed once, by dotted path, and why they went: reading one is an unknown-key error with this hint.
+SPREAD_WEIGHTS_HINT = "removed: measured and not kept, see docs/experiments/spread-weights.md"
+REMOVED_KEYS: dict[str, str] = {
+    "planner.spread_cell_deg": SPREAD_WEIGHTS_HINT,
+    "planner.spread_saturation": SPREAD_WEIGHTS_HINT,
+    "planner.spread_depth_ratio": SPREAD_WEIGHTS_HINT,
+}
 
 MAX_DEPTH = 64  # nesting levels of mappings and sequences
 MAX_NODES = 100_000  # values after alias expansion (a config has a few hundred)
@@ -302,9 +311,12 @@ class Section:
         return path
 
     def finish(self) -> None:
-        """Reject keys that were not read."""
+        """Reject keys that were not read (a removed key with the reason it went, see :data:`REMOVED_KEYS`)."""
         for key, node in self._items.items():
             if key not in self._used:
+                removed = REMOVED_KEYS.get(self.key_path(key))
+                if removed is not None:
+                    raise self.error_at(node.line, self.key_path(key), f"unknown key ({removed})")
                 known = sorted(self._used)
                 close = difflib.get_close_matches(key, known, n=1)
                 hint = f"; did you mean {close[0]}?" if close else (f" (known: {', '.join(known)})" if known else "")

@@ -101,6 +101,7 @@ class ControlLoop:
         self.clock = clock
         self.stats = ControlStats()
         self.commanded_direction: np.ndarray | None = None  # world direction of the last setpoint
+        self.commanded_joints: tuple[float, float] | None = None  # (pan, tilt) [rad] of the last setpoint sent
         self.override_target: tuple[float, float] | None = None  # e.g. the park pose
         self._need_reset = True
         self._hard_reset = True  # the device did not follow the stream: restart even if it now follows again
@@ -324,6 +325,7 @@ class ControlLoop:
             return TickResult(DaemonState.HOLDING)
         self._last_send = sent_at
         self._last_sample = sample
+        self.commanded_joints = (pan, tilt)
         self.tracking.commanded(sent_at, pan, tilt, vp, vt)
         if self._segment_first is None:
             self._segment_first = seq

@@ -49,6 +49,7 @@ from pivotd.daemon.wiring import (
     build_replan_trigger,
     park_joints,
     release_free_memory,
+    replan_anchor,
     return_large_frees_to_the_os,
 )
 from pivotd.daemon.worker import PlannerWorker, ReplanTimeoutError, WorkerError
@@ -257,7 +258,8 @@ class Daemon:
             self._replan_trigger.reset()
         if self._replan_trigger.due(now, pose.position, inputs) is None:
             return  # the current plan stands (pivotd.daemon.replan_trigger)
-        anchor = self.control.commanded_direction if self.control is not None else None
+        # the joints being commanded, at the attitude planned for (the park pose before the first setpoint)
+        anchor = replan_anchor(self.cfg, None if self.control is None else self.control.commanded_joints, pose.quat)
         plan = self.worker.replan(pose.position, pose.quat, anchor)
         self._replan_trigger.planned(now, pose.position, inputs)
         self.plan = plan
@@ -454,6 +456,7 @@ class Daemon:
                 "path_mode": None if plan is None else plan.path_mode.value,  # on_path, off_path, no_path
                 "path_offset_m": None if plan is None or plan.path_offset is None else round(plan.path_offset, 2),
                 "off_path_replans": self.worker.off_path_replans,
+                "path_points": 0 if self._path is None else int(self._path[0].shape[0]),  # of the last path received
             },
             "control": {
                 "rate_hz": self.cfg.control.rate_hz,

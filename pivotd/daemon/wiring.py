@@ -12,6 +12,8 @@ import math
 import time
 from collections.abc import Callable
 
+import numpy as np
+
 from pivotd.config import Config
 from pivotd.config.settings import wire_config
 from pivotd.daemon.control import ControlLoop, ControlSettings
@@ -21,6 +23,7 @@ from pivotd.daemon.tracking_error import TrackingErrorSettings
 from pivotd.errors import ConfigError
 from pivotd.gimbal.dynamixel_link import DynamixelGimbal, DynamixelSettings
 from pivotd.gimbal.interface import GimbalInterface
+from pivotd.gimbal.kinematics import joints_to_world_direction
 from pivotd.gimbal.link import GimbalLink, LinkConfig
 from pivotd.gimbal.mavlink_link import MavlinkGimbal, MavlinkSettings
 from pivotd.gimbal.motion import MotionGenerator
@@ -90,27 +93,52 @@ def return_large_frees_to_the_os() -> None:
         ctypes.CDLL("libc.so.6").mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
 
 
-def build_planner(cfg: Config) -> RecedingHorizonPlanner:
-    """Receding-horizon planner from the ``pivot`` and ``planner`` sections and the gimbal geometry."""
+#: Planner settings no config key sets (the same for every daemon): the stretch of the path searched behind and
+#: ahead of the last progress [m], and the waypoints on either side of a blind run the rescue turns towards it
+#: (pivotd.daemon.planner.PlannerSettings).
+PROGRESS_BACK_WINDOW_M = 1.0
+PROGRESS_AHEAD_WINDOW_M = 5.0
+RESCUE_REACH = 2
+
+
+def trajectory_options(cfg: Config) -> TrajectoryOptions:
+    """The optimizer's options from the ``pivot`` and ``planner`` sections (the others keep the optimizer's own
+    tuning: no config key sets them). Warm-started replans iterate at most min(``pivot.iterations``, the
+    optimizer's warm budget)."""
     p, pl = cfg.pivot, cfg.planner
-    settings = PlannerSettings(
+    return TrajectoryOptions(width_deg=math.degrees(p.transition_width), max_iterations=p.iterations,
+                             warm_iterations=min(p.iterations, TrajectoryOptions.warm_iterations),
+                             distance_weights=p.distance_weights, normalise=pl.normalise,
+                             smooth_knee_deg=math.degrees(p.smooth_knee))
+
+
+def planner_settings(cfg: Config) -> PlannerSettings:
+    """Every planner setting from ``cfg``: the ``pivot`` and ``planner`` sections and the map filters, each passed
+    explicitly, so the daemon plans with the config's defaults and never with those of
+    :class:`~pivotd.daemon.planner.PlannerSettings` (the ones no key sets are the constants above)."""
+    p, pl = cfg.pivot, cfg.planner
+    return PlannerSettings(
         fov=p.fov,
         lam=p.lam,
         spacing=pl.waypoint_spacing,
         horizon=pl.horizon,
         max_landmarks_per_waypoint=pl.max_landmarks_per_waypoint,
+        retained_filter=build_retained_filter(cfg),
+        options=trajectory_options(cfg),
+        back_window=PROGRESS_BACK_WINDOW_M,
+        ahead_window=PROGRESS_AHEAD_WINDOW_M,
         max_step=pl.max_step,
         max_path_offset=pl.max_path_offset,
-        retained_filter=build_retained_filter(cfg),
-        options=TrajectoryOptions(width_deg=math.degrees(p.transition_width), max_iterations=p.iterations,
-                                  warm_iterations=min(p.iterations, TrajectoryOptions.warm_iterations),
-                                  distance_weights=p.distance_weights, normalise=pl.normalise,
-                                  smooth_knee_deg=math.degrees(p.smooth_knee)),
         rescue_fraction=pl.rescue_fraction if pl.rescue_blind else None,
+        rescue_reach=RESCUE_REACH,
         replan_budget=pl.replan_budget,
         axis_speeds=(cfg.motion.pan.max_velocity, cfg.motion.tilt.max_velocity),
     )
-    return RecedingHorizonPlanner(settings, cfg.gimbal.mount, cfg.gimbal.limits)
+
+
+def build_planner(cfg: Config) -> RecedingHorizonPlanner:
+    """Receding-horizon planner with :func:`planner_settings` and the gimbal's mount and joint limits."""
+    return RecedingHorizonPlanner(planner_settings(cfg), cfg.gimbal.mount, cfg.gimbal.limits)
 
 
 def build_replan_trigger(cfg: Config) -> ReplanTrigger:
@@ -180,3 +208,11 @@ def build_gimbal(cfg: Config) -> GimbalInterface:
 def park_joints(cfg: Config) -> tuple[float, float]:
     """The park pose (pan, tilt) [rad], inside the joint limits."""
     return cfg.gimbal.limits.clamp(cfg.gimbal.park_pan, cfg.gimbal.park_tilt)
+
+
+def replan_anchor(cfg: Config, commanded_joints: tuple[float, float] | None, body_quat: np.ndarray) -> np.ndarray:
+    """The direction a replan is anchored to (3,): the joints being commanded (pan, tilt) [rad] for a body at
+    ``body_quat`` (x, y, z, w), the attitude the replan plans for; before the first setpoint the park pose (where
+    the daemon left the gimbal when it stopped), as ``pivotd plan --config`` anchors its first replan."""
+    joints = park_joints(cfg) if commanded_joints is None else commanded_joints
+    return joints_to_world_direction(joints[0], joints[1], np.asarray(body_quat, float), cfg.gimbal.mount)
