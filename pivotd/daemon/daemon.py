@@ -260,7 +260,7 @@ class Daemon:
             return  # the current plan stands (pivotd.daemon.replan_trigger)
         # the joints being commanded, at the attitude planned for (the park pose before the first setpoint)
         anchor = replan_anchor(self.cfg, None if self.control is None else self.control.commanded_joints, pose.quat)
-        plan = self.worker.replan(pose.position, pose.quat, anchor)
+        plan = self.worker.replan(pose.position, pose.quat, anchor, now=pose.rx_time)
         self._replan_trigger.planned(now, pose.position, inputs)
         self.plan = plan
         self._plans += 1

@@ -95,7 +95,9 @@ def plan_along_path(cfg: Config, store: MapStore, path: PathData) -> list[PathSt
     with threadpool_limits(1):
         for s, position, quat in zip(poses.s, poses.positions, poses.quats, strict=True):
             anchor = replan_anchor(cfg, None, quat) if not steps else steps[-1].direction
-            plan = planner.replan(store.snapshot(), position, quat, anchor)
+            # the robot at the planner's nominal speed: the pose of arc length s comes s / speed after the start
+            plan = planner.replan(store.snapshot(), position, quat, anchor,
+                                  now=float(s) / planner.settings.nominal_speed)
             previous_pan = None if plan.pans is None else float(plan.pans[0])
             pan, tilt, clamped = world_direction_to_joints(plan.directions[0], quat, cfg.gimbal.mount,
                                                            cfg.gimbal.limits, previous_pan)

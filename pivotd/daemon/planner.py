@@ -105,6 +105,7 @@ class Plan:
     degrade: int = 0  # halvings of the horizon and landmark cap this plan was made with (see PlannerSettings)
     path_mode: PathMode = PathMode.NO_PATH
     path_offset: float | None = None  # [m] the robot's distance from the path (None without one)
+    seed: str = ""  # the seed the plan came from (pivotd.pivot.trajectory.Seed: warm, anchor, chain, ...)
 
 
     def direction_at_s(self, s: np.ndarray | float) -> np.ndarray:
@@ -150,7 +151,7 @@ class PlannerSettings:
     replan_budget: float | None = None  # [s] a replan slower than this halves the next one's horizon and cap
     axis_speeds: tuple[float, float] | None = None  # [rad/s] pan and tilt speed limits: the joint-grid seed
     # (None: no such seed), the best pan/tilt path over the horizon whose moves fit these speeds
-    joint_grid_step: float = math.radians(2.0)  # [rad] the joint grid's largest spacing
+    joint_grid_step: float = math.radians(4.0)  # [rad] the joint grid's largest spacing
     nominal_speed: float = 1.0  # [m/s] the robot's speed assumed until it has been measured
 
     #: Most halvings of the horizon and of the landmarks per waypoint after late replans.
@@ -356,14 +357,16 @@ class RecedingHorizonPlanner:
         """Plan the horizon ahead of the robot at ``body_position`` / ``body_quat`` (x, y, z, w).
 
         ``anchor`` is the world direction currently being commanded (None before the first command); ``now``
-        [s] the time of the pose (default: the monotonic clock), for the robot's speed.
+        [s] the time of the pose, for the robot's speed (None: not measured; the last measurement, else
+        ``nominal_speed``, stands).
         With the robot farther than ``max_path_offset`` from the path the plan is for its pose alone, as
         without a path (:class:`PathMode`), until it comes back within that distance.
         """
         t0 = time.perf_counter()
         st = self.settings
         body_position = np.asarray(body_position, float)
-        self._measure_speed(time.monotonic() if now is None else float(now), body_position)
+        if now is not None:
+            self._measure_speed(float(now), body_position)
         body_quat = normalize(np.asarray(body_quat, float))
         mode, offset = PathMode.NO_PATH, None
         if self._tracker is not None:
@@ -389,11 +392,10 @@ class RecedingHorizonPlanner:
             anchor=anchor if self.unwind_target is None else None,  # an unwind slew is not pulled back
             constraint=self._constraint(quats), max_step=st.max_step, options=st.options,
         )
-        seeds = self._seeds(problem, warm, anchor)
+        result = self._solve(problem, self._seeds(problem, warm, anchor))
         joint = self._joint_seed(problem, s, quats, anchor)
-        if joint is not None:
-            seeds.append(joint)
-        result = self._solve(problem, seeds)
+        if joint is not None and self._other_basin(problem, joint, result):
+            result = best_of([result, *self._solve_each(problem, [joint[0]])])
         if warm is None:
             derived = derived_seeds(problem, result)
             if derived:
@@ -421,6 +423,7 @@ class RecedingHorizonPlanner:
             degrade=self.degrade,
             path_mode=mode,
             path_offset=offset,
+            seed=result.seed,
         )
         self.last_plan = plan
         self._adapt(plan.solve_s)
@@ -447,11 +450,14 @@ class RecedingHorizonPlanner:
         self.speed = v if self.speed is None else (1.0 - k) * self.speed + k * v
 
     def _joint_seed(self, problem: TrajectoryProblem, s: np.ndarray, quats: np.ndarray,
-                    anchor: np.ndarray | None) -> Seed | None:
+                    anchor: np.ndarray | None) -> tuple[Seed, float] | None:
         """The best pan/tilt path over the horizon on a joint grid inside the limits (pivotd.pivot.joint_dp), each
         move within the axis speeds at the robot's speed (:attr:`speed`, else ``nominal_speed``), starting from
-        the commanded joints; scored by each cell's hard visible share of the waypoint (the objective's terms).
-        None without ``axis_speeds`` or landmarks. Grid waypoints keep their scores while the cache key holds."""
+        the commanded joints; scored by each cell's hard visible share of the waypoint (the objective's terms) on at
+        most ``TrajectoryOptions.seed_cap`` strided landmarks per waypoint.
+        Returns the seed and its total score (the visible shares summed, as
+        :meth:`~pivotd.pivot.trajectory.TrajectoryProblem.visible_share`), or None without ``axis_speeds`` or
+        landmarks. Grid waypoints keep their scores while the cache key holds."""
         st, geom = self.settings, problem.geom
         if st.axis_speeds is None or geom is None:
             return None
@@ -460,6 +466,7 @@ class RecedingHorizonPlanner:
             self._grid = JointGrid.inside(lim.pan_min, lim.pan_max, lim.tilt_min, lim.tilt_max, st.joint_grid_step,
                                           continuous_pan=lim.continuous_pan)
         grid = self._grid
+        cap = max(1, (st.options or TrajectoryOptions()).seed_cap)
         R = base_from_world(quats, self.mount)
         keys = _grid_keys(s)
         scores = np.empty((s.shape[0], *grid.shape))
@@ -468,8 +475,11 @@ class RecedingHorizonPlanner:
             sc = self._joint_scores.get(key) if i > 0 else None
             if sc is None:
                 n = int(problem.lengths[i])
-                B, W = geom.points[i, :n], geom.weights[i, :n]
-                sc = cell_counts(B, W, grid, R[i], st.alpha) / max(float(problem.norm[i]), 1e-12)
+                cols = np.arange(n) if n <= cap else (np.arange(cap) * n) // cap  # a strided sample, weights
+                B, W = geom.points[i, cols], geom.weights[i, cols]  # scaled to the waypoint's total
+                total = float(W.sum(dtype=np.float64))
+                share = float(geom.weights[i, :n].sum(dtype=np.float64)) / total if total > 0 else 0.0
+                sc = cell_counts(B, W, grid, R[i], st.alpha) * (share / max(float(problem.norm[i]), 1e-12))
             if i > 0:
                 fresh[key] = sc
             scores[i] = sc
@@ -484,7 +494,16 @@ class RecedingHorizonPlanner:
             start = (pan, tilt)
         path = best_joint_path(scores, st.axis_speeds[0] * dt, st.axis_speeds[1] * dt, grid, start=start)
         dirs = np.einsum("nji,nj->ni", R, grid.base_directions()[path.cells[:, 0] * grid.shape[1] + path.cells[:, 1]])
-        return Seed("joint_grid", dirs, SeedKind.GRID)
+        return Seed("joint_grid", dirs, SeedKind.GRID), path.total
+
+    @staticmethod
+    def _other_basin(problem: TrajectoryProblem, joint: tuple[Seed, float], plan: TrajectoryResult) -> bool:
+        """Whether the joint-grid seed is worth a solve next to ``plan``: it leaves the plan's cone somewhere (a
+        basin the plan's ascent cannot reach: a cone without landmarks has no gradient) and its visible shares
+        add up to more than the plan's."""
+        seed, total = joint
+        cos = np.einsum("ij,ij->i", normalize(seed.directions), plan.directions)
+        return bool(cos.min() < math.cos(problem.alpha)) and total > problem.visible_share(plan.directions)
 
     def _solve_each(self, problem: TrajectoryProblem, seeds: list[Seed]) -> list[TrajectoryResult]:
         """Each seed solved (:meth:`TrajectoryProblem.solve`); counted in :attr:`solves`."""

@@ -172,8 +172,8 @@ def _worker_main(conn, cfg: Config, log_level: int) -> None:  # pragma: no cover
             conn.begin(req_id)
         try:
             if kind == "replan":
-                position, quat, anchor = args
-                conn.send(("plan", req_id, planner.replan(store.snapshot(), position, quat, anchor)))
+                position, quat, anchor, now = args
+                conn.send(("plan", req_id, planner.replan(store.snapshot(), position, quat, anchor, now)))
             elif kind == "path":
                 path_args = args
                 planner.set_path(*path_args)
@@ -306,15 +306,16 @@ class PlannerWorker:
         self._send("path", positions, quats, version)
 
     def replan(self, position: np.ndarray, quat: np.ndarray, anchor: np.ndarray | None,
-               timeout: float | None = None) -> Plan:
-        """The worker's plan for the pose; waits while the worker computes (heartbeats), up to ``timeout`` [s]
-        (default ``planner.replan_deadline_s``). Raises ReplanTimeoutError when given up (the worker is then in an
-        unknown state: restart it), WorkerError when it is gone, RequestError when it refused."""
+               timeout: float | None = None, now: float | None = None) -> Plan:
+        """The worker's plan for the pose (received at ``now`` [s, monotonic], for the robot's speed); waits while
+        the worker computes (heartbeats), up to ``timeout`` [s] (default ``planner.replan_deadline_s``). Raises
+        ReplanTimeoutError when given up (the worker is then in an unknown state: restart it), WorkerError when it
+        is gone, RequestError when it refused."""
         pl = self._cfg.planner
         timeout = pl.replan_deadline if timeout is None else timeout
         t0 = time.monotonic()
         try:
-            kind, payload = self._request("replan", position, quat, anchor, timeout=timeout,
+            kind, payload = self._request("replan", position, quat, anchor, now, timeout=timeout,
                                           silent_after=SILENT_AFTER_S)
         except _NoAnswerError as exc:
             self.timeouts += 1

@@ -67,7 +67,8 @@ class TrajectoryOptions:
     polish_tol_deg: float = 0.25  # step-limited polish (pivotd.pivot.polish): smallest ring radius
     polish_cap: int = 2048  # ... landmarks per waypoint in its band (strided beyond)
     step_polish_deg: float = 4.0  # ... largest ring radius, applied to cold seeds (0: off)
-    seed_cap: int = 512  # landmarks per node waypoint scoring the step-limited seed's grid (0: no such seed)
+    seed_cap: int = 512  # landmarks per (node) waypoint scoring the grids of the step-limited seed (0: no such
+    # seed) and of the joint-grid seed (pivotd.daemon.planner)
     normalise: Normalisation = Normalisation.TOTAL  # W_i: total retained weight, or the attainable one (normalise.py)
     fixed_nodes: int = 16  # a plan staying within α of one direction: the best single direction for this many
     # node waypoints is a seed (0: off)
@@ -156,6 +157,17 @@ class TrajectoryProblem:
         """Hard visible counts (N,) int and the objective (module docstring) of unit axes C (N, 3)."""
         smooth = 0.0 if self.max_step is not None else self.smooth
         return _judge(self.geom, C, self.norm, self.alpha, self.width, smooth, self.anchor, self.knee)
+
+    def visible_share(self, C: np.ndarray) -> float:
+        """Σ_i V_i(c_i) / W_i: the hard visible weight of each waypoint's landmarks over its norm, for unit axes
+        C (N, 3) (0 without landmarks)."""
+        if self.geom is None:
+            return 0.0
+        inside = self.geom.cos_all(C) >= np.float32(math.cos(self.alpha))
+        if self.geom.valid is not None:
+            inside &= self.geom.valid
+        V = np.sum(inside * self.geom.weight_rows(), axis=1, dtype=np.float64)
+        return float(np.sum(V / np.maximum(self.norm, 1e-12)))
 
     def project(self, C: np.ndarray) -> np.ndarray:
         """C (N, 3) made unit and reachable (joint limits), then within the step limit."""
