@@ -48,9 +48,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
     abl.add_argument("--continuous-pan", action="store_true", help="a slip-ring gimbal: no pan limits")
     abl.add_argument("--replan-on-waypoint", action="store_true",
                      help="planner.replan_on_waypoint: true (replan once the robot moved a waypoint spacing)")
-    abl.add_argument("--spread-cell-deg", type=float, default=None, metavar="DEG",
-                     help="planner.spread_cell_deg (spread weights of the retained landmarks; 0: off)")
-    abl.add_argument("--spread-saturation", type=float, default=None, metavar="K", help="planner.spread_saturation")
     abl.add_argument("--normalise", choices=("total", "attainable"), default=None,
                      help="planner.normalise (visible term over each waypoint's total or attainable weight)")
     abl.add_argument("--rescue-blind", choices=("on", "off"), default=None,
@@ -107,14 +104,6 @@ def _settings(args: argparse.Namespace):
     planner = cfg.planner
     if args.replan_on_waypoint:
         planner = replace(planner, replan_on_waypoint=True)
-    if args.spread_cell_deg is not None:
-        if not 0.0 <= args.spread_cell_deg <= 180.0:
-            raise InputError(f"--spread-cell-deg: must be in [0, 180], got {args.spread_cell_deg}")
-        planner = replace(planner, spread_cell=math.radians(args.spread_cell_deg) if args.spread_cell_deg else None)
-    if args.spread_saturation is not None:
-        if not (math.isfinite(args.spread_saturation) and args.spread_saturation > 0):
-            raise InputError(f"--spread-saturation: must be > 0, got {args.spread_saturation}")
-        planner = replace(planner, spread_saturation=args.spread_saturation)
     if args.normalise is not None:
         from pivotd.pivot.normalise import Normalisation
 
@@ -188,8 +177,6 @@ def run(args: argparse.Namespace) -> int:
             + (" --no-distance-weights" if args.no_distance_weights else "")
             + (" --continuous-pan" if args.continuous_pan else "")
             + (" --replan-on-waypoint" if args.replan_on_waypoint else "")
-            + ("" if args.spread_cell_deg is None else f" --spread-cell-deg {args.spread_cell_deg:g}")
-            + ("" if args.spread_saturation is None else f" --spread-saturation {args.spread_saturation:g}")
             + ("" if args.lam is None else f" --lambda {args.lam:g}")
             + ("" if args.smooth_knee_deg is None else f" --smooth-knee-deg {args.smooth_knee_deg:g}")
             + ("" if args.normalise is None else f" --normalise {args.normalise}"),
