@@ -32,14 +32,18 @@ def test_compare_with_a_missing_package_is_a_clear_error(tmp_path):
         horizon.run(_args(tmp_path, compare_with="no_such_pivotd_copy"))
 
 
-def test_the_daemons_defaults_replan_interleaved_and_count_the_rescues(tmp_path):
-    assert horizon.run(_args(tmp_path, rescue_fraction=0.25, smooth_knee_deg=1.0)) == 0
+def test_the_daemons_planner_is_timed_warm_and_on_new_paths(tmp_path):
+    from pivotd.config import load_config
+    from pivotd.sim.launch import REPO
+
+    assert horizon.run(_args(tmp_path, replans=40, step=2.0)) == 0  # 80 m: more than one pass
     out = json.loads((tmp_path / "h.json").read_text())
-    assert out["compare_with"] == "rescue_blind at 0.25, smooth_knee_deg 1"
-    assert 0 <= out["rescue_kept"] <= out["rescue_second_solves"] <= out["replans"]
-    assert out["other_replan_cpu_ms_p50"] > 0 and out["visible_vs_other"] > 0
+    assert out["new_paths"] >= 1 and out["new_path_cpu_ms_max"] > 0  # the hallway wrapped at least once
+    assert out["replan_cpu_ms_p50"] > 0 and out["cold_start_ms"] > 0
+    cfg = load_config(REPO / "config" / "demo.yaml")
+    assert cfg.planner.rescue_blind  # the daemon's defaults: what is timed is what runs
 
 
-def test_a_knee_out_of_range_is_a_clear_error(tmp_path):
-    with pytest.raises(InputError, match="--smooth-knee-deg"):
-        horizon.run(_args(tmp_path, rescue_fraction=0.25, smooth_knee_deg=-1.0))
+def test_a_bad_speed_is_a_clear_error(tmp_path):
+    with pytest.raises(InputError, match="--speed"):
+        horizon.run(_args(tmp_path, speed=0))

@@ -227,6 +227,7 @@ class RecedingHorizonPlanner:
         self._grid: JointGrid | None = None
         self._moved: tuple[float, np.ndarray] | None = None  # (time [s], body position) of the last replan
         self.speed: float | None = None  # [m/s] the robot's measured speed (smoothed over replans)
+        self.joint_solves = 0  # replans that solved the joint-grid seed (another basin than the plan's)
 
     def set_path(self, positions: np.ndarray | None, quats: np.ndarray | None, version: int) -> None:
         """Install a new translation path (None clears it); progress restarts from the nearest point."""
@@ -394,14 +395,17 @@ class RecedingHorizonPlanner:
         )
         result = self._solve(problem, self._seeds(problem, warm, anchor))
         joint = self._joint_seed(problem, s, quats, anchor)
-        if joint is not None and self._other_basin(problem, joint, result):
+        other_basin = joint is not None and self._other_basin(problem, joint, result)
+        if other_basin:
+            self.joint_solves += 1
             result = best_of([result, *self._solve_each(problem, [joint[0]])])
         if warm is None:
             derived = derived_seeds(problem, result)
             if derived:
                 result = best_of([result, *self._solve_each(problem, derived)])
         rescue = Rescue.NOT_TRIED
-        if warm is not None and st.rescue_fraction is not None:
+        # one second solve per warm replan at most: the rescue only where the joint-grid seed found no other basin
+        if warm is not None and st.rescue_fraction is not None and not other_basin:
             result, rescue = self._rescue(snapshot, cams, s, retained, result, problem)
         self.last_objective = result.objective
         directions, visible, pans = self._joint_plan(snapshot, cams, s, retained, quats, result.directions,
@@ -494,7 +498,7 @@ class RecedingHorizonPlanner:
             start = (pan, tilt)
         path = best_joint_path(scores, st.axis_speeds[0] * dt, st.axis_speeds[1] * dt, grid, start=start)
         dirs = np.einsum("nji,nj->ni", R, grid.base_directions()[path.cells[:, 0] * grid.shape[1] + path.cells[:, 1]])
-        return Seed("joint_grid", dirs, SeedKind.GRID), path.total
+        return Seed("joint_grid", dirs, SeedKind.WARM), path.total
 
     @staticmethod
     def _other_basin(problem: TrajectoryProblem, joint: tuple[Seed, float], plan: TrajectoryResult) -> bool:

@@ -1,0 +1,64 @@
+"""The planner's seeds: a plan without a previous one (first plan, new path, reload, worker restart) gets the cold
+seeds beside the commanded direction; the joint-grid seed keeps the plan executable within the limits."""
+
+import math
+
+import numpy as np
+
+from pivotd.daemon.planner import PathMode, Plan, PlannerSettings, RecedingHorizonPlanner
+from pivotd.geometry import angle_between
+from pivotd.gimbal.kinematics import JointLimits, Mount
+from pivotd.maps.filters import RetainedFilter
+from pivotd.maps.formats import LandmarkCloud
+from pivotd.maps.store import MapStore
+
+IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
+N = 21
+LIMITS = JointLimits(math.radians(-170), math.radians(170), math.radians(-45), math.radians(60), False)
+BLANK = np.array([math.cos(math.radians(-50)), math.sin(math.radians(-50)), 0.0])  # 140° from the wall
+
+
+def snapshot():
+    """A dense textured wall 4 m to the left of a straight path along +x, one landmark far on the right."""
+    rng = np.random.default_rng(1)
+    wall = np.c_[rng.uniform(0, 22, 1500), np.full(1500, 4.0), rng.uniform(-1, 1.5, 1500)]
+    pts = np.vstack([wall, [[6.0, -6.0, 0.0]]]).astype(np.float32)
+    store = MapStore()
+    store.set_layer("base", LandmarkCloud(points=pts, weights=np.ones(pts.shape[0], np.float32)))
+    return store.snapshot()
+
+
+def planner() -> RecedingHorizonPlanner:
+    st = PlannerSettings(fov=math.radians(60), lam=0.6, spacing=0.5, horizon=N, rescue_fraction=None,
+                         retained_filter=RetainedFilter(min_range=0.3, max_range=10.0))
+    return RecedingHorizonPlanner(st, Mount(), LIMITS)
+
+
+def path(offset: float = 0.0) -> np.ndarray:
+    return np.c_[np.linspace(0, 10, N), np.full(N, offset), np.zeros(N)]
+
+
+def test_a_new_path_with_the_camera_pointing_away_gets_the_cold_seeds():
+    snap = snapshot()
+    pl = planner()
+    pl.set_path(path(), None, 1)
+    # the previous plan looked at the blank side everywhere, on the old path
+    pl.last_plan = Plan(created=0.0, positions=path(), directions=np.repeat(BLANK[None], N, 0),
+                        body_quats=np.tile(IDENTITY, (N, 1)), visible=np.zeros(N, int), s=np.arange(N) * 0.5,
+                        map_version=snap.version, path_version=1, solve_s=0.0, path_mode=PathMode.ON_PATH)
+    warm = pl.replan(snap, np.zeros(3), IDENTITY, BLANK)
+    assert warm.seed == "warm" and warm.visible.max() <= 1  # the warm start has no gradient to follow
+    pl.set_path(path(0.2), None, 2)  # a new path: no previous plan for it
+    plan = pl.replan(snap, np.array([0.0, 0.2, 0.0]), IDENTITY, BLANK)
+    assert plan.seed not in ("warm", "anchor")
+    assert np.median(plan.visible) > 300
+    assert angle_between(plan.directions[N // 2], np.array([0.0, 1.0, 0.0])) < math.radians(50)
+
+
+def test_the_first_plan_gets_the_cold_seeds_beside_the_commanded_direction():
+    snap = snapshot()
+    pl = planner()
+    pl.set_path(path(), None, 1)
+    plan = pl.replan(snap, np.zeros(3), IDENTITY, BLANK)
+    assert pl.solves >= 2 and plan.seed != "anchor"
+    assert np.median(plan.visible) > 300
