@@ -22,7 +22,7 @@ from enum import Enum
 import numpy as np
 
 from pivotd.config.settings import MAX_MARKER_LANDMARKS
-from pivotd.geometry import angle_between, normalize, quat_to_matrix, slerp
+from pivotd.geometry import angle_between, normalize, pan_tilt_to_direction, quat_to_matrix, slerp
 from pivotd.gimbal.kinematics import (
     JointLimits,
     Mount,
@@ -32,6 +32,7 @@ from pivotd.gimbal.kinematics import (
 )
 from pivotd.gimbal.pan_unwrap import (
     PROFILE_STEP,
+    base_pan_tilt,
     joint_pans,
     long_slews,
     pan_profile,
@@ -198,6 +199,85 @@ def _scatter(directions: np.ndarray, rows: np.ndarray, values: np.ndarray) -> np
 def camera_positions(body_positions: np.ndarray, body_quats: np.ndarray, mount: Mount) -> np.ndarray:
     """Sensor centres (N, 3) in the world for body positions (N, 3) and attitudes (N, 4)."""
     return body_positions + np.einsum("nij,j->ni", quat_to_matrix(body_quats), np.asarray(mount.translation, float))
+
+
+class _Execution:
+    """A replan's plans as the gimbal can follow them, and the judge that compares them.
+
+    A plan's joint pans are chosen along it from the commanded pan (:func:`pivotd.gimbal.pan_unwrap.joint_pans`:
+    the least total slew inside the limits) and each move between waypoints is clamped to the axis speeds over the
+    time the robot takes between them; the directions of that rate-limited joint path are judged by the objective.
+    A plan within the speeds is its own execution; one that must slew the long way round a bounded pan range is
+    judged by what the slew sees. Without axis speeds the plans are judged as they are."""
+
+    def __init__(self, planner: RecedingHorizonPlanner, s: np.ndarray, quats: np.ndarray,
+                 anchor: np.ndarray | None) -> None:
+        st = planner.settings
+        self._planner, self._quats = planner, quats
+        self._R = base_from_world(quats, planner.mount)
+        self._on = st.axis_speeds is not None and s.shape[0] > 1
+        if not self._on:
+            return
+        speed = max(planner.speed if planner.speed is not None else st.nominal_speed, 1e-3)
+        dt = np.diff(s) / speed
+        self._dpan, self._dtilt = st.axis_speeds[0] * dt, st.axis_speeds[1] * dt
+        lim = planner.limits
+        if anchor is None:
+            self._start = None
+        else:
+            prev = planner.last_plan
+            pan, tilt, _ = world_direction_to_joints(np.asarray(anchor, float), quats[0], planner.mount, lim,
+                                                     None if prev is None or prev.pans is None else float(prev.pans[0]))
+            self._start = (pan, tilt)
+
+    def directions(self, directions: np.ndarray) -> np.ndarray:
+        """The directions (N, 3) of the rate-limited joint path following ``directions`` (N, 3)."""
+        if not self._on:
+            return directions
+        pl = self._planner
+        pan0, tilt0 = (None, None) if self._start is None else self._start
+        pans, _ = joint_pans(directions, self._quats, pl.mount, pl.limits, pans_start(directions, self._quats, pl,
+                                                                                     pan0))
+        _, tilts = base_pan_tilt(directions, self._quats, pl.mount)
+        tilts = np.clip(tilts, pl.limits.tilt_min, pl.limits.tilt_max)
+        p, t = (pans[0], tilts[0]) if pan0 is None else (pan0, tilt0)
+        out_p, out_t = np.empty_like(pans), np.empty_like(tilts)
+        out_p[0], out_t[0] = p, t
+        for k in range(1, pans.shape[0]):
+            p += float(np.clip(pans[k] - p, -self._dpan[k - 1], self._dpan[k - 1]))
+            t += float(np.clip(tilts[k] - t, -self._dtilt[k - 1], self._dtilt[k - 1]))
+            out_p[k], out_t[k] = p, t
+        d_base = pan_tilt_to_direction(out_p, out_t)
+        return np.einsum("nji,nj->ni", self._R, d_base)
+
+    def objective(self, problem: TrajectoryProblem, result: TrajectoryResult) -> float:
+        """The objective of ``result`` as executed (its own without axis speeds)."""
+        if not self._on:
+            return result.objective
+        return problem.judge(self.directions(result.directions))[1]
+
+    def pick(self, problem: TrajectoryProblem, results: list[TrajectoryResult]) -> int:
+        """Index of the result with the highest objective as executed (the first of equals)."""
+        if len(results) == 1:
+            return 0
+        return int(np.argmax([self.objective(problem, r) for r in results]))
+
+    def best(self, problem: TrajectoryProblem, results: list[TrajectoryResult]) -> TrajectoryResult:
+        """The result with the highest objective as executed (the first of equals); iterations summed."""
+        if len(results) == 1 or not self._on:
+            return best_of(results)
+        r = results[self.pick(problem, results)]
+        return TrajectoryResult(r.directions, r.rotations, r.visible, sum(x.iterations for x in results),
+                                r.objective, r.seed)
+
+
+def pans_start(directions: np.ndarray, quats: np.ndarray, planner: RecedingHorizonPlanner,
+               pan0: float | None) -> float:
+    """The pan a plan's joint sequence starts from: the commanded one, else the first waypoint's own."""
+    if pan0 is not None:
+        return pan0
+    pan, _ = base_pan_tilt(directions[:1], quats[:1], planner.mount)
+    return float(np.clip(pan[0], planner.limits.pan_min, planner.limits.pan_max))
 
 
 class RecedingHorizonPlanner:
@@ -393,20 +473,21 @@ class RecedingHorizonPlanner:
             anchor=anchor if self.unwind_target is None else None,  # an unwind slew is not pulled back
             constraint=self._constraint(quats), max_step=st.max_step, options=st.options,
         )
-        result = self._solve(problem, self._seeds(problem, warm, anchor))
+        executed = _Execution(self, s, quats, anchor)
+        result = executed.best(problem, self._solve_each(problem, self._seeds(problem, warm, anchor)))
         joint = self._joint_seed(problem, s, quats, anchor)
-        other_basin = joint is not None and self._other_basin(problem, joint, result)
+        other_basin = joint is not None and self._other_basin(problem, joint, result, executed)
         if other_basin:
             self.joint_solves += 1
-            result = best_of([result, *self._solve_each(problem, [joint[0]])])
+            result = executed.best(problem, [result, *self._solve_each(problem, [joint[0]])])
         if warm is None:
             derived = derived_seeds(problem, result)
             if derived:
-                result = best_of([result, *self._solve_each(problem, derived)])
+                result = executed.best(problem, [result, *self._solve_each(problem, derived)])
         rescue = Rescue.NOT_TRIED
         # one second solve per warm replan at most: the rescue only where the joint-grid seed found no other basin
         if warm is not None and st.rescue_fraction is not None and not other_basin:
-            result, rescue = self._rescue(snapshot, cams, s, retained, result, problem)
+            result, rescue = self._rescue(snapshot, cams, s, retained, result, problem, executed)
         self.last_objective = result.objective
         directions, visible, pans = self._joint_plan(snapshot, cams, s, retained, quats, result.directions,
                                                      np.asarray(result.visible), anchor)
@@ -501,13 +582,15 @@ class RecedingHorizonPlanner:
         return Seed("joint_grid", dirs, SeedKind.WARM), path.total
 
     @staticmethod
-    def _other_basin(problem: TrajectoryProblem, joint: tuple[Seed, float], plan: TrajectoryResult) -> bool:
+    def _other_basin(problem: TrajectoryProblem, joint: tuple[Seed, float], plan: TrajectoryResult,
+                     executed: _Execution) -> bool:
         """Whether the joint-grid seed is worth a solve next to ``plan``: it leaves the plan's cone somewhere (a
         basin the plan's ascent cannot reach: a cone without landmarks has no gradient) and its visible shares
-        add up to more than the plan's."""
+        add up to more than the plan's as the gimbal can follow it (:class:`_Execution`)."""
         seed, total = joint
         cos = np.einsum("ij,ij->i", normalize(seed.directions), plan.directions)
-        return bool(cos.min() < math.cos(problem.alpha)) and total > problem.visible_share(plan.directions)
+        return bool(cos.min() < math.cos(problem.alpha)) and total > problem.visible_share(
+            executed.directions(plan.directions))
 
     def _solve_each(self, problem: TrajectoryProblem, seeds: list[Seed]) -> list[TrajectoryResult]:
         """Each seed solved (:meth:`TrajectoryProblem.solve`); counted in :attr:`solves`."""
@@ -548,7 +631,8 @@ class RecedingHorizonPlanner:
         return out
 
     def _rescue(self, snapshot: MapSnapshot, cams: np.ndarray, s: np.ndarray, retained: list[np.ndarray],
-                result: TrajectoryResult, problem: TrajectoryProblem) -> tuple[TrajectoryResult, Rescue]:
+                result: TrajectoryResult, problem: TrajectoryProblem,
+                executed: _Execution) -> tuple[TrajectoryResult, Rescue]:
         """The warm plan ``result``, or a second solve from a start where its blind waypoints look at their best
         single-cone axis when that one reaches the higher objective (both solved with the same options).
 
@@ -587,7 +671,7 @@ class RecedingHorizonPlanner:
         if constraint is not None:
             init = constraint.project(init)
         alt = self._solve(problem, [Seed("rescue", init, SeedKind.WARM)])
-        if alt.objective > result.objective:
+        if executed.pick(problem, [result, alt]) == 1:
             self.rescues += 1
             self._rejected = (0, set())
             return alt, Rescue.KEPT
