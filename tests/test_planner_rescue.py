@@ -41,7 +41,7 @@ def snapshot():
 
 def planner(snap, warm: np.ndarray, rescue: float | None, max_step: float | None = None) -> RecedingHorizonPlanner:
     """A planner on the path whose previous plan looked at ``warm`` (3,) everywhere."""
-    st = PlannerSettings(fov=math.radians(60), lam=0.6, spacing=0.5, horizon=N, max_step=max_step,
+    st = PlannerSettings(fov=math.radians(60), lam=0.6, spacing=0.5, horizon=N, max_step=max_step, axis_speeds=None,
                          retained_filter=RetainedFilter(min_range=0.3, max_range=10.0), rescue_fraction=rescue)
     pl = RecedingHorizonPlanner(st, Mount(), LIMITS)
     path = np.c_[np.linspace(0, 20, N), np.zeros(N), np.zeros(N)]

@@ -28,9 +28,10 @@ def snapshot():
     return store.snapshot()
 
 
-def planner() -> RecedingHorizonPlanner:
+def planner(axis_speeds: tuple[float, float] | None = None) -> RecedingHorizonPlanner:
+    """Rescue off; the joint-grid seed only with ``axis_speeds`` [rad/s]."""
     st = PlannerSettings(fov=math.radians(60), lam=0.6, spacing=0.5, horizon=N, rescue_fraction=None,
-                         retained_filter=RetainedFilter(min_range=0.3, max_range=10.0))
+                         axis_speeds=axis_speeds, retained_filter=RetainedFilter(min_range=0.3, max_range=10.0))
     return RecedingHorizonPlanner(st, Mount(), LIMITS)
 
 
@@ -38,14 +39,18 @@ def path(offset: float = 0.0) -> np.ndarray:
     return np.c_[np.linspace(0, 10, N), np.full(N, offset), np.zeros(N)]
 
 
+def blank_plan(snap) -> Plan:
+    """A previous plan on path version 1 that looked at the blank side everywhere."""
+    return Plan(created=0.0, positions=path(), directions=np.repeat(BLANK[None], N, 0),
+                body_quats=np.tile(IDENTITY, (N, 1)), visible=np.zeros(N, int), s=np.arange(N) * 0.5,
+                map_version=snap.version, path_version=1, solve_s=0.0, path_mode=PathMode.ON_PATH)
+
+
 def test_a_new_path_with_the_camera_pointing_away_gets_the_cold_seeds():
     snap = snapshot()
     pl = planner()
     pl.set_path(path(), None, 1)
-    # the previous plan looked at the blank side everywhere, on the old path
-    pl.last_plan = Plan(created=0.0, positions=path(), directions=np.repeat(BLANK[None], N, 0),
-                        body_quats=np.tile(IDENTITY, (N, 1)), visible=np.zeros(N, int), s=np.arange(N) * 0.5,
-                        map_version=snap.version, path_version=1, solve_s=0.0, path_mode=PathMode.ON_PATH)
+    pl.last_plan = blank_plan(snap)
     warm = pl.replan(snap, np.zeros(3), IDENTITY, BLANK)
     assert warm.seed == "warm" and warm.visible.max() <= 1  # the warm start has no gradient to follow
     pl.set_path(path(0.2), None, 2)  # a new path: no previous plan for it
@@ -62,3 +67,17 @@ def test_the_first_plan_gets_the_cold_seeds_beside_the_commanded_direction():
     plan = pl.replan(snap, np.zeros(3), IDENTITY, BLANK)
     assert pl.solves >= 2 and plan.seed != "anchor"
     assert np.median(plan.visible) > 300
+
+
+def test_the_joint_grid_seed_leaves_a_blank_warm_plan_within_the_axis_speeds():
+    snap = snapshot()
+    speeds = (math.radians(120), math.radians(90))
+    pl = planner(speeds)
+    pl.set_path(path(), None, 1)
+    pl.last_plan = blank_plan(snap)
+    plan = pl.replan(snap, np.zeros(3), IDENTITY, BLANK, now=0.0)
+    assert plan.seed == "joint_grid" and pl.joint_solves == 1
+    assert np.median(plan.visible) > 300
+    # the commanded direction is where the plan starts from: its first move fits the pan speed at 1 m/s
+    first = angle_between(plan.directions[0], BLANK)
+    assert first <= speeds[0] * (0.5 / pl.settings.nominal_speed) + math.radians(5)

@@ -21,7 +21,7 @@ from enum import Enum
 
 import numpy as np
 
-from pivotd.config.settings import MAX_MARKER_LANDMARKS
+from pivotd.config.settings import MAX_MARKER_LANDMARKS, MotionConfig, PivotConfig, PlannerConfig
 from pivotd.geometry import angle_between, normalize, pan_tilt_to_direction, quat_to_matrix, slerp
 from pivotd.gimbal.kinematics import (
     JointLimits,
@@ -58,6 +58,8 @@ from pivotd.pivot.trajectory import (
 from pivotd.pivot.view import optimize_view
 from pivotd.pivot.visibility import hard_count, in_cone
 from pivotd.robot_path import Polyline, project_onto_polyline
+
+_PIVOT, _PLANNER, _MOTION = PivotConfig(), PlannerConfig(), MotionConfig()
 
 #: Most landmarks a plan reports as inside its first cone (:attr:`Plan.in_view`, shown as live markers).
 MAX_IN_VIEW = MAX_MARKER_LANDMARKS
@@ -134,26 +136,31 @@ class PlannerSettings:
     on [rad] (None: no limit); max_path_offset [m]: progress advances only with the robot this close to the
     path, and by at most the robot's displacement since the last replan plus this distance; replan_budget [s]:
     a replan slower than this halves the next one's horizon and landmarks per waypoint (at most MAX_DEGRADE
-    times), one under a quarter of it undoes a halving (None: never)."""
+    times), one under a quarter of it undoes a halving (None: never).
 
-    fov: float
-    lam: float = 0.6
-    spacing: float = 0.5
-    horizon: int = 40
-    max_landmarks_per_waypoint: int | None = 20000
+    The defaults are the config's (:class:`~pivotd.config.settings.PivotConfig`, ``PlannerConfig``,
+    ``MotionConfig``; the daemon passes every one of them from its config, pivotd.daemon.wiring.planner_settings);
+    those no config key sets are marked."""
+
+    fov: float = _PIVOT.fov
+    lam: float = _PIVOT.lam
+    spacing: float = _PLANNER.waypoint_spacing
+    horizon: int = _PLANNER.horizon
+    max_landmarks_per_waypoint: int | None = _PLANNER.max_landmarks_per_waypoint
     retained_filter: RetainedFilter = field(default_factory=RetainedFilter)
-    options: TrajectoryOptions | None = None
-    back_window: float = 1.0
-    ahead_window: float = 5.0
-    max_step: float | None = None
-    max_path_offset: float = 3.0
-    rescue_fraction: float | None = None  # blind warm starts (None: off): see RecedingHorizonPlanner._rescue
-    rescue_reach: int = 2  # waypoints on either side of a blind run turned towards it in the rescue's start
-    replan_budget: float | None = None  # [s] a replan slower than this halves the next one's horizon and cap
-    axis_speeds: tuple[float, float] | None = None  # [rad/s] pan and tilt speed limits: the joint-grid seed
-    # (None: no such seed), the best pan/tilt path over the horizon whose moves fit these speeds
-    joint_grid_step: float = math.radians(4.0)  # [rad] the joint grid's largest spacing
-    nominal_speed: float = 1.0  # [m/s] the robot's speed assumed until it has been measured
+    options: TrajectoryOptions | None = None  # None: the optimizer's own (the paper's settings)
+    back_window: float = 1.0  # [m] no key: the stretch of the path searched behind the last progress ...
+    ahead_window: float = 5.0  # [m] ... and ahead of it
+    max_step: float | None = _PLANNER.max_step
+    max_path_offset: float = _PLANNER.max_path_offset
+    rescue_fraction: float | None = _PLANNER.rescue_fraction if _PLANNER.rescue_blind else None  # blind warm
+    # starts (None: off): see RecedingHorizonPlanner._rescue
+    rescue_reach: int = 2  # no key: waypoints on either side of a blind run turned towards it in the rescue's start
+    replan_budget: float | None = _PLANNER.replan_budget  # [s] a slower replan halves the next one's horizon and cap
+    axis_speeds: tuple[float, float] | None = (_MOTION.pan.max_velocity, _MOTION.tilt.max_velocity)  # [rad/s] pan
+    # and tilt speed limits: the joint-grid seed (None: no such seed) and the judge of plans as executed
+    joint_grid_step: float = math.radians(4.0)  # [rad] no key: the joint grid's largest spacing
+    nominal_speed: float = 1.0  # [m/s] no key: the robot's speed assumed until it has been measured
 
     #: Most halvings of the horizon and of the landmarks per waypoint after late replans.
     MAX_DEGRADE = 3
