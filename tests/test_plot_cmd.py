@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from support import PYTHON, REPO, child_env
 
+from pivotd.bench.achievable import achievable
 from pivotd.bus.messages import JOINT_STATE, ODOMETRY, encode_joint_state, encode_odometry
 from pivotd.daemon.recorder import JOINT_COMMAND_TOPIC, METADATA_NAME, Recorder
 from pivotd.gimbal.kinematics import camera_position, joints_to_world_direction
@@ -126,6 +127,10 @@ def test_each_figure_renders_with_its_axes_and_data(tmp_path, which):
         lines = ax.get_lines()
         np.testing.assert_array_equal(lines[0].get_ydata(), views.n_pivot)
         np.testing.assert_array_equal(lines[1].get_ydata(), views.n_forward)
+        ach = achievable(run).series  # the achievable view per frame beside them
+        np.testing.assert_array_equal(lines[2].get_ydata(), ach.n_achievable)
+        np.testing.assert_array_equal(lines[2].get_xdata(), ach.t)
+        assert lines[2].get_label().startswith("achievable") and ach.n_achievable.mean() >= views.n_forward.mean()
     if which in ("joints", "all"):
         ax = by_title["commanded vs measured pan/tilt"]
         assert ax.get_ylabel() == "joint angle [deg]"

@@ -19,6 +19,7 @@ BENCHES: dict[str, str] = {
     "control": "control-loop jitter and pose-to-setpoint latency",
     "motion": "per-cycle cost of gimbal kinematics and Ruckig setpoint generation",
     "bus": "Zenoh/ROS 2 bus codec costs and loopback delivery latency",
+    "achievable": "a recorded run's view against the best view the configured gimbal can execute on its route",
     "localization": "simulated visual localization success per camera policy (needs pivotd[bench])",
     "fuzz": "pivotd plan/check over mutated maps, paths and configs: tracebacks, time, reader memory",
     "soak": "full stack under random device faults and hostile bus input: limits, tracebacks, RSS, recovery",

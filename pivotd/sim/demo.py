@@ -6,7 +6,8 @@ mavlink`` / ``dynamixel`` the MAVLink gimbal manager on UDP / the DYNAMIXEL serv
 ``tools/sim_pose`` on the S-shaped hallway (or the config's ``sim.route``, or ``--route`` with ``--map``), both
 talking Zenoh on loopback only (the run itself: :func:`pivotd.sim.stack.run_stack`). While the robot
 walks, a live status line shows what the daemon reports. Afterwards it prints a summary: landmarks
-visible per frame with PIVOT versus a forward-facing camera on the same route, setpoints sent, worst
+visible per frame with PIVOT versus a forward-facing camera on the same route, the share of the achievable view
+(``pivotd bench achievable`` on its recording) the daemon saw, setpoints sent, worst
 velocity/acceleration/jerk versus the limits, and draws its recording (``run.mcap``) as ``pivotd plot``
 does.
 """
@@ -21,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pivotd.bench.achievable import achievable, summary_line
 from pivotd.config import Config
 from pivotd.sim.analysis import dynamics_lines
 from pivotd.sim.launch import REPO, SIMULATED_BACKENDS
@@ -66,7 +68,9 @@ def run_demo(config_path: Path, out_dir: Path, speed: float = 1.2, timeout: floa
     result = run_stack(config_path, out_dir, route=route, map_file=map_file, speed=speed, timeout=timeout,
                        backend=backend, timed=timed, on_status=on_status)
     cfg, report, exit_code = result.cfg, result.report, result.daemon_exit
-    png = save_figure(build_figure(result.run, "all"), out_dir / "demo.png") if plot else None
+    ach = achievable(result.run)
+    report["achievable"] = ach.report
+    png = save_figure(build_figure(result.run, "all", achievable=ach.series), out_dir / "demo.png") if plot else None
     (out_dir / "summary.json").write_text(json.dumps(report, indent=2, default=str))
     _print_summary(report, cfg, png)
     return DemoSummary(report["frames"], report["visible_mean_pivot"], report["visible_mean_forward"],
@@ -81,6 +85,8 @@ def _print_summary(r: dict, cfg: Config, png: Path | None) -> None:
           f"{r['visible_mean_forward']:.1f}  ->  {r['visible_ratio']:.2f}x")
     print(f"  frames with < 10 landmarks visible: PIVOT {r['frames_pivot_below_10']}, "
           f"forward-facing {r['frames_forward_below_10']}")
+    if "achievable" in r:
+        print(summary_line(r["achievable"]))
     print(f"  setpoints sent: {r['setpoints']}")
     for line in dynamics_lines(r):
         print(line)

@@ -2,7 +2,8 @@
 
 * ``route``: the route from above with the gimbal camera's viewing directions (blue), a forward-facing
   camera's (red) and the landmarks, those that entered the gimbal camera's FoV highlighted (the paper's figures);
-* ``visibility``: landmarks in the FoV over time, gimbal vs forward-facing camera;
+* ``visibility``: landmarks in the FoV over time, gimbal vs forward-facing camera and the achievable view (the
+  best path the configured gimbal can execute on the route, ``pivotd bench achievable``);
 * ``joints``: commanded vs measured pan and tilt;
 * ``dynamics``: rate, acceleration and jerk of the commanded motion (of the measured one when the recording
   has no setpoints) against the configured limits.
@@ -10,6 +11,7 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -17,7 +19,10 @@ import numpy as np
 
 from pivotd.errors import InputError
 
+log = logging.getLogger(__name__)
+
 if TYPE_CHECKING:  # the figure names stay importable without the recording's dependencies
+    from pivotd.bench.achievable import AchievableSeries
     from pivotd.viz.recording import JointSeries, Recording
     from pivotd.viz.views import Views
 
@@ -25,7 +30,7 @@ FIGURES = ("route", "visibility", "joints", "dynamics")
 #: figure size [inches] of each figure drawn alone, and of ``all``
 SIZES = {"route": (9.0, 7.0), "visibility": (9.0, 4.0), "joints": (9.0, 4.5), "dynamics": (9.0, 7.5),
          "all": (16.0, 11.0)}
-PIVOT_COLOR, FORWARD_COLOR = "tab:blue", "tab:red"
+PIVOT_COLOR, FORWARD_COLOR, ACHIEVABLE_COLOR = "tab:blue", "tab:red", "tab:gray"
 AXIS_COLORS = {"pan": "tab:green", "tilt": "tab:purple"}
 ENVELOPE_S = 0.1  # [s] window of the acceleration and jerk envelopes
 
@@ -42,8 +47,10 @@ def require_pyplot() -> Any:
     return plt
 
 
-def build_figure(run: Recording, which: str = "all", views: Views | None = None) -> Any:
-    """The matplotlib Figure ``which`` (one of :data:`FIGURES` or ``all``: every one on one page)."""
+def build_figure(run: Recording, which: str = "all", views: Views | None = None,
+                 achievable: AchievableSeries | None = None) -> Any:
+    """The matplotlib Figure ``which`` (one of :data:`FIGURES` or ``all``: every one on one page). ``views`` and
+    ``achievable`` (the visibility panel's achievable line) are computed from ``run`` when not given."""
     if which not in (*FIGURES, "all"):
         raise InputError(f"unknown figure {which!r}; expected one of {', '.join((*FIGURES, 'all'))}")
     plt = require_pyplot()
@@ -51,18 +58,20 @@ def build_figure(run: Recording, which: str = "all", views: Views | None = None)
         from pivotd.viz.views import camera_views
 
         views = camera_views(run)
+    if achievable is None and which in ("visibility", "all"):
+        achievable = _achievable_series(run)
     fig = plt.figure(figsize=SIZES[which], layout="constrained")
     if which == "all":
         grid = fig.add_gridspec(3, 2, width_ratios=(1.15, 1.0))
         draw_route(fig.add_subplot(grid[0:2, 0]), run, views)
-        draw_visibility(fig.add_subplot(grid[2, 0]), views)
+        draw_visibility(fig.add_subplot(grid[2, 0]), views, achievable)
         draw_joints(fig.add_subplot(grid[0, 1]), run)
         draw_dynamics(grid[1:3, 1].subgridspec(3, 1).subplots(sharex=True), run)
         fig.suptitle(f"{run.cfg.name}: {run.path.name}", fontsize=11)
     elif which == "route":
         draw_route(fig.add_subplot(), run, views)
     elif which == "visibility":
-        draw_visibility(fig.add_subplot(), views)
+        draw_visibility(fig.add_subplot(), views, achievable)
     elif which == "joints":
         draw_joints(fig.add_subplot(), run)
     else:
@@ -128,12 +137,26 @@ def draw_route(ax: Any, run: Recording, views: Views) -> None:
     ax.legend(loc="best", fontsize=7, markerscale=3)
 
 
-def draw_visibility(ax: Any, views: Views) -> None:
-    """Landmarks in the FoV per frame, gimbal vs forward-facing camera."""
+def _achievable_series(run: Recording) -> AchievableSeries | None:
+    """The achievable view per frame of ``run``, or None (with a warning) when the run is too short for it."""
+    from pivotd.bench.achievable import achievable
+
+    try:
+        return achievable(run).series
+    except InputError as exc:
+        log.warning("no achievable view in the figure: %s", exc)
+        return None
+
+
+def draw_visibility(ax: Any, views: Views, achievable: AchievableSeries | None = None) -> None:
+    """Landmarks in the FoV per frame, gimbal vs forward-facing camera, and the achievable view when given."""
     ax.plot(views.t, views.n_pivot, c=PIVOT_COLOR, lw=1.2,
             label=f"gimbal camera (PIVOT), mean {views.n_pivot.mean() if views.t.size else 0:.1f}")
     ax.plot(views.t, views.n_forward, c=FORWARD_COLOR, lw=1.0,
             label=f"forward-facing camera, mean {views.n_forward.mean() if views.t.size else 0:.1f}")
+    if achievable is not None:
+        ax.plot(achievable.t, achievable.n_achievable, c=ACHIEVABLE_COLOR, lw=1.0, ls="--",
+                label=f"achievable (best executable path), mean {achievable.n_achievable.mean():.1f}")
     ax.set_xlabel("time [s]")
     ax.set_ylabel("landmarks in the FoV")
     ax.set_ylim(bottom=0)

@@ -1,0 +1,301 @@
+"""``pivotd bench achievable RUN.mcap``: the daemon's view against the best view the configured gimbal can execute.
+
+From a recording (``pivotd --record``), at frames of ``--rate`` Hz over the time the robot had fresh poses (the
+last pose at most ``control.pose_timeout_s`` old), landmarks inside the cone (``pivot.half_angle``, distances in
+``map.filters``' range; :func:`pivotd.sim.analysis.visible_counts`) are counted for:
+
+* **daemon**: the measured joints, interpolated at the frame;
+* **forward**: the camera fixed at pan = tilt = 0;
+* **teleport**: the best cell of a pan/tilt grid inside the joint limits at every frame (no motion limits);
+* **achievable**: the exact optimum over the same grid of the whole route with each step within the axis
+  velocity limits × the frame interval (:func:`pivotd.pivot.joint_dp.best_joint_path`, starting where the
+  gimbal stood at the first frame), then executed through :class:`pivotd.gimbal.motion.MotionGenerator` with the
+  configured velocity, acceleration and jerk limits at the control rate; the executed positions at the frames
+  are counted. The DP's own (unexecuted) path is reported beside it, and the executed stream is checked against
+  every limit.
+
+Landmarks within ``map.filters.max_range`` of each frame come from a k-d tree, so the cost follows the landmarks
+near the route.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from pivotd.config import Config
+from pivotd.errors import InputError
+from pivotd.geometry import pan_tilt_to_direction
+from pivotd.gimbal.kinematics import base_from_world, camera_position
+from pivotd.gimbal.motion import MotionGenerator
+from pivotd.pivot.joint_dp import JointGrid, best_joint_path, cell_counts
+from pivotd.sim.analysis import setpoint_dynamics, visible_counts
+from pivotd.viz.recording import Recording, read_recording
+
+_LIMIT_TOL = 1e-9  # [rad] slack of the joint-limit check on the executed positions
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("recording", metavar="RUN.mcap", help="an MCAP file written by `pivotd --record`")
+    parser.add_argument("--config", default=None, metavar="CFG", help="the run's config, if not the recorded one")
+    parser.add_argument("--rate", type=float, default=10.0, help="frames per second that are counted (default 10)")
+    parser.add_argument("--grid-deg", type=float, default=2.0,
+                        help="largest pan/tilt spacing of the joint grid [deg] (default 2)")
+    parser.add_argument("--json", action="store_true", help="print the report as JSON instead of text")
+
+
+@dataclass(frozen=True)
+class AchievableSeries:
+    """Per frame (F,): times t [s], counts of the daemon, forward camera, teleport, DP path and executed path;
+    joint angles (F, 2) [rad] of the daemon (measured), the DP cells and the executed setpoints."""
+
+    t: np.ndarray
+    n_daemon: np.ndarray
+    n_forward: np.ndarray
+    n_teleport: np.ndarray
+    n_dp: np.ndarray
+    n_achievable: np.ndarray
+    daemon_joints: np.ndarray
+    dp_joints: np.ndarray
+    executed_joints: np.ndarray
+
+
+@dataclass(frozen=True)
+class Achievable:
+    """:func:`achievable`'s result: the report (JSON-friendly dict) and the per-frame series."""
+
+    report: dict
+    series: AchievableSeries
+
+
+def _frames(run: Recording, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Frame times (F,) [s] on a regular clock at ``rate_hz`` where the last pose is fresh and joints were measured,
+    and the index (F,) of that pose."""
+    cfg = run.cfg
+    lo = max(run.pose_t[0], run.measured.t[0])
+    hi = min(run.pose_t[-1] + cfg.control.pose_timeout_s, run.measured.t[-1])
+    if hi < lo:
+        return np.zeros(0), np.zeros(0, int)
+    t = lo + np.arange(math.floor((hi - lo) * rate_hz + 1e-9) + 1) / rate_hz
+    i = np.searchsorted(run.pose_t, t, side="right") - 1
+    fresh = (i >= 0) & (t - run.pose_t[np.maximum(i, 0)] <= cfg.control.pose_timeout_s)
+    return t[fresh], i[fresh]
+
+
+def _interp_joints(run: Recording, t: np.ndarray) -> np.ndarray:
+    """Measured joints (F, 2) [rad] linearly interpolated at ``t`` (pan unwrapped on a continuous-pan gimbal)."""
+    js = run.measured
+    pan = np.unwrap(js.angles[:, 0]) if run.cfg.gimbal.limits.continuous_pan else js.angles[:, 0]
+    return np.column_stack([np.interp(t, js.t, pan), np.interp(t, js.t, js.angles[:, 1])])
+
+
+def _directions(R: np.ndarray, joints: np.ndarray) -> np.ndarray:
+    """World optical axes (F, 3) for base orientations R (F, 3, 3) (world → base) and joints (F, 2)."""
+    return np.einsum("fji,fj->fi", R, pan_tilt_to_direction(joints[:, 0], joints[:, 1]))
+
+
+def _count(points: np.ndarray, cams: np.ndarray, cand: list[np.ndarray], dirs: np.ndarray, cfg: Config) -> np.ndarray:
+    """visible_counts (F,) of each frame's candidates only (``cand``: landmark indices within the maximum range)."""
+    flt = cfg.map.filters
+    out = np.zeros(cams.shape[0], np.int64)
+    for f, idx in enumerate(cand):
+        if idx.size:
+            out[f] = visible_counts(points[idx], cams[f:f + 1], dirs[f:f + 1], cfg.pivot.half_angle,
+                                    flt.min_range, flt.max_range)[0]
+    return out
+
+
+@dataclass(frozen=True)
+class Executed:
+    """A joint path run through the motion generator: positions at the frames (F, 2) [rad], and the whole
+    setpoint stream at the control period: positions (S, 2) [rad] and velocities (S, 2) [rad/s]."""
+
+    at_frames: np.ndarray
+    positions: np.ndarray
+    velocities: np.ndarray
+
+
+def execute(cfg: Config, t: np.ndarray, targets: np.ndarray, start: np.ndarray) -> Executed:
+    """Run joint ``targets`` (F, 2) [rad] at frame times ``t`` (F,) [s] through the configured motion generator.
+
+    At each frame the target is the frame's cell moving towards the next one (velocity feed-forward: their
+    difference over the frame interval); the generator steps at the control period from ``start`` (2,) at rest,
+    as the daemon's control loop does."""
+    dt = cfg.control.dt
+    gen = MotionGenerator(dt, cfg.motion.pan, cfg.motion.tilt, cfg.gimbal.limits, deadband=cfg.motion.deadband)
+    gen.reset(start)
+    steps = np.round((t - t[0]) / dt).astype(int)
+    vel = np.zeros_like(targets)
+    if t.size > 1:
+        vel[:-1] = np.diff(targets, axis=0) / np.diff(t)[:, None]
+    pos = [gen.state.position]
+    rates = [gen.state.velocity]
+    at_frames = np.empty_like(targets)
+    step = 0
+    for f in range(t.size):
+        while step < steps[f]:
+            s = gen.step()
+            pos.append(s.position)
+            rates.append(s.velocity)
+            step += 1
+        at_frames[f] = pos[-1]
+        gen.set_target(targets[f], vel[f])
+    return Executed(at_frames, np.asarray(pos), np.asarray(rates))
+
+
+def check_limits(cfg: Config, ex: Executed) -> dict:
+    """Whether the executed stream keeps every velocity, acceleration and jerk limit (from the velocities, as the
+    recorded setpoints are judged) and the joint limits; the worst share of each limit per axis."""
+    lim = cfg.gimbal.limits
+    p = ex.positions
+    dyn = setpoint_dynamics(p, cfg.control.dt, cfg.motion.pan, cfg.motion.tilt, rates=ex.velocities,
+                            resolution=_LIMIT_TOL)
+    inside = bool(np.all((p[:, 1] >= lim.tilt_min - _LIMIT_TOL) & (p[:, 1] <= lim.tilt_max + _LIMIT_TOL)))
+    if not lim.continuous_pan:
+        inside &= bool(np.all((p[:, 0] >= lim.pan_min - _LIMIT_TOL) & (p[:, 0] <= lim.pan_max + _LIMIT_TOL)))
+    ratios = {"velocity": dyn.velocity_ratio, "acceleration": dyn.acceleration_ratio, "jerk": dyn.jerk_ratio}
+    return {
+        "within_limits": bool(dyn.within_limits and inside),
+        "within_joint_limits": inside,
+        "worst_ratio": {k: np.round(v, 4).tolist() for k, v in ratios.items()},
+        "setpoints": int(p.shape[0]),
+    }
+
+
+def achievable(run: Recording, rate_hz: float = 10.0, grid_deg: float = 2.0) -> Achievable:
+    """The achievable view of a read recording (see the module docstring)."""
+    if not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise InputError(f"--rate {rate_hz}: must be > 0")
+    if not (math.isfinite(grid_deg) and 0.1 <= grid_deg <= 30.0):
+        raise InputError(f"--grid-deg {grid_deg}: must be within 0.1..30")
+    cfg = run.cfg
+    t, ip = _frames(run, rate_hz)
+    if t.size < 2:
+        raise InputError(f"{run.path}: fewer than two frames with a fresh pose at {rate_hz:g} Hz")
+    clock = {}
+    t0 = time.perf_counter()
+    mount, lim, flt = cfg.gimbal.mount, cfg.gimbal.limits, cfg.map.filters
+    quats = run.pose_quat[ip]
+    cams = camera_position(run.pose_pos[ip], quats, mount).reshape(-1, 3)
+    R = base_from_world(quats, mount).reshape(-1, 3, 3)
+    points = run.landmarks
+    tree = cKDTree(points)
+    cand = [np.asarray(c, dtype=np.int64) for c in tree.query_ball_point(cams, flt.max_range)]
+    grid = JointGrid.inside(lim.pan_min, lim.pan_max, lim.tilt_min, lim.tilt_max, math.radians(grid_deg),
+                            continuous_pan=lim.continuous_pan)
+    scores = np.zeros((t.size, *grid.shape), dtype=np.float32)
+    for f, idx in enumerate(cand):
+        rel = points[idx] - cams[f]
+        dist = np.linalg.norm(rel, axis=1)
+        rel = rel[(dist >= flt.min_range) & (dist <= flt.max_range)]
+        if rel.shape[0]:
+            scores[f] = cell_counts(rel, None, grid, R[f], cfg.pivot.half_angle)
+    clock["scores_s"] = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    daemon_joints = _interp_joints(run, t)
+    start = daemon_joints[0]
+    dtf = np.diff(t)
+    path = best_joint_path(scores, cfg.motion.pan.max_velocity * dtf, cfg.motion.tilt.max_velocity * dtf, grid,
+                           start=(float(start[0]), float(start[1])))
+    dp_joints = path.joints(grid)
+    if lim.continuous_pan:
+        dp_joints[:, 0] = np.unwrap(dp_joints[:, 0])
+        dp_joints[:, 0] += 2 * math.pi * round((start[0] - dp_joints[0, 0]) / (2 * math.pi))
+    flat = scores.reshape(t.size, -1)
+    best = np.argmax(flat, axis=1)
+    teleport_joints = grid.joints(np.column_stack(np.divmod(best, grid.shape[1])))
+    clock["dp_s"] = time.perf_counter() - t1
+
+    t2 = time.perf_counter()
+    ex = execute(cfg, t, dp_joints, start)
+    executed, check = ex.at_frames, check_limits(cfg, ex)
+    clock["execute_s"] = time.perf_counter() - t2
+
+    t3 = time.perf_counter()
+    n_daemon = _count(points, cams, cand, _directions(R, daemon_joints), cfg)
+    n_forward = _count(points, cams, cand, _directions(R, np.zeros_like(daemon_joints)), cfg)
+    n_teleport = _count(points, cams, cand, _directions(R, teleport_joints), cfg)
+    n_dp = _count(points, cams, cand, _directions(R, dp_joints), cfg)
+    n_ach = _count(points, cams, cand, _directions(R, executed), cfg)
+    clock["count_s"] = time.perf_counter() - t3
+
+    def mean(x: np.ndarray) -> float:
+        return float(x.mean())
+
+    report = {
+        "recording": str(run.path),
+        "frames": int(t.size),
+        "rate_hz": float(rate_hz),
+        "duration_s": round(float(t[-1] - t[0]), 3),
+        "grid_deg": float(grid_deg),
+        "grid_cells": [int(grid.shape[0]), int(grid.shape[1])],
+        "daemon_mean": mean(n_daemon),
+        "forward_mean": mean(n_forward),
+        "achievable_mean": mean(n_ach),
+        "teleport_mean": mean(n_teleport),
+        "dp_mean": mean(n_dp),
+        "dp_total_cells": float(path.total),
+        "share_daemon_achievable": mean(n_daemon) / max(mean(n_ach), 1e-12),
+        "share_achievable_teleport": mean(n_ach) / max(mean(n_teleport), 1e-12),
+        "frames_daemon_below_forward": int((n_daemon < n_forward).sum()),
+        "frames_daemon_below_90pct_forward": int((n_daemon < 0.9 * n_forward).sum()),
+        "executed": check,
+        "seconds": {k: round(v, 3) for k, v in clock.items()},
+    }
+    series = AchievableSeries(t, n_daemon, n_forward, n_teleport, n_dp, n_ach,
+                              daemon_joints, dp_joints, executed)
+    return Achievable(report, series)
+
+
+def achievable_report(recording_path: str | Path, config_path: str | Path | None = None, rate_hz: float = 10.0,
+                      grid_deg: float = 2.0) -> dict:
+    """:func:`achievable`'s report for the recording at ``recording_path`` (its recorded config, or
+    ``config_path``)."""
+    return achievable(read_recording(recording_path, config_path), rate_hz, grid_deg).report
+
+
+def summary_line(r: dict) -> str:
+    """One line for a run summary: daemon / achievable share, achievable and teleport means, frames below
+    forward."""
+    return (f"  achievable view: daemon {r['share_daemon_achievable']:.1%} of achievable "
+            f"(daemon {r['daemon_mean']:.1f}, achievable {r['achievable_mean']:.1f}, teleport "
+            f"{r['teleport_mean']:.1f}); frames below forward {r['frames_daemon_below_forward']}/{r['frames']}")
+
+
+def report_lines(r: dict) -> list[str]:
+    """The bench's text report."""
+    ex = r["executed"]
+    worst = ", ".join(f"{k} {max(v):.1%}" for k, v in ex["worst_ratio"].items())
+    sec = r["seconds"]
+    return [
+        f"pivotd bench achievable — {r['recording']}: {r['frames']} frames at {r['rate_hz']:g} Hz over "
+        f"{r['duration_s']:.1f} s, grid {r['grid_cells'][0]}×{r['grid_cells'][1]} cells (≤ {r['grid_deg']:g}°)",
+        f"  landmarks in the cone per frame (means): daemon {r['daemon_mean']:.2f}, forward {r['forward_mean']:.2f}, "
+        f"achievable (executed) {r['achievable_mean']:.2f}, teleport {r['teleport_mean']:.2f}",
+        f"  achievable DP path before execution: {r['dp_mean']:.2f}",
+        f"  daemon / achievable {r['share_daemon_achievable']:.1%}, achievable / teleport "
+        f"{r['share_achievable_teleport']:.1%}",
+        f"  frames where the daemon sees less than forward: {r['frames_daemon_below_forward']}, "
+        f"below 90 % of forward: {r['frames_daemon_below_90pct_forward']}",
+        f"  executed path within every limit: {'yes' if ex['within_limits'] else 'NO'} "
+        f"(worst share of the limits: {worst}; joint limits {'kept' if ex['within_joint_limits'] else 'LEFT'})",
+        f"  time: scores {sec['scores_s']:.2f} s, DP {sec['dp_s']:.2f} s, execution {sec['execute_s']:.2f} s, "
+        f"counts {sec['count_s']:.2f} s",
+    ]
+
+
+def run(args: argparse.Namespace) -> int:
+    result = achievable(read_recording(args.recording, args.config), args.rate, args.grid_deg)
+    if args.json:
+        print(json.dumps(result.report, indent=1))
+    else:
+        print("\n".join(report_lines(result.report)))
+    return 0 if result.report["executed"]["within_limits"] else 1
