@@ -60,7 +60,7 @@ def test_summary_means_over_repeats_and_share_spread_in_points(capsys):
     other = gap.summarise("aisles-2", "aisles", 1, [runs[1]])
     gap.print_table([row, other])
     out = capsys.readouterr().out.splitlines()
-    assert out[1].split() == ["turn", "3", "turn-Lleft", "85.0", "40.0", "100.0", "85.0", "2.12", "5.0", "10.0", "0"]
+    assert out[1].split() == ["turn", "3", "turn-Lleft", "85.0", "40.0", "100.0", "85.0", "2.12", "5.0", "10.0", "-"]
     assert out[-1] == "mean share 87.5 %; worst scene turn seed 3 (turn-Lleft) at 85.0 %"
 
 
@@ -105,6 +105,7 @@ def test_real_stack_on_a_turn_records_poses_and_joint_states(turn_run):
     assert figures["daemon_mean"] >= figures["forward_mean"], figures
     assert 0.0 <= figures["frames_below_forward_90"] < 0.5
     assert gap.host_stalls(run.report) == run.report["final_status"]["link_counters"]["host_stalls"]
+    assert 0.005 < gap.longest_setpoint_gap(run) < 5.0  # at least the 10 ms control period
 
 
 @pytest.mark.slow

@@ -33,8 +33,8 @@ MIN_TIMEOUT = 90.0  # [s] wall time allowed for the robot's walk at least
 @dataclass(frozen=True)
 class StackRun:
     """What one run left: the derived config it ran with, its recording, the analysis report and series of
-    :func:`analyse_run` (per-frame visibility ``n_pivot``/``n_forward`` (T,) among them), the recording read back
-    and the daemon's exit code after SIGTERM (None when it had to be killed)."""
+    :func:`analyse_run` (per-frame visibility ``n_pivot``/``n_forward`` (T,) among them), the recording read back,
+    the daemon's exit code after SIGTERM (None when it had to be killed) and the device's message log."""
 
     config_path: Path
     cfg: Config
@@ -43,6 +43,7 @@ class StackRun:
     series: dict
     run: Recording
     daemon_exit: int | None
+    device_log: Path
 
 
 def config_route(cfg: Config) -> str:
@@ -138,7 +139,7 @@ def run_stack(config_path: Path, out_dir: Path, route: str | None = None, map_fi
     report, series = analyse_run(cfg, obs, device_log, (run.commanded.angles, run.commanded.rates))
     report["daemon_exit_code"] = exit_code
     report["final_status"] = obs.status
-    return StackRun(config_path, cfg, recording, report, series, run, exit_code)
+    return StackRun(config_path, cfg, recording, report, series, run, exit_code, device_log)
 
 
 def frames_below(series: dict, share: float = 0.9) -> float:
