@@ -36,7 +36,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
     parser.add_argument("--scenes", default=None, help="comma-separated scene names (default: all)")
     parser.add_argument("--policies", default=None,
-                        help="comma-separated policies (default: forward,pivot,fisher,oracle,random)")
+                        help="comma-separated policies (default: forward,pivot,fisher,oracle,teleport,random; "
+                             "oracle: the achievable view, teleport: the best view per frame ignoring the motion "
+                             "limits)")
     parser.add_argument("--config", type=Path, default=REPO / "config" / "demo.yaml",
                         help="daemon config whose gimbal, motion, planner and control settings are used")
     parser.add_argument("--fif-dir", type=Path, default=REPO / "tests" / "data" / "fif")

@@ -1,16 +1,21 @@
 """Camera policies compared by the localization benchmark.
 
-Every policy except the oracle is driven through the daemon's control loop (jerk-limited Ruckig motion
+Every policy except the two oracles is driven through the daemon's control loop (jerk-limited Ruckig motion
 inside the joint limits, config/demo.yaml): at the planner rate it returns either a :class:`Plan` (world
 directions along the route, followed by the control loop with feed-forward) or a joint target
-(pan, tilt) [rad]. The oracle looks wherever is best at every frame and ignores all motion limits.
+(pan, tilt) [rad]. The oracles know the whole route in advance and compute their camera path at once.
 
 * ``forward``: gimbal fixed at pan = tilt = 0.
 * ``pivot``: the daemon's receding-horizon planner (warm starts, anchored to the commanded direction).
 * ``fisher``: at the route's waypoints every ``planner.waypoint_spacing`` metres (FIF's per-position
   search), the argmax of log det of the pose Fisher information over a pan × tilt grid inside the joint
   limits at the attitude the body will have there; the control loop follows these directions.
-* ``oracle``: the largest count of landmarks in the image on a fine grid of the whole sphere, per frame.
+* ``oracle``: the achievable view: the exact best path of in-image landmark counts over a pan × tilt grid
+  inside the joint limits, every step between frames within the axis velocity limits
+  (:func:`pivotd.pivot.joint_dp.best_joint_path`), executed through the motion generator with the configured
+  velocity, acceleration and jerk limits (``pivotd bench achievable``'s reference).
+* ``teleport``: the largest count of landmarks in the image on a fine grid of the whole sphere, per frame,
+  ignoring every joint and motion limit.
 * ``random``: a smooth random joint trajectory (two sines per axis, 0.03–0.12 Hz).
 """
 
@@ -25,14 +30,24 @@ import numpy as np
 from pivotd.geometry import pan_tilt_to_direction
 from pivotd.localization.camera import camera_rotation, in_view_counts
 from pivotd.localization.fisher import best_view
-from pivotd.localization.stack import Plan, PoseSample, base_from_world, build_planner, build_replan_trigger
+from pivotd.localization.stack import (
+    JointGrid,
+    Plan,
+    PoseSample,
+    achievable_path,
+    base_from_world,
+    build_planner,
+    build_replan_trigger,
+)
 from pivotd.localization.world import World
 
 FISHER_GRID_DEG = 10.0  # pan × tilt step of the Fisher-information baseline
 FISHER_LOOKAHEAD = 4  # waypoints ahead of the robot the Fisher baseline plans
-ORACLE_COARSE_DEG = 10.0  # whole-sphere grid of the oracle, refined around the best cells
-ORACLE_FINE_DEG = 2.0
-ORACLE_REFINE = 3  # coarse cells refined
+ORACLE_GRID_DEG = 3.0  # largest pan/tilt spacing of the achievable oracle's joint grid
+TELEPORT_COARSE_DEG = 10.0  # whole-sphere grid of the teleporting oracle, refined around the best cells
+TELEPORT_FINE_DEG = 2.0
+TELEPORT_REFINE = 3  # coarse cells refined
+_ROTATIONS_PER_BLOCK = 256  # camera orientations counted together (bounds the temporaries)
 
 
 class PolicyName(StrEnum):
@@ -40,6 +55,7 @@ class PolicyName(StrEnum):
     PIVOT = "pivot"
     FISHER = "fisher"
     ORACLE = "oracle"
+    TELEPORT = "teleport"
     RANDOM = "random"
 
 
@@ -48,16 +64,24 @@ Command = Plan | tuple[float, float]
 
 @dataclass
 class Policy:
-    """Base: ``limited`` policies go through the control loop; the oracle sets ``limited = False``."""
+    """Base: ``limited`` policies keep the joint and motion limits; ``open_loop`` ones compute their camera path
+    for the whole route at once (:meth:`camera_path`) instead of steering the control loop (:meth:`update`)."""
 
     world: World
     seed: int = 0
     name: PolicyName = PolicyName.FORWARD
     limited: bool = True
+    open_loop: bool = False
 
     def update(self, t: float, pose: PoseSample, commanded: np.ndarray | None) -> Command:
         """Command at time ``t`` [s] for body ``pose``; ``commanded``: world direction now being commanded."""
         return (0.0, 0.0)
+
+    def camera_path(self, centres: np.ndarray, quats: np.ndarray, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Open-loop policies: world optical axes (F, 3) for camera ``centres`` (F, 3) with the body at ``quats``
+        (F, 4) at ``frames`` (F,) [s], and the commanded stream (S, 4) (pan, tilt, pan rate, tilt rate) at the
+        control period (empty when the policy commands none)."""
+        raise NotImplementedError(f"{self.name} is steered through the control loop")
 
     def decisions(self, calls: int) -> int:
         """Decisions taken in a run with ``calls`` calls (of :meth:`update`, or per-frame looks): one each."""
@@ -159,17 +183,58 @@ def sphere_grid(step_deg: float) -> np.ndarray:
     return pan_tilt_to_direction(a.ravel(), -e.ravel())
 
 
+def _in_view(world: World, d_world: np.ndarray, centre: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """In-image counts (G,) of ``pts`` for a camera at ``centre`` looking along each of ``d_world`` (G, 3)."""
+    out = np.zeros(d_world.shape[0], np.int64)
+    for s in range(0, d_world.shape[0], _ROTATIONS_PER_BLOCK):
+        block = d_world[s:s + _ROTATIONS_PER_BLOCK]
+        out[s:s + block.shape[0]] = in_view_counts(world.camera, camera_rotation(block), centre, pts)
+    return out
+
+
 @dataclass
 class OraclePolicy(Policy):
-    """Best in-image count on a fine grid at every frame, teleporting (no joint or motion limits)."""
+    """The achievable oracle: the best in-image count path over a joint grid inside the limits with every step
+    within the velocity limits × the frame interval, executed through the motion generator from pan = tilt = 0."""
 
     name: PolicyName = PolicyName.ORACLE
-    limited: bool = False
+    open_loop: bool = True
 
     def __post_init__(self) -> None:
-        self._coarse = sphere_grid(ORACLE_COARSE_DEG)
-        k = math.ceil(ORACLE_COARSE_DEG / ORACLE_FINE_DEG)
-        off = np.radians(np.arange(-k, k + 1) * ORACLE_FINE_DEG)
+        lim = self.world.limits
+        self.grid = JointGrid.inside(lim.pan_min, lim.pan_max, lim.tilt_min, lim.tilt_max,
+                                     math.radians(ORACLE_GRID_DEG), continuous_pan=lim.continuous_pan)
+        self._d_base = self.grid.base_directions()  # (P·T, 3)
+
+    def scores(self, frame: int, centre: np.ndarray, body_quat: np.ndarray) -> np.ndarray:
+        """In-image counts (P, T) of every grid cell at frame number ``frame``."""
+        pts = self.world.scene.landmarks[self.world.sight(frame, centre)]
+        if pts.shape[0] == 0:
+            return np.zeros(self.grid.shape)
+        d_world = self._d_base @ base_from_world(body_quat, self.world.mount)  # rows: Rᵀ d
+        return _in_view(self.world, d_world, centre, pts).reshape(self.grid.shape).astype(float)
+
+    def camera_path(self, centres: np.ndarray, quats: np.ndarray, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        scores = np.stack([self.scores(i, c, q) for i, (c, q) in enumerate(zip(centres, quats, strict=True))])
+        _, ex = achievable_path(self.world.cfg, frames, scores, self.grid, np.zeros(2),
+                                end_time=self.world.scene.duration)
+        R = base_from_world(quats, self.world.mount).reshape(-1, 3, 3)
+        dirs = np.einsum("fji,fj->fi", R, pan_tilt_to_direction(ex.at_frames[:, 0], ex.at_frames[:, 1]))
+        return dirs, np.column_stack([ex.positions, ex.velocities])
+
+
+@dataclass
+class TeleportPolicy(Policy):
+    """Best in-image count on a fine grid at every frame, teleporting (no joint or motion limits)."""
+
+    name: PolicyName = PolicyName.TELEPORT
+    limited: bool = False
+    open_loop: bool = True
+
+    def __post_init__(self) -> None:
+        self._coarse = sphere_grid(TELEPORT_COARSE_DEG)
+        k = math.ceil(TELEPORT_COARSE_DEG / TELEPORT_FINE_DEG)
+        off = np.radians(np.arange(-k, k + 1) * TELEPORT_FINE_DEG)
         self._offsets = np.stack(np.meshgrid(off, off, indexing="ij"), axis=-1).reshape(-1, 2)
 
     def _counts(self, dirs: np.ndarray, centre: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -182,7 +247,7 @@ class OraclePolicy(Policy):
             return self._coarse[0]
         counts = self._counts(self._coarse, centre, pts)
         best_dir, best_count = self._coarse[int(np.argmax(counts))], int(counts.max())
-        for i in np.argsort(-counts, kind="stable")[:ORACLE_REFINE]:
+        for i in np.argsort(-counts, kind="stable")[:TELEPORT_REFINE]:
             az = math.atan2(self._coarse[i, 1], self._coarse[i, 0])
             el = math.asin(float(np.clip(self._coarse[i, 2], -1, 1)))
             els = np.clip(el + self._offsets[:, 1], -math.pi / 2 + 1e-3, math.pi / 2 - 1e-3)
@@ -191,6 +256,10 @@ class OraclePolicy(Policy):
             if int(c.max()) > best_count:
                 best_dir, best_count = fine[int(np.argmax(c))], int(c.max())
         return best_dir
+
+    def camera_path(self, centres: np.ndarray, quats: np.ndarray, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        dirs = np.array([self.look(c, self.world.sight(i, c)) for i, c in enumerate(centres)])
+        return dirs, np.zeros((0, 4))
 
 
 @dataclass
@@ -217,6 +286,7 @@ POLICIES: dict[PolicyName, type[Policy]] = {
     PolicyName.PIVOT: PivotPolicy,
     PolicyName.FISHER: FisherPolicy,
     PolicyName.ORACLE: OraclePolicy,
+    PolicyName.TELEPORT: TeleportPolicy,
     PolicyName.RANDOM: RandomSmoothPolicy,
 }
 

@@ -5,8 +5,9 @@ for a command (its compute is measured as CPU time, ``time.process_time``, which
 load does not inflate); every control period the daemon's :class:`ControlLoop`
 turns the latest plan (or joint target) and body pose into a jerk-limited setpoint, which a simulated
 gimbal follows exactly. At the frame rate the camera pose (centre from the body pose and mount,
-orientation from the setpoint, roll level) is recorded. The oracle skips the control loop and points
-the camera at its best direction at every frame.
+orientation from the setpoint, roll level) is recorded. The open-loop policies (the oracles) skip the
+control loop and compute their camera path for the whole route at once: the achievable oracle runs its path
+through the motion generator itself, the teleporting one points the camera at its best direction every frame.
 
 Observation and estimation (:func:`localize`) draw from generators seeded by the run seed (dropout) and
 by the run seed and frame number (detections, noise, outliers, RANSAC), independent of the policy.
@@ -22,7 +23,7 @@ import numpy as np
 from firmware_proto.messages import MODE_ENABLED
 from pivotd.localization.camera import camera_rotation, dropout_mask, observe, visible
 from pivotd.localization.estimator import RansacSettings, estimate_pose, pose_error
-from pivotd.localization.policies import OraclePolicy, Policy
+from pivotd.localization.policies import Policy
 from pivotd.localization.stack import GimbalState, Plan, PoseSample, build_control_loop, joints_to_world_direction
 from pivotd.localization.world import World
 
@@ -53,7 +54,7 @@ class SimulatedGimbal:
 class Trajectory:
     """A policy's camera over a run: frame times (F,) [s], centres (F, 3) [m], optical axes (F, 3);
     the commanded stream (T, 4) (pan, tilt, pan rate, tilt rate) at the control period ``dt`` (empty for
-    the oracle); compute_s: the policy's total decision time [s]; decisions: how many decisions it took
+    the teleporting oracle); compute_s: the policy's total decision time [s]; decisions: how many decisions it took
     (replans, orientation searches, per-frame looks: :meth:`Policy.decisions`)."""
 
     times: np.ndarray
@@ -75,14 +76,13 @@ def run_policy(world: World, policy: Policy, frame_hz: float = FRAME_HZ) -> Traj
     frames = frame_times(world, frame_hz)
     body_f, quat_f = world.body_poses(frames)
     centres = world.camera_centres(body_f, quat_f)
-    if not policy.limited:
-        assert isinstance(policy, OraclePolicy)
-        t0 = time.process_time()
-        dirs = np.array([policy.look(c, world.sight(i, c)) for i, c in enumerate(centres)])
-        return Trajectory(frames, centres, dirs, np.zeros((0, 4)), 0.0, time.process_time() - t0,
-                          policy.decisions(len(frames)))
     cfg = world.cfg
     dt = cfg.control.dt
+    if policy.open_loop:
+        t0 = time.process_time()
+        dirs, setpoints = policy.camera_path(centres, quat_f, frames)
+        return Trajectory(frames, centres, dirs, setpoints, dt if setpoints.shape[0] else 0.0,
+                          time.process_time() - t0, policy.decisions(len(frames)))
     ticks_per_replan = max(1, round(cfg.control.rate_hz / cfg.planner.replan_hz))
     n = int(np.floor(world.scene.duration / dt + 1e-9)) + 1
     times = np.arange(n) * dt

@@ -7,6 +7,7 @@ through this module, so a move of any of them is a one-line change here.
 
 from __future__ import annotations
 
+from pivotd.bench.achievable import achievable_path
 from pivotd.bus.messages import PoseSample
 from pivotd.config import Config, load_config
 from pivotd.daemon.control import ControlLoop
@@ -25,6 +26,7 @@ from pivotd.gimbal.motion import AxisLimits, MotionGenerator
 from pivotd.maps.formats import LandmarkCloud, load_landmarks
 from pivotd.maps.occlusion import OccupancyGrid
 from pivotd.maps.store import BASE_LAYER, MapStore
+from pivotd.pivot.joint_dp import JointGrid
 from pivotd.robot_path import Polyline, load_path
 from pivotd.sim.analysis import setpoint_dynamics
 
@@ -34,6 +36,7 @@ __all__ = [
     "Config",
     "ControlLoop",
     "GimbalState",
+    "JointGrid",
     "JointLimits",
     "LandmarkCloud",
     "MapStore",
@@ -44,6 +47,7 @@ __all__ = [
     "Polyline",
     "PoseSample",
     "RecedingHorizonPlanner",
+    "achievable_path",
     "base_from_world",
     "build_control_loop",
     "build_planner",
