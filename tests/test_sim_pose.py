@@ -237,3 +237,95 @@ def test_pose_noise_in_process(listener):
     err = np.array([p.position - route.at(p.stamp - t0).position for p in poses])
     assert 0.07 < err.std() < 0.13
     assert np.all(np.abs(err.mean(axis=0)) < 0.05)
+
+
+# --- timed routes (--timed): time stamps and attitudes, turns in place ------------------------------------------
+
+
+def _turn_in_place_route(tmp_path):
+    """1 m along +x in 1 s, then a 90° left turn in place over 2 s, then 1 m along +y in 1 s."""
+    from pivotd.sim.scene_families import FamilyScene, write_scene
+
+    yaw = np.array([0.0, 0.0, np.pi / 4, np.pi / 2, np.pi / 2])
+    pos = np.array([[0, 0, 0.7], [1, 0, 0.7], [1, 0, 0.7], [1, 0, 0.7], [1, 1, 0.7]], float)
+    quats = np.column_stack([np.zeros((5, 2)), np.sin(yaw / 2), np.cos(yaw / 2)])
+    scene = FamilyScene("t", "t", 0, np.zeros((1, 3)), pos, quats, np.array([0.0, 1.0, 2.0, 3.0, 4.0]))
+    return write_scene(scene, tmp_path)[1]
+
+
+def test_timed_route_interpolates_in_time_and_turns_in_place(tmp_path):
+    from pivotd.sim.routes import TimedRoute
+
+    data = load_route(_turn_in_place_route(tmp_path))
+    r = TimedRoute(data.positions, data.quats, data.stamps)
+    assert r.duration == pytest.approx(4.0)
+    p = r.at_time(0.5)
+    np.testing.assert_allclose(p.position, [0.5, 0, 0.7], atol=1e-9)
+    np.testing.assert_allclose(p.velocity, [1, 0, 0], atol=1e-9)
+    for t, want in ((1.5, np.pi / 8), (2.5, 3 * np.pi / 8)):
+        p = r.at_time(t)
+        np.testing.assert_allclose(p.position, [1, 0, 0.7], atol=1e-9)  # the position holds while it turns
+        np.testing.assert_allclose(p.velocity, 0.0, atol=1e-12)
+        assert yaw_of(p.quat) == pytest.approx(want, abs=0.02)  # nlerp, close to the slerp angle
+    np.testing.assert_allclose(r.at_time(3.5).position, [1, 0.5, 0.7], atol=1e-9)
+    np.testing.assert_allclose(r.at_time(9.0).velocity, 0.0)  # past the end: stopped at the last row
+    with pytest.raises(InputError, match="decrease at row 3"):
+        TimedRoute(data.positions[:3], data.quats[:3], np.array([0.0, 2.0, 1.0]))
+
+
+@pytest.mark.slow
+def test_timed_needs_a_route_with_time_stamps():
+    proc = run_tool("--timed", "--quiet")
+    try:
+        _, err = proc.communicate(timeout=60)
+    finally:
+        stop_tool(proc)
+    assert proc.returncode == 2
+    assert err.strip().splitlines() == ["sim_pose: error: --timed: route 'hallway' has no time stamps "
+                                        "(expected rows t,x,y,z,qw,qx,qy,qz)"]
+
+
+@pytest.mark.slow
+def test_sim_pose_plays_the_stop_turn_route_in_place(listener, tmp_path):
+    """The stop_turn family's route around its first stop (cropped, times from 0): while the published
+    position holds, the published attitude turns by the corner's angle."""
+    import threading
+
+    from pivotd.sim.routes import TimedRoute
+    from pivotd.sim.scene_families import FamilyScene, stop_turn, write_scene
+    from pivotd.sim.sim_pose import build_parser, run
+
+    scene = stop_turn(3, speed=1.2)
+    still = np.flatnonzero(np.all(np.diff(scene.route, axis=0) == 0, axis=1))  # rows that repeat a position
+    lo, hi = max(0, still[0] - 4), still[0] + (np.flatnonzero(np.diff(still) > 1)[0] + 1) + 5
+    crop = FamilyScene("crop", "stop_turn", 3, scene.landmarks, scene.route[lo:hi], scene.quats[lo:hi],
+                       scene.stamps[lo:hi] - scene.stamps[lo])
+    _, spec = write_scene(crop, tmp_path)
+    session, endpoint = listener
+    events = queue.Queue()
+    recorder = record_poses(session, BusTopics(), events)
+    args = build_parser().parse_args(["--connect", endpoint, "--route", spec, "--timed", "--rate", "50",
+                                      "--wait-subscribers", "30", "--path-topic", "", "--quiet"])
+    result = []
+    worker = threading.Thread(target=lambda: result.append(run(args)))
+    worker.start()
+    try:
+        worker.join(timeout=120)
+        poses = drain(events, 10_000, timeout=2)
+    finally:
+        recorder.undeclare()
+    assert result == [0]
+    data = load_route(spec)  # as written (6 decimals)
+    timed = TimedRoute(data.positions, data.quats, data.stamps)
+    assert len(poses) == int(timed.duration * 50) + 1
+    t0 = poses[0].stamp
+    for p in poses:
+        want = timed.at_time(p.stamp - t0)  # stamps as doubles of the epoch: ~0.2 µs apart
+        np.testing.assert_allclose(p.position, want.position, atol=1e-5)
+        assert abs(np.dot(p.quat, want.quat)) == pytest.approx(1.0, abs=1e-9)
+    pos = np.array([p.position for p in poses])
+    yaw = np.unwrap(yaw_of(np.array([p.quat for p in poses])))
+    held = np.all(np.abs(pos - data.positions[still[0] - lo]) < 1e-9, axis=1)
+    assert held.sum() > 50  # more than a second standing at the corner
+    assert abs(yaw[held].max() - yaw[held].min()) == pytest.approx(np.pi / 2, abs=1e-6)
+    assert np.ptp(pos[~held], axis=0)[:2].min() > 0.5  # it drives along x before the turn and along y after

@@ -23,6 +23,7 @@ BENCHES: dict[str, str] = {
     "localization": "simulated visual localization success per camera policy (needs pivotd[bench])",
     "fuzz": "pivotd plan/check over mutated maps, paths and configs: tracebacks, time, reader memory",
     "soak": "full stack under random device faults and hostile bus input: limits, tracebacks, RSS, recovery",
+    "gap": "the running daemon against the achievable view on seeded scene families, end to end",
 }
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -65,3 +66,16 @@ def steady_heap(mmap_threshold: int = 32 << 20, trim_threshold: int = 256 << 20)
             libc.mallopt(_M_TRIM_THRESHOLD, trim_threshold)
         )
     return False
+
+
+def json_safe(x: Any) -> Any:
+    """JSON-safe copy: inf/NaN become null, numpy scalars plain numbers."""
+    if isinstance(x, dict):
+        return {k: json_safe(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [json_safe(v) for v in x]
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    return x

@@ -20,6 +20,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, replace
 from pathlib import Path
 
+from pivotd.bench._stats import json_safe
 from pivotd.progress import with_progress
 
 log = logging.getLogger(__name__)
@@ -138,17 +139,6 @@ def _worker(st, scene: str):
     return run_scene(st, scene)
 
 
-def _clean(x):
-    """JSON-safe copy: inf/NaN become null, numpy scalars plain numbers."""
-    if isinstance(x, dict):
-        return {k: _clean(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_clean(v) for v in x]
-    if isinstance(x, float):
-        return x if math.isfinite(x) else None
-    return x
-
-
 def run(args: argparse.Namespace) -> int:
     from pivotd.localization.benchmark import check_goals, run_scene, summarize
     from pivotd.localization.estimator import require_poselib
@@ -188,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
             "scenes": summaries,
             "goals": [asdict(g) for g in goals],
         }
-        Path(args.json).write_text(json.dumps(_clean(doc), indent=1))
+        Path(args.json).write_text(json.dumps(json_safe(doc), indent=1))
         print(f"wrote {args.json}")
     if args.plot:
         from pivotd.localization.plot import plot_results

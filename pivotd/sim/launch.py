@@ -20,13 +20,13 @@ REPO = Path(__file__).resolve().parents[2]
 def derive_config(base: Path, out: Path, changes: dict[str, object]) -> Path:
     """Write a copy of config ``base`` to ``out`` with dotted-key ``changes`` (``"gimbal.port": "mock://"``).
 
-    Relative paths of the base config (``map.file``, ``map.filters.occupancy_file``, ``zenoh.config_file``)
-    are made absolute so the copy can live anywhere.
+    Relative paths of the base config (``map.file``, ``map.filters.occupancy_file``, ``zenoh.config_file``,
+    ``sim.route``) are made absolute so the copy can live anywhere.
     """
     import yaml
 
     doc = yaml.safe_load(Path(base).read_text())
-    for dotted in ("map.file", "map.filters.occupancy_file", "zenoh.config_file"):
+    for dotted in ("map.file", "map.filters.occupancy_file", "zenoh.config_file", "sim.route"):
         node = doc
         keys = dotted.split(".")
         for k in keys[:-1]:

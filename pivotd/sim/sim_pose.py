@@ -23,7 +23,7 @@ from pivotd.bus.ros import DURABILITY_TRANSIENT_LOCAL, QoS, RosNode
 from pivotd.bus.session import open_session
 from pivotd.errors import InputError, PivotdError
 from pivotd.geometry import quat_to_matrix
-from pivotd.sim.routes import Route, load_route
+from pivotd.sim.routes import Route, TimedRoute, load_route
 
 log = logging.getLogger("sim_pose")
 
@@ -96,6 +96,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="sim_pose", description=__doc__.splitlines()[0])
     p.add_argument("--route", default="hallway", help="'hallway' or 'csv:FILE' (default: hallway)")
     p.add_argument("--speed", type=float, default=1.0, help="speed along the route [m/s] (default 1.0)")
+    p.add_argument("--timed", action="store_true",
+                   help="play the route by its time stamps and attitudes (rows t,x,y,z,qw,qx,qy,qz; a repeated "
+                        "position is a turn in place); --speed is then unused")
     p.add_argument("--rate", type=float, default=20.0, help="pose rate [Hz] (default 20)")
     p.add_argument("--pose-noise", type=float, default=0.0, metavar="M", help="position noise std-dev [m]")
     p.add_argument("--gap", action="append", default=[], metavar="START:DURATION",
@@ -144,6 +147,11 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     gaps = _check_args(args)
     data = load_route(args.route)
     route = Route(data.positions, data.quats)
+    timed = None
+    if args.timed:
+        if data.stamps is None or data.quats is None:
+            raise InputError(f"--timed: route {args.route!r} has no time stamps (expected rows t,x,y,z,qw,qx,qy,qz)")
+        timed = TimedRoute(data.positions, data.quats, data.stamps)
     stop = stop or threading.Event()
     rng = np.random.default_rng(args.seed)
     session = open_session(args.mode, args.connect, args.listen, args.zenoh_config, args.multicast_scouting)
@@ -166,24 +174,31 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
             t = k * period  # scheduled time since start [s]
             if args.duration is not None and t > args.duration:
                 break
-            s = args.speed * t
-            if args.loop and route.length > 0:
-                s = s % route.length
-            elif s > route.length and args.duration is None:
-                break
+            if timed is not None:
+                s = t % timed.duration if args.loop else t  # route time [s]
+                if s > timed.duration and args.duration is None:
+                    break
+            else:
+                s = args.speed * t
+                if args.loop and route.length > 0:
+                    s = s % route.length
+                elif s > route.length and args.duration is None:
+                    break
             stamp = t0_wall + t
             if t >= next_path:
                 pub.publish_path(stamp, route.positions, path_quats)
                 next_path += args.path_period
             in_gap = any(g.covers(t) for g in gaps)
             if not in_gap:
-                pose = route.at(s, args.speed)
+                pose = timed.at_time(s) if timed is not None else route.at(s, args.speed)
                 position = pose.position + (rng.normal(0.0, args.pose_noise, 3) if args.pose_noise else 0.0)
                 pub.publish_pose(stamp, position, pose.quat, pose.velocity)
                 sent += 1
             if t >= next_print:
                 if not args.quiet:
-                    log.info("t=%.1fs s=%.2fm/%.2fm poses=%d%s", t, s, route.length, sent, " (gap)" if in_gap else "")
+                    unit, end = ("s", timed.duration) if timed is not None else ("m", route.length)
+                    log.info("t=%.1fs s=%.2f%s/%.2f%s poses=%d%s", t, s, unit, end, unit, sent,
+                             " (gap)" if in_gap else "")
                 next_print += 1.0
             k += 1
             stop.wait(max(0.0, t0 + k * period - time.monotonic()))  # absolute deadlines: no drift
