@@ -144,6 +144,7 @@ def test_tracking_run_end_to_end(tmp_path, backend):
             assert status["reloads"] == 1 and status["reload_errors"] == 1
             planner = status["planner"]
             assert 0 <= planner["rescues_kept"] <= planner["rescues_tried"] < planner["plans"], planner
+            assert sum(planner["seeds"].values()) == planner["plans"] and planner["seeds"].get("warm", 0) > 0, planner
             time.sleep(1.0)
             code = daemon.stop(signal.SIGTERM, timeout=20)
             assert code == 0, daemon.output()

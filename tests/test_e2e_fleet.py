@@ -53,7 +53,8 @@ def test_three_daemons_on_one_router_without_cross_talk(tmp_path):
             docs.update(query_status(client, ALL_KEY, 1.0))
             return set(docs) == set(ROBOTS) and all(
                 docs[r].get("state") == "tracking" and (docs[r].get("planner") or {}).get("plans", 0) > 0
-                for r in WITH_POSES)
+                for r in WITH_POSES) and all(docs[r].get("state") == "waiting"  # started, not "starting"
+                                             for r in ROBOTS if r not in WITH_POSES)
 
         ok = wait_until(fleet_up, 120, interval=0.5)
         assert ok, f"{json.dumps(docs)[:3000]}\n" + "\n".join(p.output() for p in procs)

@@ -124,6 +124,7 @@ class Daemon:
         self._solve: deque = deque(maxlen=500)
         self._plans = 0
         self._rescues: Counter[Rescue] = Counter()  # replans by what the rescue of a blind warm start did
+        self._seeds: Counter[str] = Counter()  # plans by the seed they came from (warm, anchor, chain, joint_grid, ...)
         self._replan_trigger = build_replan_trigger(self.cfg)
         self._inputs_generation = 0  # counts map layer replacements and worker restarts (inputs of a plan)
         self._reloads = 0
@@ -265,6 +266,7 @@ class Daemon:
         self.plan = plan
         self._plans += 1
         self._rescues[plan.rescue] += 1
+        self._seeds[plan.seed] += 1
         self._solve.append(plan.solve_s)
         if self.bus is not None:
             self.bus.publish_view_plan(pose.stamp, plan.positions, plan.directions)
@@ -441,6 +443,7 @@ class Daemon:
                 "plans": self._plans,
                 "rescues_tried": self._rescues[Rescue.LOST] + self._rescues[Rescue.KEPT],
                 "rescues_kept": self._rescues[Rescue.KEPT],
+                "seeds": dict(sorted(self._seeds.items())),
                 "solve_ms_p50": _percentile_ms(list(self._solve), 50),
                 "solve_ms_p99": _percentile_ms(list(self._solve), 99),
                 "horizon": 0 if plan is None else int(plan.directions.shape[0]),
