@@ -444,8 +444,9 @@ def report_lines(r: dict) -> list[str]:
         f"{r['duration_s']:.1f} s, grid {r['grid_cells'][0]}×{r['grid_cells'][1]} cells (≤ {r['grid_deg']:g}°)",
         f"  landmarks in the cone per frame (means): daemon {r['daemon_mean']:.2f}, forward {r['forward_mean']:.2f}, "
         f"achievable (executed) {r['achievable_mean']:.2f}, teleport {r['teleport_mean']:.2f}",
-        f"  achievable: the best of {len(r['candidates'])} executed candidates, {r['winner']}; the velocity-limited "
-        f"DP path before execution (a bound for any path within the velocity limits alone): {r['dp_mean']:.2f}",
+        f"  achievable: the best of {len(r['candidates'])} executed candidates: {r['winner']}",
+        f"  velocity-limited DP path before execution (the grid's bound for paths held to the velocity limits "
+        f"alone): {r['dp_mean']:.2f}",
         f"  daemon / achievable {r['share_daemon_achievable']:.1%}, achievable / teleport "
         f"{r['share_achievable_teleport']:.1%}",
         f"  frames where the daemon sees less than forward: {r['frames_daemon_below_forward']}, "
