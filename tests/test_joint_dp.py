@@ -10,7 +10,7 @@ import pytest
 
 from pivotd.geometry import quat_to_matrix
 from pivotd.gimbal.kinematics import Mount, base_from_world, joints_to_world_direction
-from pivotd.pivot.joint_dp import JointGrid, best_joint_path, cell_counts
+from pivotd.pivot.joint_dp import JointGrid, best_joint_path, best_smooth_joint_path, cell_counts
 
 
 def _pan_moves(grid: JointGrid) -> np.ndarray:
@@ -205,3 +205,118 @@ def test_cell_counts_ignore_a_landmark_at_the_camera():
     grid = JointGrid.inside(-1.0, 1.0, -0.5, 0.5, step=0.25)
     assert cell_counts(np.zeros((1, 3)), None, grid, np.eye(3), 0.3).sum() == 0
     assert cell_counts(np.zeros((0, 3)), None, grid, np.eye(3), 0.3).shape == grid.shape
+
+
+def _pan_move(grid: JointGrid, a: int, b: int) -> int:
+    """Signed pan move b − a [cells] (the shorter way round when continuous)."""
+    P = grid.shape[0]
+    return (b - a + P // 2) % P - P // 2 if grid.continuous_pan else b - a
+
+
+def _smooth_exhaustive(scores, vp, vt, ap, at, grid, centre, radius):
+    """Best total over every path from centre[0] within the move, change-of-move (from rest) and corridor limits
+    (brute force; −inf when none)."""
+    N, P, T = scores.shape
+    cells = [(i, j) for i in range(P) for j in range(T)]
+    best = -np.inf
+    for tail in itertools.product(cells, repeat=N - 1):
+        path = (tuple(centre[0]), *tail)
+        prev, ok = (0, 0), True
+        for k in range(N):
+            if abs(_pan_move(grid, centre[k][0], path[k][0])) > radius[0] or abs(path[k][1] - centre[k][1]) > radius[1]:
+                ok = False
+                break
+            if k < N - 1:
+                m = (_pan_move(grid, path[k][0], path[k + 1][0]), path[k + 1][1] - path[k][1])
+                if (abs(m[0]) > vp[k] or abs(m[1]) > vt[k] or abs(m[0] - prev[0]) > ap[k]
+                        or abs(m[1] - prev[1]) > at[k]):
+                    ok = False
+                    break
+                prev = m
+        if ok:
+            best = max(best, sum(scores[k, c[0], c[1]] for k, c in enumerate(path)))
+    return best
+
+
+@pytest.mark.parametrize("wrap", [False, True])
+@pytest.mark.parametrize("seed", range(8))
+def test_smooth_path_matches_exhaustive_search(seed, wrap):
+    rng = np.random.default_rng(seed + 50 * wrap)
+    if wrap:
+        grid = JointGrid(-math.pi + 2 * math.pi * np.arange(6) / 6, np.radians([0.0, 10.0, 20.0]), continuous_pan=True)
+    else:
+        grid = JointGrid.inside(0.0, math.radians(40), 0.0, math.radians(20), step=math.radians(10))
+    P, T = grid.shape
+    N = 4
+    scores = rng.normal(size=(N, P, T))
+    vp, vt = rng.integers(1, 3, N - 1), rng.integers(0, 2, N - 1)
+    ap, at = rng.integers(0, 3, N - 1), rng.integers(0, 2, N - 1)
+    # a centre walking at most one cell per step and a corridor of 1–2 cells (every third case: the whole grid)
+    walk = np.cumsum(np.vstack([[rng.integers(0, P), rng.integers(0, T)], rng.integers(-1, 2, (N - 1, 2))]), axis=0)
+    centre = np.column_stack([np.remainder(walk[:, 0], P) if wrap else np.clip(walk[:, 0], 0, P - 1),
+                              np.clip(walk[:, 1], 0, T - 1)])
+    radius = (P, T) if seed % 3 == 0 else (int(rng.integers(1, 3)), int(rng.integers(0, 2)))
+    slack = rng.uniform(0, 0.5, (4, N - 1))  # limits between whole cells round down
+    args = ((vp + slack[0]) * grid.pan_step, (vt + slack[1]) * grid.tilt_step, (ap + slack[2]) * grid.pan_step,
+            (at + slack[3]) * grid.tilt_step)
+    best = _smooth_exhaustive(scores, vp, vt, ap, at, grid, centre, radius)
+    if not np.isfinite(best):
+        with pytest.raises(ValueError, match="no feasible"):
+            best_smooth_joint_path(scores, *args, grid, centre, radius)
+        return
+    res = best_smooth_joint_path(scores, *args, grid, centre, radius)
+    assert res.total == pytest.approx(best, abs=1e-12)
+    c = res.cells
+    assert sum(scores[k, i, j] for k, (i, j) in enumerate(c)) == pytest.approx(res.total, abs=1e-12)
+    np.testing.assert_array_equal(c[0], centre[0])
+    moves = np.array([[_pan_move(grid, c[k, 0], c[k + 1, 0]), c[k + 1, 1] - c[k, 1]] for k in range(N - 1)])
+    assert np.all(np.abs(moves[:, 0]) <= vp) and np.all(np.abs(moves[:, 1]) <= vt)
+    change = np.diff(np.vstack([[0, 0], moves]), axis=0)
+    assert np.all(np.abs(change[:, 0]) <= ap) and np.all(np.abs(change[:, 1]) <= at)
+
+
+def test_counted_cases_of_the_smooth_search_are_feasible():
+    """The exhaustive comparison above is not vacuous: most of its cases have a feasible path."""
+    feasible = 0
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        grid = JointGrid.inside(0.0, math.radians(40), 0.0, math.radians(20), step=math.radians(10))
+        P, T = grid.shape
+        scores = rng.normal(size=(4, P, T))
+        centre = np.tile([2, 1], (4, 1))
+        feasible += np.isfinite(_smooth_exhaustive(scores, [1] * 3, [1] * 3, [1] * 3, [1] * 3, grid, centre, (1, 1)))
+    assert feasible == 8
+
+
+def test_smooth_path_without_a_change_limit_is_the_velocity_optimum():
+    rng = np.random.default_rng(11)
+    grid = JointGrid.inside(math.radians(-60), math.radians(60), math.radians(-20), math.radians(20),
+                            step=math.radians(5))
+    P, T = grid.shape
+    N = 25
+    scores = rng.uniform(size=(N, P, T))
+    start = (float(grid.pans[12]), float(grid.tilts[4]))
+    ref = best_joint_path(scores, math.radians(10), math.radians(5), grid, start=start)
+    centre = np.tile(grid.nearest(*start), (N, 1))
+    free = best_smooth_joint_path(scores, math.radians(10), math.radians(5), np.inf, np.inf, grid, centre, (P, T))
+    assert free.total == pytest.approx(ref.total, abs=1e-9)
+    # a change limit of one cell per step costs score and is kept
+    smooth = best_smooth_joint_path(scores, math.radians(10), math.radians(5), math.radians(5), math.radians(5),
+                                    grid, centre, (P, T))
+    assert smooth.total < ref.total
+    moves = np.diff(smooth.cells, axis=0)
+    assert np.abs(np.diff(np.vstack([[0, 0], moves]), axis=0)).max() <= 1
+    assert np.abs(moves[:, 0]).max() <= 2 and np.abs(moves[:, 1]).max() <= 1
+
+
+def test_smooth_path_bad_input():
+    grid = JointGrid.inside(0.0, 1.0, 0.0, 1.0, step=0.5)
+    scores = np.zeros((3, *grid.shape))
+    with pytest.raises(ValueError, match="centre"):
+        best_smooth_joint_path(scores, 1.0, 1.0, 1.0, 1.0, grid, np.zeros((2, 2), int), (1, 1))
+    with pytest.raises(ValueError, match="centre"):
+        best_smooth_joint_path(scores, 1.0, 1.0, 1.0, 1.0, grid, np.full((3, 2), 5), (1, 1))
+    with pytest.raises(ValueError, match="radius"):
+        best_smooth_joint_path(scores, 1.0, 1.0, 1.0, 1.0, grid, np.zeros((3, 2), int), (-1, 0))
+    with pytest.raises(ValueError, match="max_ddpan"):
+        best_smooth_joint_path(scores, 1.0, 1.0, -1.0, 1.0, grid, np.zeros((3, 2), int), (1, 1))

@@ -7,12 +7,15 @@ last pose at most ``control.pose_timeout_s`` old), landmarks inside the cone (``
 * **daemon**: the measured joints, interpolated at the frame;
 * **forward**: the camera fixed at pan = tilt = 0;
 * **teleport**: the best cell of a pan/tilt grid inside the joint limits at every frame (no motion limits);
-* **achievable**: the exact optimum over the same grid of the whole route with each step within the axis
-  velocity limits × the frame interval (:func:`pivotd.pivot.joint_dp.best_joint_path`, starting where the
-  gimbal stood at the first frame), then executed through :class:`pivotd.gimbal.motion.MotionGenerator` with the
-  configured velocity, acceleration and jerk limits at the control rate; the executed positions at the frames
-  are counted. The DP's own (unexecuted) path is reported beside it, and the executed stream is checked against
-  every limit.
+* **achievable**: the best execution found (:func:`best_executed`): candidate cell paths over the same grid —
+  the exact optimum of the whole route with each step within the axis velocity limits × the frame interval
+  (:func:`pivotd.pivot.joint_dp.best_joint_path`, starting where the gimbal stood at the first frame), the same
+  under lower velocity limits, and the exact optimum with the move also changing by at most the acceleration
+  limit × dt² per step in a corridor around the best execution (:func:`pivotd.pivot.joint_dp.
+  best_smooth_joint_path`) — each executed through :class:`pivotd.gimbal.motion.MotionGenerator` with the
+  configured velocity, acceleration and jerk limits at the control rate; the executed positions at the frames are
+  counted and the best execution is kept. The velocity-limited DP's own (unexecuted) path is reported beside it,
+  the winning candidate is named, and the executed stream is checked against every limit.
 
 Landmarks within ``map.filters.max_range`` of each frame come from a k-d tree, so the cost follows the landmarks
 near the route.
@@ -24,7 +27,9 @@ import argparse
 import json
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from enum import StrEnum
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +40,7 @@ from pivotd.errors import InputError
 from pivotd.geometry import pan_tilt_to_direction
 from pivotd.gimbal.kinematics import base_from_world, camera_position
 from pivotd.gimbal.motion import MotionGenerator
-from pivotd.pivot.joint_dp import JointGrid, best_joint_path, cell_counts
+from pivotd.pivot.joint_dp import JointGrid, JointPath, best_joint_path, best_smooth_joint_path, cell_counts
 from pivotd.sim.analysis import setpoint_dynamics, visible_counts
 from pivotd.viz.recording import Recording, read_recording
 
@@ -69,10 +74,12 @@ class AchievableSeries:
 
 @dataclass(frozen=True)
 class Achievable:
-    """:func:`achievable`'s result: the report (JSON-friendly dict) and the per-frame series."""
+    """:func:`achievable`'s result: the report (JSON-friendly dict), the per-frame series and the achievable
+    path's whole setpoint stream."""
 
     report: dict
     series: AchievableSeries
+    executed: Executed | None = None
 
 
 def _frames(run: Recording, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
@@ -122,21 +129,40 @@ class Executed:
     velocities: np.ndarray
 
 
+class FeedForward(StrEnum):
+    """What :func:`execute` passes with each frame's target: ``forward`` the velocity towards the next frame's
+    target, ``central`` the path's central-difference velocity and acceleration."""
+
+    FORWARD = "forward"
+    CENTRAL = "central"
+
+
 def execute(cfg: Config, t: np.ndarray, targets: np.ndarray, start: np.ndarray,
-            end_time: float | None = None) -> Executed:
+            end_time: float | None = None, lead: float = 0.0,
+            feed: FeedForward = FeedForward.FORWARD) -> Executed:
     """Run joint ``targets`` (F, 2) [rad] at frame times ``t`` (F,) [s] through the configured motion generator.
 
-    At each frame the target is the frame's cell moving towards the next one (velocity feed-forward: their
-    difference over the frame interval); the generator steps at the control period from ``start`` (2,) at rest,
-    as the daemon's control loop does, from ``t[0]`` to the last frame (or to ``end_time`` [s] when later)."""
+    At each frame the target is the path ``lead`` frames ahead (linear between frames, held after the last one)
+    with the feed-forward ``feed`` (velocity towards the next target, or the path's central-difference velocity
+    and acceleration); the generator steps at the control period from ``start`` (2,) at rest, as the daemon's
+    control loop does, from ``t[0]`` to the last frame (or to ``end_time`` [s] when later)."""
     dt = cfg.control.dt
+    targets = np.asarray(targets, dtype=float)
+    if lead:
+        dtf = np.diff(t)
+        ahead = t + lead * np.append(dtf, dtf[-1] if dtf.size else 0.0)
+        targets = np.column_stack([np.interp(ahead, t, targets[:, 0]), np.interp(ahead, t, targets[:, 1])])
+    vel = np.zeros_like(targets)
+    acc = np.zeros_like(targets)
+    if t.size > 1 and feed is FeedForward.CENTRAL:
+        vel = np.gradient(targets, t, axis=0)
+        acc = np.gradient(vel, t, axis=0)
+    elif t.size > 1:
+        vel[:-1] = np.diff(targets, axis=0) / np.diff(t)[:, None]
     gen = MotionGenerator(dt, cfg.motion.pan, cfg.motion.tilt, cfg.gimbal.limits, deadband=cfg.motion.deadband)
     gen.reset(start)
     steps = np.round((t - t[0]) / dt).astype(int)
     last = steps[-1] if end_time is None else max(steps[-1], math.floor((end_time - t[0]) / dt + 1e-9))
-    vel = np.zeros_like(targets)
-    if t.size > 1:
-        vel[:-1] = np.diff(targets, axis=0) / np.diff(t)[:, None]
     pos = [gen.state.position]
     rates = [gen.state.velocity]
     at_frames = np.empty_like(targets)
@@ -148,7 +174,7 @@ def execute(cfg: Config, t: np.ndarray, targets: np.ndarray, start: np.ndarray,
             rates.append(s.velocity)
             step += 1
         at_frames[f] = pos[-1]
-        gen.set_target(targets[f], vel[f])
+        gen.set_target(targets[f], vel[f], acc[f])
     while step < last:
         s = gen.step()
         pos.append(s.position)
@@ -157,21 +183,142 @@ def execute(cfg: Config, t: np.ndarray, targets: np.ndarray, start: np.ndarray,
     return Executed(at_frames, np.asarray(pos), np.asarray(rates))
 
 
-def achievable_path(cfg: Config, t: np.ndarray, scores: np.ndarray, grid: JointGrid, start: np.ndarray,
-                    end_time: float | None = None) -> tuple[np.ndarray, Executed]:
-    """The best cell path over ``grid`` for per-frame ``scores`` (F, P, T) at frame times ``t`` (F,) [s], each
-    step within the axis velocity limits × the frame interval, starting at the cell nearest ``start`` (2,)
-    [rad], and that path executed through the motion generator (:func:`execute`) from ``start``.
-    Returns the DP's joint angles (F, 2) [rad] (pan unwrapped next to ``start`` on a continuous-pan gimbal) and
-    the execution."""
-    dtf = np.diff(t)
-    path = best_joint_path(scores, cfg.motion.pan.max_velocity * dtf, cfg.motion.tilt.max_velocity * dtf, grid,
-                           start=(float(start[0]), float(start[1])))
+VELOCITY_FRACTIONS = (1.0, 0.8, 0.6)  # velocity-only DP candidates: shares of the velocity limits
+SMOOTH_ROUNDS = 3  # re-centrings of the acceleration-limited DP on the best execution (while it improves)
+SCREEN = (FeedForward.CENTRAL, 0.25)  # how every candidate path is executed first (feed-forward, lead [frames])
+EXECUTIONS = tuple((feed, lead) for feed in FeedForward for lead in (0.0, 0.25, 0.5, 0.75))  # then the best path
+
+Judge = Callable[[np.ndarray], np.ndarray]  # joints (F, 2) [rad] → landmarks seen per frame (F,)
+
+
+@dataclass(frozen=True)
+class Search:
+    """:func:`best_executed`'s result: the velocity-only DP path (F, 2) [rad], the best execution found, its
+    candidate's name and the judged mean of every executed candidate (name → mean, in the order tried)."""
+
+    dp_joints: np.ndarray
+    executed: Executed
+    winner: str
+    means: dict[str, float]
+
+
+def _unwrapped(path: JointPath, grid: JointGrid, start: np.ndarray) -> np.ndarray:
+    """Joint angles (F, 2) [rad] of a cell path, pan unwrapped next to ``start`` on a continuous-pan grid."""
     joints = path.joints(grid)
     if grid.continuous_pan:
         joints[:, 0] = np.unwrap(joints[:, 0])
         joints[:, 0] += 2 * math.pi * round((start[0] - joints[0, 0]) / (2 * math.pi))
-    return joints, execute(cfg, t, joints, start, end_time)
+    return joints
+
+
+def grid_judge(scores: np.ndarray, grid: JointGrid) -> Judge:
+    """A judge from per-frame cell scores (F, P, T): the score of the cell nearest each frame's joints."""
+    def judge(joints: np.ndarray) -> np.ndarray:
+        cells = np.array([grid.nearest(p, q) for p, q in joints]).reshape(-1, 2)
+        return scores[np.arange(cells.shape[0]), cells[:, 0], cells[:, 1]]
+    return judge
+
+
+def _change_limits(dtf: np.ndarray, acc: float) -> np.ndarray:
+    """Per-step limit (F − 1,) [rad] on the change of move for an acceleration ``acc`` [rad/s²]: acc·dt² on a
+    regular clock (the first step from rest), no limit where the frame interval changes."""
+    out = acc * dtf**2
+    out[1:][np.abs(np.diff(dtf)) > 1e-9] = np.inf
+    return out
+
+
+def corridor_cells(cfg: Config, grid: JointGrid) -> tuple[int, int]:
+    """Half-widths (pan, tilt) [cells] of the acceleration-limited DP's corridor: per axis the overshoot
+    v²/2a [rad] of a full-speed reversal at the acceleration limit over the instant one, plus one cell."""
+    mo = cfg.motion
+    out = []
+    for ax, step in ((mo.pan, grid.pan_step), (mo.tilt, grid.tilt_step)):
+        reach = ax.max_velocity**2 / (2.0 * ax.max_acceleration)
+        out.append(math.ceil(reach / step - 1e-9) + 1 if step > 0 else 0)
+    return out[0], out[1]
+
+
+def best_executed(cfg: Config, t: np.ndarray, scores: np.ndarray, grid: JointGrid, start: np.ndarray,
+                  judge: Judge | None = None, end_time: float | None = None) -> Search:
+    """The best executed camera path found for per-frame ``scores`` (F, P, T) at frame times ``t`` (F,) [s]
+    from ``start`` (2,) [rad] at rest: candidate cell paths are executed through the motion generator
+    (:func:`execute`) and the execution with the highest mean of ``judge`` (default :func:`grid_judge`) is kept.
+
+    Candidate paths, each executed as :data:`SCREEN` says:
+
+    * the exact velocity-limited optimum (:func:`best_joint_path`, steps within the axis velocity limits × the
+      frame interval; also executed with forward feed-forward and no lead) and the same under
+      :data:`VELOCITY_FRACTIONS` of those limits;
+    * the exact optimum with each step's move also changing by at most the axis acceleration limit × dt² in
+      cells (at least one; and one cell more) inside a corridor (:func:`corridor_cells`) around the best
+      execution so far (:func:`best_smooth_joint_path`), re-centred on the new best up to :data:`SMOOTH_ROUNDS` times;
+
+    then the best path under every feed-forward and lead of :data:`EXECUTIONS`. Every candidate is a real
+    execution, so the result keeps every limit the generator keeps."""
+    judge = grid_judge(scores, grid) if judge is None else judge
+    dtf = np.diff(t)
+    mo = cfg.motion
+    s0 = (float(start[0]), float(start[1]))
+    means: dict[str, float] = {}
+    best: dict = {"mean": -np.inf}
+
+    def run(name: str, joints: np.ndarray, feed: FeedForward, lead: float) -> None:
+        key = f"{name}; {feed.value} feed-forward, lead {lead:g}"
+        if key in means:
+            return
+        ex = execute(cfg, t, joints, start, end_time, lead, feed)
+        means[key] = float(np.mean(judge(ex.at_frames)))
+        if means[key] > best["mean"]:
+            best.update(mean=means[key], executed=ex, name=key, path=name, joints=joints)
+
+    dp = None
+    for frac in VELOCITY_FRACTIONS:
+        path = best_joint_path(scores, frac * mo.pan.max_velocity * dtf, frac * mo.tilt.max_velocity * dtf, grid,
+                               start=s0)
+        if dp is None:  # the full-speed optimum, also executed as it always was: the reference never falls below it
+            dp = path
+            run(f"velocity DP ×{frac:g}", _unwrapped(path, grid, start), FeedForward.FORWARD, 0.0)
+        run(f"velocity DP ×{frac:g}", _unwrapped(path, grid, start), *SCREEN)
+    radius = corridor_cells(cfg, grid)
+    dt2 = float(np.median(dtf)) ** 2
+    base = (max(grid.pan_cells(mo.pan.max_acceleration * dt2), 1),
+            max(grid.tilt_cells(mo.tilt.max_acceleration * dt2), 1))
+    for extra in (0, 1):
+        cells = (base[0] + extra, base[1] + extra)
+        # the change limits in cells as accelerations on this clock (half a cell of slack against rounding)
+        ddpan = _change_limits(dtf, (cells[0] + 0.5) * grid.pan_step / dt2)
+        ddtilt = _change_limits(dtf, (cells[1] + 0.5) * grid.tilt_step / dt2)
+        previous = None
+        for r in range(SMOOTH_ROUNDS):
+            before = best["mean"]
+            centre = np.array([grid.nearest(p, q) for p, q in best["executed"].at_frames])
+            try:
+                path = best_smooth_joint_path(scores, mo.pan.max_velocity * dtf, mo.tilt.max_velocity * dtf, ddpan,
+                                              ddtilt, grid, centre, radius)
+            except ValueError:  # the corridor holds no path within the change limits
+                break
+            if previous is not None and np.array_equal(path.cells, previous):
+                break  # re-centred on its own execution, the optimum stayed
+            previous = path.cells
+            run(f"acceleration DP ±{cells[0]}/{cells[1]} cells, round {r + 1}", _unwrapped(path, grid, start),
+                *SCREEN)
+            if best["mean"] <= before:
+                break
+    name, joints = best["path"], best["joints"]
+    for feed, lead in EXECUTIONS:
+        run(name, joints, feed, lead)
+    return Search(_unwrapped(dp, grid, start), best["executed"], best["name"], means)
+
+
+def achievable_path(cfg: Config, t: np.ndarray, scores: np.ndarray, grid: JointGrid, start: np.ndarray,
+                    end_time: float | None = None, judge: Judge | None = None) -> tuple[np.ndarray, Executed]:
+    """The velocity-limited optimum over ``grid`` for per-frame ``scores`` (F, P, T) at frame times ``t`` (F,)
+    [s] (each step within the axis velocity limits × the frame interval, from the cell nearest ``start`` (2,)
+    [rad]) and the best execution found from ``start`` (:func:`best_executed`, judged by ``judge``).
+    Returns the DP's joint angles (F, 2) [rad] (pan unwrapped next to ``start`` on a continuous-pan gimbal) and
+    the execution."""
+    found = best_executed(cfg, t, scores, grid, start, judge, end_time)
+    return found.dp_joints, found.executed
 
 
 def check_limits(cfg: Config, ex: Executed) -> dict:
@@ -225,7 +372,11 @@ def achievable(run: Recording, rate_hz: float = 10.0, grid_deg: float = 2.0) -> 
 
     t1 = time.perf_counter()
     daemon_joints = _interp_joints(run, t)
-    dp_joints, ex = achievable_path(cfg, t, scores, grid, daemon_joints[0])
+    def judge(joints: np.ndarray) -> np.ndarray:
+        return _count(points, cams, cand, _directions(R, joints), cfg)
+
+    found = best_executed(cfg, t, scores, grid, daemon_joints[0], judge)
+    dp_joints, ex = found.dp_joints, found.executed
     executed, check = ex.at_frames, check_limits(cfg, ex)
     best = np.argmax(scores.reshape(t.size, -1), axis=1)
     teleport_joints = grid.joints(np.column_stack(np.divmod(best, grid.shape[1])))
@@ -258,12 +409,14 @@ def achievable(run: Recording, rate_hz: float = 10.0, grid_deg: float = 2.0) -> 
         "share_achievable_teleport": mean(n_ach) / max(mean(n_teleport), 1e-12),
         "frames_daemon_below_forward": int((n_daemon < n_forward).sum()),
         "frames_daemon_below_90pct_forward": int((n_daemon < 0.9 * n_forward).sum()),
+        "winner": found.winner,
+        "candidates": {k: round(v, 3) for k, v in found.means.items()},
         "executed": check,
         "seconds": {k: round(v, 3) for k, v in clock.items()},
     }
     series = AchievableSeries(t, n_daemon, n_forward, n_teleport, n_dp, n_ach,
                               daemon_joints, dp_joints, executed)
-    return Achievable(report, series)
+    return Achievable(report, series, ex)
 
 
 def achievable_report(recording_path: str | Path, config_path: str | Path | None = None, rate_hz: float = 10.0,
@@ -291,14 +444,16 @@ def report_lines(r: dict) -> list[str]:
         f"{r['duration_s']:.1f} s, grid {r['grid_cells'][0]}×{r['grid_cells'][1]} cells (≤ {r['grid_deg']:g}°)",
         f"  landmarks in the cone per frame (means): daemon {r['daemon_mean']:.2f}, forward {r['forward_mean']:.2f}, "
         f"achievable (executed) {r['achievable_mean']:.2f}, teleport {r['teleport_mean']:.2f}",
-        f"  achievable DP path before execution: {r['dp_mean']:.2f}",
+        f"  achievable: the best of {len(r['candidates'])} executed candidates: {r['winner']}",
+        f"  velocity-limited DP path before execution (the grid's bound for paths held to the velocity limits "
+        f"alone): {r['dp_mean']:.2f}",
         f"  daemon / achievable {r['share_daemon_achievable']:.1%}, achievable / teleport "
         f"{r['share_achievable_teleport']:.1%}",
         f"  frames where the daemon sees less than forward: {r['frames_daemon_below_forward']}, "
         f"below 90 % of forward: {r['frames_daemon_below_90pct_forward']}",
         f"  executed path within every limit: {'yes' if ex['within_limits'] else 'NO'} "
         f"(worst share of the limits: {worst}; joint limits {'kept' if ex['within_joint_limits'] else 'LEFT'})",
-        f"  time: cell scores {sec['scores_s']:.2f} s, DP and execution {sec['dp_and_execution_s']:.2f} s, "
+        f"  time: cell scores {sec['scores_s']:.2f} s, DP and executions {sec['dp_and_execution_s']:.2f} s, "
         f"counts {sec['count_s']:.2f} s",
     ]
 

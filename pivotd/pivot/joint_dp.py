@@ -330,3 +330,132 @@ def _predecessor(V: np.ndarray, cell: np.ndarray, rp: int, rt: int, wrap: bool) 
     flat = ii[hit_i] * T + jj[hit_j]
     pick = np.lexsort((flat, move))[0]
     return int(ii[hit_i[pick]]), int(jj[hit_j[pick]])
+
+
+def best_smooth_joint_path(scores: np.ndarray, max_dpan: np.ndarray | float, max_dtilt: np.ndarray | float,
+                           max_ddpan: np.ndarray | float, max_ddtilt: np.ndarray | float, grid: JointGrid,
+                           centre: np.ndarray, radius: tuple[int, int]) -> JointPath:
+    """Cell path (N, 2) maximising Σ scores[k, c_k] under a first- and a second-order limit on the moves
+    m_k = c_{k+1} − c_k (cells; pan wraps on a continuous-pan grid), inside a corridor around ``centre``.
+
+    * |m_k| ≤ max_dpan[k], max_dtilt[k] [rad] (as :func:`best_joint_path`; in cells floor(limit/step + 1e-9));
+    * |m_k − m_{k−1}| ≤ max_ddpan[k], max_ddtilt[k] [rad] with m_{−1} = 0: the path starts at rest and its move
+      changes by at most the limit per step (``a·dt²`` for an acceleration limit a at frame interval dt; inf:
+      no limit at that step);
+    * c_0 = centre[0] and |c_k − centre[k]| ≤ ``radius`` (pan, tilt) [cells] per axis (pan distance wrapping).
+
+    On a continuous-pan grid moves and distances go the short way round, a pan move at most (P − 1)//2 cells.
+
+    ``scores`` (N, P, T) (−inf marks a forbidden cell); ``max_dpan``, ``max_dtilt``, ``max_ddpan``,
+    ``max_ddtilt`` (N − 1,) or scalars; ``centre`` (N, 2) cell indices. Exact: a dynamic programme over the lifted
+    state (cell offset in the corridor, last move), O(N · corridor cells · moves · (Δpan + Δtilt changes)). Ties go
+    to the smallest change of move on each axis (tilt first, backwards from the last step), then the lowest flat
+    state index.
+    Raises ValueError when no path is feasible.
+    """
+    S = np.asarray(scores, dtype=float)
+    if S.ndim != 3 or S.shape[1:] != grid.shape or S.shape[0] == 0:
+        raise ValueError(f"scores must have shape (N, {grid.shape[0]}, {grid.shape[1]}), got {S.shape}")
+    if np.isnan(S).any():
+        raise ValueError("scores contain NaN")
+    N, P, T = S.shape
+    C = np.asarray(centre, dtype=np.int64)
+    if C.shape != (N, 2) or np.any(C < 0) or np.any(C[:, 0] >= P) or np.any(C[:, 1] >= T):
+        raise ValueError(f"centre must be (N, 2) cell indices inside the ({P}, {T}) grid, got shape {C.shape}")
+    rp, rt = (int(r) for r in radius)
+    if rp < 0 or rt < 0:
+        raise ValueError(f"radius must be ≥ 0 cells, got {radius!r}")
+    wrap = grid.continuous_pan
+    vp = np.array([grid.pan_cells(v) for v in _steps(max_dpan, N, "max_dpan")], dtype=np.int64)
+    vt = np.array([grid.tilt_cells(v) for v in _steps(max_dtilt, N, "max_dtilt")], dtype=np.int64)
+    ap = np.array([grid.pan_cells(v) for v in _steps(max_ddpan, N, "max_ddpan")], dtype=np.int64)
+    at = np.array([grid.tilt_cells(v) for v in _steps(max_ddtilt, N, "max_ddtilt")], dtype=np.int64)
+    if wrap:  # moves and corridor offsets the short way round: a move is at most (P − 1)//2 cells
+        vp = np.minimum(vp, (P - 1) // 2)
+        rp = min(rp, P // 2)
+    Mp = int(vp.max()) if vp.size else 0
+    Mt = int(vt.max()) if vt.size else 0
+    ap, at = np.minimum(ap, 2 * Mp), np.minimum(at, 2 * Mt)
+
+    # corridor scores (N, Op, Ot): offset index u ↔ cell centre_k + u − radius
+    op = np.arange(-rp, rp + 1) if not (wrap and 2 * rp + 1 > P) else np.arange(-rp, P - rp)
+    ot = np.arange(-rt, rt + 1)
+    ci = C[:, :1] + op[None, :]
+    cj = C[:, 1:] + ot[None, :]
+    ok_i = np.ones(ci.shape, bool) if wrap else (ci >= 0) & (ci < P)
+    ok_j = (cj >= 0) & (cj < T)
+    ci = np.remainder(ci, P) if wrap else np.clip(ci, 0, P - 1)
+    cj = np.clip(cj, 0, T - 1)
+    Sc = S[np.arange(N)[:, None, None], ci[:, :, None], cj[:, None, :]]
+    Sc = np.where(ok_i[:, :, None] & ok_j[:, None, :], Sc, -np.inf)
+    d = np.diff(C, axis=0)  # centre moves (N − 1, 2)
+    if wrap:
+        d[:, 0] = np.remainder(d[:, 0] + P // 2, P) - P // 2
+
+    Op, Ot = op.size, ot.size
+    mp = np.arange(-Mp, Mp + 1)
+    mt = np.arange(-Mt, Mt + 1)
+    V = np.full((Op, Ot, mp.size, mt.size), -np.inf)
+    V[rp, rt, Mp, Mt] = Sc[0, rp, rt]  # at the centre, at rest
+    back = np.zeros((max(N - 1, 0), Op, Ot, mp.size, mt.size), dtype=np.int32)  # chosen change per state
+    for k in range(N - 1):
+        # W[u, m'] = max over previous moves m with |m' − m| ≤ a_k (per axis) of V[u, m]: tilt, then pan
+        Wt, jt = _move_window(V, int(at[k]), axis=3)
+        W, ip = _move_window(Wt, int(ap[k]), axis=2)
+        jsel = np.take_along_axis(jt, np.clip(np.arange(mp.size)[None, None, :, None] + ip, 0, mp.size - 1), axis=2)
+        arg = ((ip + 2 * Mp) * (4 * Mt + 1) + jsel + 2 * Mt).astype(np.int32)  # (Δpan, Δtilt) of the move
+        W[:, :, np.abs(mp) > vp[k], :] = -np.inf
+        W[:, :, :, np.abs(mt) > vt[k]] = -np.inf
+        # V'[u', m'] = S[u'] + W[u' − m' + d_k, m']
+        su = np.arange(Op)[:, None] - mp[None, :] + d[k, 0]  # (Op, Mp)
+        if wrap:  # the source cell's offset from the previous centre, the short way round
+            su = np.remainder(su - rp + P // 2, P) - P // 2 + rp
+        sv = np.arange(Ot)[:, None] - mt[None, :] + d[k, 1]  # (Ot, Mt)
+        okp = (su >= 0) & (su < Op)
+        okt = (sv >= 0) & (sv < Ot)
+        su, sv = np.clip(su, 0, Op - 1), np.clip(sv, 0, Ot - 1)
+        ix = (su[:, None, :, None], sv[None, :, None, :], np.arange(mp.size)[None, None, :, None],
+              np.arange(mt.size)[None, None, None, :])
+        G = np.where(okp[:, None, :, None] & okt[None, :, None, :], W[ix], -np.inf)
+        back[k] = arg[ix]
+        V = Sc[k + 1][:, :, None, None] + G
+
+    flat = int(np.argmax(V))
+    if not np.isfinite(V.ravel()[flat]):
+        raise ValueError("no feasible joint path (every path crosses a forbidden cell)")
+    total = float(V.ravel()[flat])
+    u, v, a, b = np.unravel_index(flat, V.shape)
+    offs = np.empty((N, 2), dtype=np.int64)
+    offs[-1] = (u, v)
+    for k in range(N - 2, -1, -1):
+        i, j = divmod(int(back[k, u, v, a, b]), 4 * Mt + 1)
+        i, j = i - 2 * Mp, j - 2 * Mt
+        u, v = u - mp[a] + d[k, 0], v - mt[b] + d[k, 1]
+        if wrap:
+            u = (u - rp + P // 2) % P - P // 2 + rp
+        a, b = a + i, b + j
+        offs[k] = (u, v)
+    cells = C + offs - np.array([rp, rt])
+    if wrap:
+        cells[:, 0] = np.remainder(cells[:, 0], P)
+    return JointPath(cells, total)
+
+
+def _move_window(V: np.ndarray, a: int, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """Max of V over index offsets δ ∈ [−a, a] along ``axis`` (outside: −inf) and the δ holding it (ties: the
+    smallest |δ|, then the negative one)."""
+    n = V.shape[axis]
+    best = V.copy()
+    arg = np.zeros(V.shape, dtype=np.int64)
+    for mag in range(1, min(a, n - 1) + 1):
+        for delta in (-mag, mag):
+            cand = np.full(V.shape, -np.inf)
+            dst = [slice(None)] * V.ndim
+            src = [slice(None)] * V.ndim
+            dst[axis] = slice(max(-delta, 0), n - max(delta, 0))
+            src[axis] = slice(max(delta, 0), n - max(-delta, 0))
+            cand[tuple(dst)] = V[tuple(src)]
+            better = cand > best
+            best = np.where(better, cand, best)
+            arg[better] = delta
+    return best, arg
