@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from pivotd.geometry import normalize
-from pivotd.pivot.brute import brute_force_view, exact_view, sphere_grid
+from pivotd.pivot.brute import brute_force_view, exact_view
+from pivotd.pivot.lattice import sphere_grid
 from pivotd.pivot.scenes import HARD_FAMILIES, hard_path, hard_scene
 from pivotd.pivot.view import ViewOptions, boundary_axes, optimize_view
 

@@ -21,7 +21,8 @@ from collections.abc import Callable
 import numpy as np
 
 from pivotd.geometry import slerp
-from pivotd.pivot.brute import best_grid_chain, sphere_grid
+from pivotd.pivot.brute import best_grid_chain
+from pivotd.pivot.lattice import sphere_grid
 from pivotd.pivot.smoothness import pair_value
 
 
