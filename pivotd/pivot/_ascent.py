@@ -17,6 +17,8 @@ from pivotd.geometry import tangent_basis
 from pivotd.pivot.smoothness import pair_slope
 from pivotd.pivot.visibility import ks_from_width
 
+__all__ = ["AscentSettings", "Geometry", "Projector", "ascend", "evaluate", "subsample"]
+
 Projector = Callable[[np.ndarray], np.ndarray]
 
 #: one float32 (x, y, z) row as a single 12-byte item, for fast gathers and scatters of whole rows

@@ -16,6 +16,9 @@ from pivotd.pivot._checks import feature_weights, finite_array, half_angle
 from pivotd.pivot.lattice import sphere_grid
 from pivotd.pivot.view import boundary_axes
 
+__all__ = ["RefinedView", "best_grid_chain", "brute_force_trajectory", "brute_force_view", "exact_view",
+           "grid_covering_radius", "grid_neighbours", "grid_visibility", "refined_view"]
+
 _POLAR = math.sqrt(1.0 - 0.3**2)  # the refinement's tangents turn to c × e_x where |c × e_z| < 0.3
 
 

@@ -25,6 +25,9 @@ from pivotd.pivot.brute import best_grid_chain
 from pivotd.pivot.lattice import sphere_grid
 from pivotd.pivot.smoothness import pair_value
 
+__all__ = ["Exact", "best_chain", "grid_scores", "initial_directions", "node_indices", "refine_top_scores",
+           "slerp_fill", "step_limited_directions"]
+
 
 def node_indices(n: int, max_nodes: int) -> np.ndarray:
     """At most ``max_nodes`` evenly spread waypoint indices, always including the first and last."""

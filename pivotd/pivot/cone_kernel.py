@@ -21,6 +21,8 @@ import numpy as np
 from pivotd.pivot._checks import half_angle
 from pivotd.pivot.lattice import fibonacci_sphere
 
+__all__ = ["ConeKernel", "cell_keys", "cells_per_face", "cone_kernel"]
+
 
 def cells_per_face(alpha: float) -> int:
     """Default cube-map resolution m for half-angle α [rad]: cells ≈ α / 2.7 wide at a face centre (m = 16 at

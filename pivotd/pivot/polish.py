@@ -19,6 +19,8 @@ from pivotd.geometry import tangent_basis
 from pivotd.pivot import _ascent
 from pivotd.pivot.smoothness import pair_value
 
+__all__ = ["Reachable", "ring_offsets", "step_limited_polish"]
+
 Reachable = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 

@@ -17,6 +17,8 @@ import numpy as np
 from pivotd.geometry import tangent_basis
 from pivotd.pivot.constraints import PanTiltConstraint
 
+__all__ = ["MAX_STEP_RANGE_DEG", "limit_steps", "step_angles"]
+
 #: step limits users may ask for [deg]: below 0.01° a plan can hardly turn, 180° is no limit at all
 MAX_STEP_RANGE_DEG = (0.01, 180.0)
 

@@ -28,6 +28,8 @@ from pivotd.pivot.cone_kernel import ConeKernel, cell_keys, cone_kernel
 from pivotd.pivot.lattice import fibonacci_sphere, spiral_caps
 from pivotd.pivot.visibility import ks_from_width
 
+__all__ = ["ViewOptions", "ViewResult", "boundary_axes", "local_search", "optimize_view"]
+
 
 @dataclass
 class ViewOptions:
