@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from pivotd.geometry import angle_between, normalize
+from pivotd.geometry import angle_between, normalize, tangent_basis
 from pivotd.pivot.lattice import spiral_caps
 from pivotd.pivot.scenes import hard_scene
 from pivotd.pivot.view import (
@@ -98,7 +98,7 @@ def test_refinement_of_two_axes_in_one_basin_stops_the_second_near_the_first():
     BT = np.ascontiguousarray(B.T, dtype=np.float32)
     w = np.ones(B.shape[0], np.float32)
     alpha, opts = math.radians(15.0), ViewOptions()
-    tangent = normalize(np.cross(centre, [0.0, 0.0, 1.0]))
+    tangent = tangent_basis(centre, polar=None)[0]  # level
     starts = normalize(np.array([centre + 0.12 * tangent, centre - 0.16 * tangent]))
     cos_c = starts.astype(np.float32) @ BT
     both, _ = _refine(BT, w, starts, cos_c, alpha, opts, True)
