@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from pivotd.geometry import normalize, tangent_basis
-from pivotd.pivot.brute import brute_force_view, grid_covering_radius, refined_view
-from pivotd.pivot.lattice import sphere_grid
+from pivotd.pivot.brute import brute_force_view, refined_view
+from pivotd.pivot.lattice import grid_covering_radius, sphere_grid
 from pivotd.pivot.scenes import HARD_FAMILIES, hard_scene
 from pivotd.pivot.visibility import hard_count
 

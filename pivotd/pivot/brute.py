@@ -13,11 +13,11 @@ import numpy as np
 
 from pivotd.geometry import tangent_basis
 from pivotd.pivot._checks import feature_weights, finite_array, half_angle
-from pivotd.pivot.lattice import sphere_grid
+from pivotd.pivot.lattice import grid_covering_radius, sphere_grid
 from pivotd.pivot.view import boundary_axes
 
 __all__ = ["RefinedView", "best_grid_chain", "brute_force_trajectory", "brute_force_view", "exact_view",
-           "grid_covering_radius", "grid_neighbours", "grid_visibility", "refined_view"]
+           "grid_neighbours", "grid_visibility", "refined_view"]
 
 _POLAR = math.sqrt(1.0 - 0.3**2)  # the refinement's tangents turn to c × e_x where |c × e_z| < 0.3
 
@@ -145,34 +145,6 @@ def brute_force_trajectory(
     V = grid_visibility(points, waypoints, alpha, grid, weights)
     path = best_grid_chain(V, grid, max_step_deg)
     return grid[path], V[np.arange(V.shape[0]), path].astype(float)
-
-
-def grid_covering_radius(resolution_deg: float = 2.0) -> float:
-    """Covering radius [rad] of :func:`sphere_grid`: every unit direction lies within it of a grid direction.
-
-    Measured, not assumed: the largest distance to the nearest grid direction over a dense sample
-    (40 elevations per ring gap × azimuths at 1/40 of the coarser ring's step) between every pair of
-    neighbouring rings, the nearest candidates taken on both rings, plus 2 % (the sample's spacing).
-    """
-    grid = sphere_grid(resolution_deg)
-    el = np.arcsin(np.clip(grid[:, 2], -1.0, 1.0))
-    rings = np.unique(np.round(el, 12))
-    counts = np.array([np.count_nonzero(np.abs(el - r) < 1e-9) for r in rings])
-    worst = 0.0
-    for k in range(rings.size - 1):
-        e = np.linspace(rings[k], rings[k + 1], 41)
-        step = 2 * np.pi / min(counts[k], counts[k + 1])
-        az = np.arange(0.0, step + 1e-12, step / 40)
-        E, A = np.meshgrid(e, az, indexing="ij")
-        best = np.full(E.shape, np.pi)
-        for r, n in ((rings[k], counts[k]), (rings[k + 1], counts[k + 1])):
-            d_az = 2 * np.pi / n
-            node = np.round(A / d_az) * d_az
-            for off in (-d_az, 0.0, d_az):
-                cosd = np.sin(E) * np.sin(r) + np.cos(E) * np.cos(r) * np.cos(A - node - off)
-                best = np.minimum(best, np.arccos(np.clip(cosd, -1.0, 1.0)))
-        worst = max(worst, float(best.max()))
-    return 1.02 * worst
 
 
 @dataclass(frozen=True)
