@@ -77,8 +77,8 @@ def angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def slerp(a: np.ndarray, b: np.ndarray, t: np.ndarray | float) -> np.ndarray:
     """Unit vectors (..., 3) a fraction ``t`` (...) of the way from unit ``a`` to unit ``b`` (..., 3) along the
-    great circle, at constant angular speed. Opposite ``a`` and ``b`` turn through the perpendicular ``a × z``
-    (``a × x`` when ``a`` is vertical): level for a camera that looks level."""
+    great circle, at constant angular speed. Opposite ``a`` and ``b`` turn through the level perpendicular
+    ``a × z`` (``a × x`` when ``a`` is vertical; :func:`tangent_basis`): level for a camera that looks level."""
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
     t = np.asarray(t, dtype=float)[..., None]
@@ -87,9 +87,9 @@ def slerp(a: np.ndarray, b: np.ndarray, t: np.ndarray | float) -> np.ndarray:
     omega = angle_between(a, b)[..., None]
     opposite = np.pi - omega < 1e-6
     if np.any(opposite):  # two quarter turns: a -> perp -> -a
-        perp = np.cross(a, [0.0, 0.0, 1.0])
-        vertical = np.linalg.norm(perp, axis=-1, keepdims=True) < 1e-6
-        perp = normalize(np.where(vertical, np.cross(a, [1.0, 0.0, 0.0]), perp))
+        perp = a.copy()
+        sel = opposite[..., 0]
+        perp[sel] = tangent_basis(a[sel], polar=None)[0]
         second = opposite & (t > 0.5)
         a, b = np.where(second, perp, a), np.where(opposite, np.where(second, -a, perp), b)
         t = np.where(opposite, np.where(second, 2.0 * t - 1.0, 2.0 * t), t)
@@ -186,21 +186,46 @@ def direction_to_pan_tilt(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return pan, tilt
 
 
-def optical_frame_from_direction(c: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
+def tangent_basis(c: np.ndarray, polar: float | None = 0.9) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangents t1, t2 (..., 3) at unit axes c (..., 3), with (t1, t2, c) a right-handed orthonormal frame.
+
+    t1 = c × e_z / |c × e_z| (level), or c × e_x / |c × e_x| where |c_z| ≥ ``polar`` or c × e_z vanishes
+    (|c × e_z| < 1e-9); t2 = c × t1. ``polar`` 0.9 keeps t1 well conditioned (rings and spirals of candidate
+    directions); None keeps it level wherever it can be (camera frames). A single axis (3,) is computed with
+    scalars (the array path costs tens of µs of call overhead), with the same floating-point operations.
+    """
+    c = np.asarray(c, dtype=float)
+    if c.shape == (3,):
+        x, y, z = (float(v) for v in c)
+        tx, ty, tz = y, -x, 0.0  # c × e_z
+        n = np.sqrt(tx * tx + ty * ty)
+        if n < 1e-9 or (polar is not None and abs(z) >= polar):
+            tx, ty, tz = 0.0, z, -y  # c × e_x
+            n = np.sqrt(ty * ty + tz * tz)
+        tx, ty, tz = tx / n, ty / n, tz / n
+        return np.array([tx, ty, tz]), np.array([y * tz - z * ty, z * tx - x * tz, x * ty - y * tx])
+    t1 = np.zeros(c.shape)
+    t1[..., 0], t1[..., 1] = c[..., 1], -c[..., 0]
+    n = np.sqrt(np.square(t1[..., 0]) + np.square(t1[..., 1]))
+    off = n < 1e-9
+    if polar is not None:
+        off |= np.abs(c[..., 2]) >= polar
+    if np.any(off):
+        t1[off] = 0.0
+        t1[off, 1], t1[off, 2] = c[off, 2], -c[off, 1]
+        n[off] = np.sqrt(np.square(t1[off, 1]) + np.square(t1[off, 2]))
+    t1 /= n[..., None]
+    return t1, np.cross(c, t1)
+
+
+def optical_frame_from_direction(c: np.ndarray) -> np.ndarray:
     """Camera-to-world rotations (..., 3, 3) whose +z (optical axis, e₃) is ``c`` (..., 3).
 
-    ROS optical convention: x right, y down, z forward. The image "up" (−y) is kept as close as
-    possible to ``up`` (default world +z); when ``c`` is parallel to ``up``, world +x is used.
+    ROS optical convention: x right, y down, z forward. The image "up" (−y) is kept as close as possible to
+    world +z (x = c × e_z, :func:`tangent_basis` with ``polar`` None); when ``c`` is vertical, x = c × e_x.
     """
     z = normalize(c)
-    up_v = np.broadcast_to(np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, float), z.shape)
-    x = np.cross(z, up_v)  # right = forward × up
-    bad = np.linalg.norm(x, axis=-1) < 1e-9
-    if np.any(bad):
-        alt = np.broadcast_to(np.array([1.0, 0.0, 0.0]), z.shape)
-        x = np.where(bad[..., None], np.cross(z, alt), x)
-    x = normalize(x)
-    y = np.cross(z, x)
+    x, y = tangent_basis(z, polar=None)
     return np.stack([x, y, z], axis=-1)
 
 

@@ -152,3 +152,48 @@ def test_slerp_moves_at_constant_speed_on_the_great_circle_even_between_opposite
     np.testing.assert_allclose(path[0, :, 2], 0.0, atol=1e-12)
     np.testing.assert_allclose(path[1, 5, 2], 0.0, atol=1e-12)
     np.testing.assert_allclose(g.slerp(a[3], a[3], 0.3), a[3], atol=1e-12)
+
+
+def _random_axes_with_poles(n, seed):
+    c = g.normalize(np.random.default_rng(seed).normal(size=(n, 3)))
+    c[:6] = g.normalize(np.array([[0, 0, 1], [0, 0, -1], [0, 1e-12, 1], [0.3, 0.2, 0.9], [0.5, 0, 0.85], [1, 0, 0.0]]))
+    return c
+
+
+@pytest.mark.parametrize("polar", [0.9, None])
+def test_tangent_basis_is_a_right_handed_frame_level_away_from_the_poles(polar):
+    c = _random_axes_with_poles(500, 4)
+    t1, t2 = g.tangent_basis(c, polar=polar)
+    F = np.stack([t1, t2, c], axis=-1)  # (n, 3, 3) columns t1, t2, c
+    np.testing.assert_allclose(np.swapaxes(F, 1, 2) @ F, np.broadcast_to(np.eye(3), F.shape), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(F), 1.0, atol=1e-12)
+    limit = 0.9 if polar is not None else 1.0 - 1e-15
+    level = np.abs(c[:, 2]) < limit
+    assert level.sum() > 400
+    np.testing.assert_allclose(t1[level, 2], 0.0, atol=1e-15)  # c × e_z: horizontal
+    np.testing.assert_allclose(t1[level], g.normalize(np.cross(c[level], [0.0, 0.0, 1.0])), atol=1e-15)
+    np.testing.assert_allclose(t1[~level], g.normalize(np.cross(c[~level], [1.0, 0.0, 0.0])), atol=1e-15)
+
+
+def test_tangent_basis_of_one_axis_is_the_array_result_bit_for_bit():
+    c = _random_axes_with_poles(300, 5)
+    for polar in (0.9, None):
+        t1, t2 = g.tangent_basis(c, polar=polar)
+        for k in range(c.shape[0]):
+            s1, s2 = g.tangent_basis(c[k], polar=polar)
+            assert s1.shape == s2.shape == (3,)
+            assert np.array_equal(s1, t1[k]) and np.array_equal(s2, t2[k]), (k, polar)
+
+
+def test_optical_frame_is_the_level_tangent_basis():
+    c = _random_axes_with_poles(200, 6) * 3.0  # any length: the frame normalises the axis first
+    z = g.normalize(c)
+    t1, t2 = g.tangent_basis(z, polar=None)
+    assert np.array_equal(g.optical_frame_from_direction(c), np.stack([t1, t2, z], axis=-1))
+    assert g.optical_frame_from_direction(c[3]).shape == (3, 3)
+
+
+def test_slerp_between_opposite_vertical_directions_turns_through_the_horizontal():
+    up = np.array([0.0, 1e-8, 1.0]) / np.hypot(1e-8, 1.0)
+    mid = g.slerp(up, -up, 0.5)
+    assert abs(mid[2]) < 1e-7 and abs(float(mid @ up)) < 1e-12  # a level direction ⟂ up, as for any other axis

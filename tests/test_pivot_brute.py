@@ -3,7 +3,8 @@
 import numpy as np
 
 from pivotd.geometry import normalize
-from pivotd.pivot.brute import brute_force_view, sphere_grid
+from pivotd.pivot.brute import brute_force_view
+from pivotd.pivot.lattice import sphere_grid
 from pivotd.pivot.scenes import monte_carlo_levels, monte_carlo_map, monte_carlo_poses
 
 

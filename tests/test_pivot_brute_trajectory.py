@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from pivotd.geometry import angle_between
-from pivotd.pivot.brute import best_grid_chain, brute_force_trajectory, grid_neighbours, grid_visibility, sphere_grid
+from pivotd.pivot.brute import best_grid_chain, brute_force_trajectory, grid_neighbours, grid_visibility
+from pivotd.pivot.lattice import sphere_grid
 from pivotd.pivot.scenes import competing_clusters_path
 from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
 

@@ -5,8 +5,8 @@ import pytest
 from viterbi_reference import viterbi_reference
 
 from pivotd.geometry import angle_between
-from pivotd.pivot.brute import sphere_grid
 from pivotd.pivot.chain import best_chain, node_indices, slerp_fill
+from pivotd.pivot.lattice import sphere_grid
 
 
 def _unit(v):

@@ -4,10 +4,11 @@ import numpy as np
 import pytest
 
 from pivotd.geometry import normalize
-from pivotd.pivot.brute import brute_force_view, sphere_grid
+from pivotd.pivot.brute import brute_force_view
 from pivotd.pivot.cone_kernel import cell_keys, cells_per_face, cone_kernel
+from pivotd.pivot.lattice import fibonacci_sphere, sphere_grid
 from pivotd.pivot.scenes import hard_scene
-from pivotd.pivot.view import ViewOptions, fibonacci_sphere, optimize_view
+from pivotd.pivot.view import ViewOptions, optimize_view
 
 
 def _histogram(B, kernel):

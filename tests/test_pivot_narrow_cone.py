@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from pivotd.geometry import normalize
-from pivotd.pivot.brute import brute_force_view, exact_view, sphere_grid
+from pivotd.geometry import normalize, tangent_basis
+from pivotd.pivot.brute import brute_force_view, exact_view
+from pivotd.pivot.lattice import sphere_grid
 from pivotd.pivot.scenes import HARD_FAMILIES, hard_path, hard_scene
 from pivotd.pivot.view import ViewOptions, boundary_axes, optimize_view
 
@@ -144,8 +145,7 @@ def test_exact_local_search_beats_a_dense_sample_of_its_disc():
     BT = np.ascontiguousarray(B.T, dtype=np.float32)
     axis = _exact_local(c, BT, w.astype(np.float32), alpha, r, 1000)
     assert float(axis @ c) >= np.cos(r) - 1e-9
-    t1 = normalize(np.cross(c, [1.0, 0.0, 0.0]))
-    t2 = np.cross(c, t1)
+    t1, t2 = tangent_basis(c)
     rho, phi = r * np.sqrt(rng.uniform(0, 1, 40000)), rng.uniform(0, 2 * np.pi, 40000)
     S = np.cos(rho)[:, None] * c + np.sin(rho)[:, None] * (np.cos(phi)[:, None] * t1 + np.sin(phi)[:, None] * t2)
     cos_sb = S @ B.T

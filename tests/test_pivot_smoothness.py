@@ -6,7 +6,7 @@ import pytest
 
 from pivotd.geometry import angle_between, normalize
 from pivotd.pivot.smoothness import pair_slope, pair_value, path_value
-from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
+from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory, trajectory_problem
 
 
 def _cost(deg, knee_deg):
@@ -84,20 +84,18 @@ def test_with_a_knee_the_plan_turns_at_once_where_the_view_changes_and_sees_more
 
 @pytest.mark.parametrize("knee_deg", [0.0, 2.0])
 def test_the_objective_adds_the_pairs_and_the_anchor_pair(knee_deg):
-    from pivotd.pivot import _ascent
-    from pivotd.pivot.trajectory import _judge
-
     rng = np.random.default_rng(0)
+    T = rng.normal(size=(6, 3))
+    P = T[rng.integers(0, 6, 300)] + 4.0 * normalize(rng.normal(size=(300, 3)))
     C = normalize(rng.normal(size=(6, 3)))
     anchor = normalize(rng.normal(size=3))
-    B = normalize(rng.normal(size=(6, 50, 3))).astype(np.float32)
-    W = np.ones((6, 50), np.float32)
-    geom = _ascent.Geometry(B, np.zeros((6, 3), np.float32), None, W,
-                            lambda r, c, C_: np.einsum("kj,kj->k", B[r, c].astype(float), C_[r]),
-                            valid=np.ones((6, 50), bool))
-    knee, smooth, alpha, width, norm = np.radians(knee_deg), 15.0, np.radians(30), np.radians(4), W.sum(axis=1)
-    _, alone = _judge(geom, C, norm, alpha, width, 0.0, None, knee)
-    _, paired = _judge(geom, C, norm, alpha, width, smooth, None, knee)
-    _, anchored = _judge(geom, C, norm, alpha, width, smooth, anchor, knee)
-    assert paired - alone == pytest.approx(smooth * path_value(C, knee), rel=1e-9)
-    assert anchored - paired == pytest.approx(smooth * pair_value(float(anchor @ C[0]), knee), rel=1e-9)
+    opts = TrajectoryOptions(smooth_knee_deg=knee_deg)
+    paired = trajectory_problem(P, T, np.radians(30), 0.6, options=opts)
+    doubled = trajectory_problem(P, T, np.radians(30), 1.2, options=opts)
+    anchored = trajectory_problem(P, T, np.radians(30), 0.6, anchor=anchor, options=opts)
+    (v1, f1), (v2, f2), (v3, f3) = paired.judge(C), anchored.judge(C), doubled.judge(C)
+    assert np.array_equal(v1, v2) and np.array_equal(v1, v3) and v1.sum() > 0  # the same visible counts
+    knee, smooth = np.radians(knee_deg), paired.smooth
+    assert smooth > 0 and doubled.smooth == pytest.approx(2 * smooth)
+    assert f3 - f1 == pytest.approx(smooth * path_value(C, knee), rel=1e-9)  # λκ Σ v(c_{i+1}·c_i)
+    assert f2 - f1 == pytest.approx(smooth * pair_value(float(anchor @ C[0]), knee), rel=1e-9)

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from pivotd.geometry import normalize
-from pivotd.pivot.brute import brute_force_trajectory, grid_visibility, sphere_grid
+from pivotd.pivot.brute import brute_force_trajectory, grid_visibility
 from pivotd.pivot.constraints import PanTiltConstraint
+from pivotd.pivot.lattice import sphere_grid
 from pivotd.pivot.polish import step_limited_polish
 from pivotd.pivot.scenes import competing_clusters_path
 from pivotd.pivot.steps import limit_steps, step_angles

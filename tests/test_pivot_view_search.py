@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from pivotd.geometry import angle_between, normalize
+from pivotd.geometry import angle_between, normalize, tangent_basis
+from pivotd.pivot.lattice import spiral_caps
 from pivotd.pivot.scenes import hard_scene
 from pivotd.pivot.view import (
     ViewOptions,
@@ -13,14 +14,13 @@ from pivotd.pivot.view import (
     _refine,
     _search_levels,
     _spiral_frame,
-    _spirals,
     local_search,
 )
 
 
 def test_spirals_of_all_levels_follow_the_sunflower_formula():
     radii, points = [0.13, 0.03, 0.01, 0.003], [32, 24, 24, 7]
-    levels = _spirals(radii, points)
+    levels = spiral_caps(radii, points)
     assert [lv.shape for lv in levels] == [(p + 1, 3) for p in points]
     golden = math.pi * (3.0 - math.sqrt(5.0))
     for r, p, lv in zip(radii, points, levels, strict=True):
@@ -41,7 +41,7 @@ def _reference_search(c, B, alpha, radii, points):
     toward_B = B[band].sum(axis=0)
     cos_a = np.float32(math.cos(alpha) - 1e-7)
     B32 = B.astype(np.float32)
-    for local in _spirals(radii, points):
+    for local in spiral_caps(radii, points):
         cand = local @ _spiral_frame(c, toward_B)
         vals = np.count_nonzero(cand.astype(np.float32) @ B32.T >= cos_a, axis=1)
         k = int(np.argmax(vals))
@@ -98,7 +98,7 @@ def test_refinement_of_two_axes_in_one_basin_stops_the_second_near_the_first():
     BT = np.ascontiguousarray(B.T, dtype=np.float32)
     w = np.ones(B.shape[0], np.float32)
     alpha, opts = math.radians(15.0), ViewOptions()
-    tangent = normalize(np.cross(centre, [0.0, 0.0, 1.0]))
+    tangent = tangent_basis(centre, polar=None)[0]  # level
     starts = normalize(np.array([centre + 0.12 * tangent, centre - 0.16 * tangent]))
     cos_c = starts.astype(np.float32) @ BT
     both, _ = _refine(BT, w, starts, cos_c, alpha, opts, True)

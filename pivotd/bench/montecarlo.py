@@ -107,7 +107,7 @@ def _other_view(compare_with: str | None, alpha: float | None = None) -> Callabl
 def _level_rows(
     levels: list[int], pose_idx: np.ndarray, alpha: float, res: float, compare_with: str | None = None
 ) -> tuple[list[dict], dict]:
-    from pivotd.pivot.brute import sphere_grid
+    from pivotd.pivot.lattice import sphere_grid
     from pivotd.pivot.scenes import monte_carlo_levels, monte_carlo_map, monte_carlo_poses
 
     optimize_view, brute_force_view = _solvers(alpha, sphere_grid(res))
@@ -188,7 +188,8 @@ def hard_rows(
     reference. Speedup: the ratio of the median times, and the median of the per-pose ratios (less exposed
     to the host's load drifting during the run). ``compare_with``: a renamed copy of another pivotd version
     on the path whose optimize_view is timed in the same rounds (its speedup and quality are reported too)."""
-    from pivotd.pivot.brute import refined_view, sphere_grid
+    from pivotd.pivot.brute import refined_view
+    from pivotd.pivot.lattice import sphere_grid
     from pivotd.pivot.scenes import HARD_FAMILIES, hard_scene
 
     optimize_view, brute_force_view = _solvers(alpha, sphere_grid(res))
@@ -372,7 +373,8 @@ def pareto_rows(
     renamed copy of another pivotd version whose λ = 0.6 plan (its default options, no distance weights) is
     timed in the same interleaved run and judged the same way. ``only``: just the scenes with these names."""
     from pivotd.maps.formats import load_landmarks
-    from pivotd.pivot.brute import best_grid_chain, sphere_grid
+    from pivotd.pivot.brute import best_grid_chain
+    from pivotd.pivot.lattice import sphere_grid
     from pivotd.pivot.scenes import HARD_FAMILIES, competing_clusters_path, hard_path
     from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
     from pivotd.robot_path import load_path
@@ -460,7 +462,8 @@ def pareto_rows(
 def _grid_reference(points: np.ndarray, waypoints: np.ndarray, alpha: float, plan_step_deg: float) -> dict:
     """Exact best plans on the 2° direction grid (pivotd.pivot.brute.best_grid_chain): without a step limit,
     with the λ = 0.6 plan's own largest step, and with the 10° goal; visible means."""
-    from pivotd.pivot.brute import best_grid_chain, grid_visibility, sphere_grid
+    from pivotd.pivot.brute import best_grid_chain, grid_visibility
+    from pivotd.pivot.lattice import sphere_grid
 
     grid = sphere_grid(2.0)
     V = grid_visibility(points, waypoints, alpha, grid)

@@ -40,6 +40,7 @@ from pivotd.localization.stack import (
     build_replan_trigger,
 )
 from pivotd.localization.world import World
+from pivotd.pivot.lattice import azimuth_elevation_grid
 
 FISHER_GRID_DEG = 10.0  # pan × tilt step of the Fisher-information baseline
 FISHER_LOOKAHEAD = 4  # waypoints ahead of the robot the Fisher baseline plans
@@ -174,15 +175,6 @@ class FisherPolicy(Policy):
                     s=s, map_version=0, path_version=0, solve_s=0.0)
 
 
-def sphere_grid(step_deg: float) -> np.ndarray:
-    """World unit directions (G, 3) on an azimuth × elevation grid of ``step_deg`` (poles excluded)."""
-    step = math.radians(step_deg)
-    az = np.arange(-math.pi, math.pi - 1e-9, step)
-    el = np.arange(-math.pi / 2 + step, math.pi / 2 - 1e-9, step)
-    a, e = np.meshgrid(az, el, indexing="ij")
-    return pan_tilt_to_direction(a.ravel(), -e.ravel())
-
-
 def _in_view(world: World, d_world: np.ndarray, centre: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """In-image counts (G,) of ``pts`` for a camera at ``centre`` looking along each of ``d_world`` (G, 3)."""
     out = np.zeros(d_world.shape[0], np.int64)
@@ -232,7 +224,7 @@ class TeleportPolicy(Policy):
     open_loop: bool = True
 
     def __post_init__(self) -> None:
-        self._coarse = sphere_grid(TELEPORT_COARSE_DEG)
+        self._coarse = azimuth_elevation_grid(TELEPORT_COARSE_DEG)
         k = math.ceil(TELEPORT_COARSE_DEG / TELEPORT_FINE_DEG)
         off = np.radians(np.arange(-k, k + 1) * TELEPORT_FINE_DEG)
         self._offsets = np.stack(np.meshgrid(off, off, indexing="ij"), axis=-1).reshape(-1, 2)

@@ -13,8 +13,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pivotd.geometry import tangent_basis
 from pivotd.pivot.smoothness import pair_slope
 from pivotd.pivot.visibility import ks_from_width
+
+__all__ = ["AscentSettings", "Geometry", "Projector", "ascend", "evaluate", "subsample"]
 
 Projector = Callable[[np.ndarray], np.ndarray]
 
@@ -247,10 +250,7 @@ def _turn_to(R: np.ndarray, target: np.ndarray) -> np.ndarray:
     w[moved] = axis[moved] / np.maximum(s[moved], 1e-300)[:, None] * ang[moved, None]
     antipodal = moved & (s < 1e-12)
     if np.any(antipodal):  # turn by π about any axis ⟂ c
-        perp = np.cross(c[antipodal], np.array([1.0, 0.0, 0.0]))
-        bad = np.linalg.norm(perp, axis=1) < 1e-6
-        perp[bad] = np.cross(c[antipodal][bad], np.array([0.0, 1.0, 0.0]))
-        w[antipodal] = perp / np.linalg.norm(perp, axis=1, keepdims=True) * np.pi
+        w[antipodal] = tangent_basis(c[antipodal])[0] * np.pi
     return _exp(w) @ R
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["feature_weights", "finite_array", "half_angle", "unit_vector"]
+
 
 def finite_array(
     name: str, value: np.ndarray, shape_tail: tuple[int, ...] = (3,), *, rows: np.ndarray | None = None

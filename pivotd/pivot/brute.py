@@ -1,34 +1,25 @@
 """Brute-force reference: the best hard visible count over a grid of directions on the viewing sphere.
 
-Grid (``sphere_grid``): rings of constant elevation every ``resolution`` from −90° to +90°
-(both poles included); on a ring at elevation e the azimuth step is resolution / cos e (rounded so the
-ring closes), so neighbouring grid directions are at most ``resolution`` apart. At 2° this is
-≈ 10 300 directions, the equal-area count 4π/(2°)².
+Grid: :func:`pivotd.pivot.lattice.sphere_grid`, rings of constant elevation every ``resolution`` with
+neighbouring directions at most ``resolution`` apart (≈ 10 300 directions at 2°).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from pivotd.geometry import tangent_basis
 from pivotd.pivot._checks import feature_weights, finite_array, half_angle
+from pivotd.pivot.lattice import grid_covering_radius, sphere_grid
 from pivotd.pivot.view import boundary_axes
 
+__all__ = ["RefinedView", "best_grid_chain", "brute_force_trajectory", "brute_force_view", "exact_view",
+           "grid_neighbours", "grid_visibility", "refined_view"]
 
-def sphere_grid(resolution_deg: float = 2.0) -> np.ndarray:
-    """Unit directions (G, 3) covering S² at the given angular resolution [deg] (see module docstring)."""
-    if not (np.isfinite(resolution_deg) and 0 < resolution_deg <= 90):
-        raise ValueError(f"resolution_deg must be in (0, 90], got {resolution_deg}")
-    res = np.radians(resolution_deg)
-    n_rings = round(np.pi / res)
-    out = []
-    for el in np.linspace(-np.pi / 2, np.pi / 2, n_rings + 1):
-        ce = np.cos(el)
-        n_az = max(1, int(np.ceil(2 * np.pi * ce / res - 1e-9))) if ce > 1e-9 else 1
-        az = np.arange(n_az) * (2 * np.pi / n_az)
-        out.append(np.stack([ce * np.cos(az), ce * np.sin(az), np.full(n_az, np.sin(el))], axis=1))
-    return np.concatenate(out)
+_POLAR = math.sqrt(1.0 - 0.3**2)  # the refinement's tangents turn to c × e_x where |c × e_z| < 0.3
 
 
 def brute_force_view(
@@ -156,34 +147,6 @@ def brute_force_trajectory(
     return grid[path], V[np.arange(V.shape[0]), path].astype(float)
 
 
-def grid_covering_radius(resolution_deg: float = 2.0) -> float:
-    """Covering radius [rad] of :func:`sphere_grid`: every unit direction lies within it of a grid direction.
-
-    Measured, not assumed: the largest distance to the nearest grid direction over a dense sample
-    (40 elevations per ring gap × azimuths at 1/40 of the coarser ring's step) between every pair of
-    neighbouring rings, the nearest candidates taken on both rings, plus 2 % (the sample's spacing).
-    """
-    grid = sphere_grid(resolution_deg)
-    el = np.arcsin(np.clip(grid[:, 2], -1.0, 1.0))
-    rings = np.unique(np.round(el, 12))
-    counts = np.array([np.count_nonzero(np.abs(el - r) < 1e-9) for r in rings])
-    worst = 0.0
-    for k in range(rings.size - 1):
-        e = np.linspace(rings[k], rings[k + 1], 41)
-        step = 2 * np.pi / min(counts[k], counts[k + 1])
-        az = np.arange(0.0, step + 1e-12, step / 40)
-        E, A = np.meshgrid(e, az, indexing="ij")
-        best = np.full(E.shape, np.pi)
-        for r, n in ((rings[k], counts[k]), (rings[k + 1], counts[k + 1])):
-            d_az = 2 * np.pi / n
-            node = np.round(A / d_az) * d_az
-            for off in (-d_az, 0.0, d_az):
-                cosd = np.sin(E) * np.sin(r) + np.cos(E) * np.cos(r) * np.cos(A - node - off)
-                best = np.minimum(best, np.arccos(np.clip(cosd, -1.0, 1.0)))
-        worst = max(worst, float(best.max()))
-    return 1.02 * worst
-
-
 @dataclass(frozen=True)
 class RefinedView:
     """The refined reference of one pose: ``direction`` (3,) unit, ``value`` its hard visible weight (a
@@ -194,15 +157,6 @@ class RefinedView:
     value: float
     bound: float
     exact: bool
-
-
-def _tangent_basis(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit tangent vectors (P, 3) at each unit axis C (P, 3)."""
-    t1 = np.cross(C, np.array([0.0, 0.0, 1.0]))
-    polar = np.linalg.norm(t1, axis=1) < 0.3
-    t1[polar] = np.cross(C[polar], np.array([1.0, 0.0, 0.0]))
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    return t1, np.cross(C, t1)
 
 
 def refined_view(
@@ -270,7 +224,7 @@ def refined_view(
         P, r = dirs[take], rho[take][:, None]
         step = r / np.sqrt(2.0)
         child_rho = 0.5 * r * 1.01  # 1 %: the tangent-plane lattice mapped onto S² (distortion ~ρ²/6)
-        t1, t2 = _tangent_basis(P)
+        t1, t2 = tangent_basis(P, polar=_POLAR)
         v = step[:, :, None] * (off[None, :, 0:1] * t1[:, None, :] + off[None, :, 1:2] * t2[:, None, :])
         ang = np.linalg.norm(v, axis=2, keepdims=True)
         kids = np.cos(ang) * P[:, None, :] + np.sinc(ang / np.pi) * v  # exp map: sin|v|/|v| · v  (p, 9, 3)

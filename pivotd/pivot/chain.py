@@ -21,8 +21,12 @@ from collections.abc import Callable
 import numpy as np
 
 from pivotd.geometry import slerp
-from pivotd.pivot.brute import best_grid_chain, sphere_grid
+from pivotd.pivot.brute import best_grid_chain
+from pivotd.pivot.lattice import sphere_grid
 from pivotd.pivot.smoothness import pair_value
+
+__all__ = ["Exact", "best_chain", "grid_scores", "initial_directions", "node_indices", "refine_top_scores",
+           "slerp_fill", "step_limited_directions"]
 
 
 def node_indices(n: int, max_nodes: int) -> np.ndarray:

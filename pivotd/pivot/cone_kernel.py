@@ -19,6 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from pivotd.pivot._checks import half_angle
+from pivotd.pivot.lattice import fibonacci_sphere
+
+__all__ = ["ConeKernel", "cell_keys", "cells_per_face", "cone_kernel"]
 
 
 def cells_per_face(alpha: float) -> int:
@@ -105,8 +108,6 @@ def cone_kernel(alpha: float, m: int | None = None, *, samples_per_cell: int = 4
     The cells' centres and areas come from binning a Fibonacci lattice of ``samples_per_cell`` directions per
     cell. Cost ≈ 10 ms at m = 16 (C = 1352 cells; 25–55 ms on a loaded host): build once per α and reuse.
     """
-    from pivotd.pivot.view import fibonacci_sphere  # the lattice lives with the optimizer
-
     alpha = half_angle(alpha)
     m = cells_per_face(alpha) if m is None else int(m)
     if m < 2:

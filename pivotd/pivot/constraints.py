@@ -9,6 +9,8 @@ import numpy as np
 
 from pivotd.geometry import direction_to_pan_tilt, pan_tilt_to_direction
 
+__all__ = ["PanTiltConstraint"]
+
 _TOL = 1e-9
 
 

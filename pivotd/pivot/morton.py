@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["interleave", "interleave_bytes", "morton_keys"]
+
 
 def _spread_table() -> np.ndarray:
     """(256,) uint64: the bits of each byte moved to every third bit (bit b to bit 3b)."""

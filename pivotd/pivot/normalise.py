@@ -26,6 +26,8 @@ import numpy as np
 from pivotd.pivot._ascent import Geometry
 from pivotd.pivot.cone_kernel import cell_keys
 
+__all__ = ["Normalisation", "attainable_counts", "attainable_weights", "cells_for"]
+
 
 class Normalisation(StrEnum):
     """What a waypoint's visible weight is divided by in the trajectory objective."""

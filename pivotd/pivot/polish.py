@@ -15,8 +15,11 @@ from collections.abc import Callable
 
 import numpy as np
 
+from pivotd.geometry import tangent_basis
 from pivotd.pivot import _ascent
 from pivotd.pivot.smoothness import pair_value
+
+__all__ = ["Reachable", "ring_offsets", "step_limited_polish"]
 
 Reachable = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -31,16 +34,6 @@ def ring_offsets(radius: float, tol: float) -> tuple[np.ndarray, np.ndarray, np.
     return np.cos(r), np.sin(r), np.tile(np.cos(ang), len(radii))[:, None], np.tile(np.sin(ang), len(radii))[:, None]
 
 
-def _tangents(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit tangent vectors (n, 3) at each unit axis c (n, 3): c × e_z (or c × e_x near the poles), c × t1."""
-    t1 = np.zeros_like(c)
-    polar = np.abs(c[:, 2]) >= 0.9
-    t1[~polar, 0], t1[~polar, 1] = c[~polar, 1], -c[~polar, 0]
-    t1[polar, 1], t1[polar, 2] = c[polar, 2], -c[polar, 1]
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    return t1, np.cross(c, t1)
-
-
 def _ring_candidates(C: np.ndarray, radius: float) -> np.ndarray:
     """Candidates (N, 17, 3) per unit axis C (N, 3): the axis, then 8 directions at ``radius`` and 8 at radius/2.
 
@@ -48,7 +41,7 @@ def _ring_candidates(C: np.ndarray, radius: float) -> np.ndarray:
     (17, 3) @ (3, 3N) product."""
     cos_r, sin_r, ca, sa = ring_offsets(radius, 0.5 * radius)
     coef = np.vstack([[1.0, 0.0, 0.0], np.hstack([cos_r, sin_r * ca, sin_r * sa])])  # (17, 3): c, t1, t2
-    t1, t2 = _tangents(C)
+    t1, t2 = tangent_basis(C)
     basis = np.stack([C, t1, t2])  # (3, N, 3)
     N = C.shape[0]
     return (coef @ basis.reshape(3, 3 * N)).reshape(-1, N, 3).transpose(1, 0, 2)

@@ -16,6 +16,8 @@ import numpy as np
 
 from pivotd.geometry import normalize, slerp
 
+__all__ = ["blind_waypoints", "rescue_init"]
+
 
 def blind_waypoints(visible: np.ndarray, attainable: np.ndarray, fraction: float) -> np.ndarray:
     """Indices (B,) of the waypoints whose ``visible`` count (N,) is below ``fraction`` × their ``attainable``

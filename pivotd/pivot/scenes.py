@@ -6,6 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+__all__ = ["HARD_FAMILIES", "MC_CLUSTERS", "MC_EXTENT", "MC_HEIGHT", "MC_LEVELS", "MC_PER_CLUSTER", "Scene",
+           "competing_clusters_path", "hallway", "hard_path", "hard_scene", "monte_carlo_levels", "monte_carlo_map",
+           "monte_carlo_poses", "two_clusters"]
+
 
 @dataclass(frozen=True)
 class Scene:

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["pair_slope", "pair_value", "path_value"]
+
 
 def pair_value(cos: np.ndarray | float, knee: float) -> np.ndarray | float:
     """Value of consecutive axes with cosine ``cos`` (any shape): cos itself for ``knee`` = 0 (the paper's

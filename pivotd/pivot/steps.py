@@ -14,7 +14,10 @@ import math
 
 import numpy as np
 
+from pivotd.geometry import tangent_basis
 from pivotd.pivot.constraints import PanTiltConstraint
+
+__all__ = ["MAX_STEP_RANGE_DEG", "limit_steps", "step_angles"]
 
 #: step limits users may ask for [deg]: below 0.01° a plan can hardly turn, 180° is no limit at all
 MAX_STEP_RANGE_DEG = (0.01, 180.0)
@@ -33,8 +36,7 @@ def _arc_point(p: np.ndarray, c: np.ndarray, angle: float) -> np.ndarray:
     u = c - (c @ p) * p
     n = math.sqrt(float(u @ u))
     if n < 1e-12:  # c = ±p: any perpendicular
-        u = np.cross(p, [1.0, 0.0, 0.0] if abs(p[0]) < 0.9 else [0.0, 1.0, 0.0])
-        n = math.sqrt(float(u @ u))
+        u, n = tangent_basis(p)[0], 1.0
     return math.cos(angle) * p + math.sin(angle) * (u / n)
 
 

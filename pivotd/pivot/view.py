@@ -22,10 +22,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pivotd.geometry import optical_frame_from_direction
+from pivotd.geometry import optical_frame_from_direction, tangent_basis
 from pivotd.pivot._checks import feature_weights, finite_array, half_angle, unit_vector
 from pivotd.pivot.cone_kernel import ConeKernel, cell_keys, cone_kernel
+from pivotd.pivot.lattice import fibonacci_sphere, spiral_caps
 from pivotd.pivot.visibility import ks_from_width
+
+__all__ = ["ViewOptions", "ViewResult", "boundary_axes", "local_search", "optimize_view"]
 
 
 @dataclass
@@ -113,10 +116,8 @@ def _candidates(
     nc = math.sqrt(x * x + y * y + z * z)
     if nc > 1e-9 * max(float(ws.sum()), 1e-12):
         x, y, z = x / nc, y / nc, z / nc
-        tx, ty, tz = (y, -x, 0.0) if abs(z) < 0.9 else (0.0, z, -y)  # c0 × e_z or c0 × e_x
-        nt = math.sqrt(tx * tx + ty * ty + tz * tz)
-        tx, ty, tz = tx / nt, ty / nt, tz / nt
-        ux, uy, uz = y * tz - z * ty, z * tx - x * tz, x * ty - y * tx
+        t1, t2 = tangent_basis(np.array([x, y, z]))
+        (tx, ty, tz), (ux, uy, uz) = t1.tolist(), t2.tolist()
         ca, sa = math.cos(2 * alpha), math.sin(2 * alpha)
         seeds.append((x, y, z))
         for px, py, pz in ((tx, ty, tz), (-tx, -ty, -tz), (ux, uy, uz), (-ux, -uy, -uz)):
@@ -410,21 +411,6 @@ def _greedy_distinct(D: np.ndarray, cos_min: float, k: int) -> list[int]:
     return picks
 
 
-def fibonacci_sphere(n: int) -> np.ndarray:
-    """n near-uniform unit directions (n, 3) (Fibonacci lattice; neighbours ≈ √(4π/n) rad apart)."""
-    i = np.arange(0.5, n, dtype=np.float64)
-    out = np.empty((n, 3))
-    z = out[:, 2]
-    np.multiply(i, 2.0, out=z)
-    z /= n
-    np.subtract(1.0, z, out=z)
-    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
-    phi = i * (math.pi * (3.0 - math.sqrt(5.0)))
-    np.multiply(r, np.cos(phi), out=out[:, 0])
-    np.multiply(r, np.sin(phi), out=out[:, 1])
-    return out
-
-
 def _coarse_peaks(BsT: np.ndarray, ws: np.ndarray, alpha: float, opts: ViewOptions) -> np.ndarray:
     """The global seed: hard visible weight of the subsample (BsT (3, s), ws (s,)) for every direction of a
     Fibonacci lattice spaced ≈ coarse_ratio · α, and its ``coarse_peaks`` best directions (k, 3) float32,
@@ -626,17 +612,9 @@ def _unit_bearings(bearings: np.ndarray, weights: np.ndarray | None) -> tuple[np
 
 
 def _frame(c: np.ndarray) -> np.ndarray:
-    """The rotation of :func:`pivotd.geometry.optical_frame_from_direction` for one unit axis c (3,),
-    computed with scalars (the array version costs ~50 µs of call overhead for a single vector)."""
-    x, y, z = (float(v) for v in c)
-    rx, ry, rz = y, -x, 0.0  # right = c × up (up = +z)
-    n = np.sqrt(rx * rx + ry * ry)
-    if n < 1e-9:  # c parallel to up: c × (+x)
-        rx, ry, rz = 0.0, z, -y
-        n = np.sqrt(ry * ry + rz * rz)
-    rx, ry, rz = rx / n, ry / n, rz / n
-    dx, dy, dz = y * rz - z * ry, z * rx - x * rz, x * ry - y * rx  # down = c × right
-    return np.array([[rx, dx, x], [ry, dy, y], [rz, dz, z]])
+    """The rotation (3, 3) of :func:`pivotd.geometry.optical_frame_from_direction` for one unit axis c (3,)."""
+    right, down = tangent_basis(c, polar=None)
+    return np.stack([right, down, c], axis=-1)
 
 
 def _width(alpha: float, opts: ViewOptions) -> float:
@@ -740,37 +718,18 @@ def _refine(
     return np.array(xyz), it
 
 
-def _spirals(radii: list[float], points: list[int]) -> list[np.ndarray]:
-    """For each radius r_k [rad] of ``radii``, the local coordinates (1 + P_k, 3) of the sunflower spiral of
-    :func:`_spiral_frame`: row 0 the cap's centre (1, 0, 0), then ``points[k]`` directions spread evenly (equal
-    area per direction) over the cap of radius r_k around it (spacing ≈ r_k · √(π / P_k)), as
-    (cos ρ, sin ρ cos φ, sin ρ sin φ) for polar radius ρ and azimuth φ. All levels in one set of array calls."""
-    sizes = [int(p) + 1 for p in points]  # each level: its centre, then its spiral
-    starts = [sum(sizes[:k]) for k in range(len(sizes))]
-    i = np.arange(sum(sizes), dtype=float) - np.repeat(np.array(starts, float) + 0.5, sizes)
-    np.maximum(i, 0.0, out=i)  # i + 0.5 along each spiral, 0 at the centres
-    r = np.sqrt(i)
-    r *= np.repeat([rk / math.sqrt(p) for rk, p in zip(radii, points, strict=True)], sizes)  # r_k √(i / P_k)
-    i *= math.pi * (3.0 - math.sqrt(5.0))  # azimuth
-    flat = np.empty((r.size, 3))
-    np.cos(r, out=flat[:, 0])
-    np.sin(r, out=r)
-    np.multiply(r, np.cos(i), out=flat[:, 1])
-    np.multiply(r, np.sin(i), out=flat[:, 2])
-    return [flat[s : s + p] for s, p in zip(starts, sizes, strict=True)]
-
 def _spiral_frame(c: np.ndarray, toward: np.ndarray) -> np.ndarray:
     """Rows (3, 3): the unit axis c (3,), a unit tangent t1 and c × t1. The spiral's zero azimuth points along
     the tangent part of ``toward`` (3,) (a direction taken from the data, so that a rotated scene gives the
-    rotated spiral), or along c × e_z when that part vanishes."""
+    rotated spiral), or along the first tangent of :func:`pivotd.geometry.tangent_basis` when that part vanishes."""
     x, y, z = (float(v) for v in c)
     gx, gy, gz = (float(v) for v in toward)
     d = gx * x + gy * y + gz * z
     tx, ty, tz = gx - d * x, gy - d * y, gz - d * z
     nt = math.sqrt(tx * tx + ty * ty + tz * tz)
     if nt <= 1e-6 * math.sqrt(gx * gx + gy * gy + gz * gz) or nt == 0.0:
-        tx, ty, tz = (y, -x, 0.0) if abs(z) < 0.9 else (0.0, z, -y)  # c × e_z or c × e_x
-        nt = math.sqrt(tx * tx + ty * ty + tz * tz)
+        t1, t2 = tangent_basis(np.array([x, y, z]))
+        return np.stack([np.array([x, y, z]), t1, t2])
     tx, ty, tz = tx / nt, ty / nt, tz / nt
     return np.array([[x, y, z], [tx, ty, tz], [y * tz - z * ty, z * tx - x * tz, x * ty - y * tx]])
 
@@ -786,7 +745,8 @@ def local_search(
 ) -> np.ndarray:
     """Coarse-to-fine search of the hard visible weight around ``c`` (3,): for each radius r_k [rad] of
     ``radii`` (decreasing), ``points[k]`` directions on a spiral over the cap of radius r_k around the current
-    best (:func:`_spirals`); the best one replaces it when it sees strictly more. Returns the final axis.
+    best (:func:`pivotd.pivot.lattice.spiral_caps`); the best one replaces it when it sees strictly more.
+    Returns the final axis.
 
     BT (3, n) float32 unit bearings, w (n,) float32 weights, ``cos_c`` (n,) = c · k_j. The axis moves at
     most Σ r_k, so only landmarks within α ± Σ r_k of ``c`` can change state: that band is taken once. The
@@ -807,7 +767,7 @@ def local_search(
     toward = (bT @ wb).astype(float)  # the band's weighted mean bearing orients every spiral
     cos_a = np.float32(math.cos(alpha) - 1e-7)
     lT, lw = bT, wb
-    for k, local in enumerate(_spirals(radii, points)):
+    for k, local in enumerate(spiral_caps(radii, points)):
         if k <= 1:  # narrow the band: level 0 to α ± r_0 around c, the later levels to α ± Σ_{j≥1} r_j
             reach = radii[0] if k == 0 else float(sum(radii[1:]))
             cb = c.astype(np.float32) @ bT  # (m,)

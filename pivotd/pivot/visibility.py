@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["gradient", "hard_count", "in_cone", "ks_from_width", "objective", "smooth_visibility"]
+
 #: Logit of the transition band edges: v rises from 1/(1+e²) ≈ 12 % to 88 % across the width.
 _BAND_LOGIT = 2.0
 
