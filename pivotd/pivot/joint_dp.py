@@ -21,6 +21,8 @@ from scipy.ndimage import maximum_filter1d
 
 from pivotd.geometry import pan_tilt_to_direction
 
+__all__ = ["JointGrid", "JointPath", "best_joint_path", "best_smooth_joint_path", "cell_counts"]
+
 _EPS = 1e-9  # slack on cell-count divisions and reach tests
 
 
