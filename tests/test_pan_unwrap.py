@@ -1,4 +1,4 @@
-"""Pan branch selection over a horizon and the unwind of a bounded pan range (pivotd.gimbal.pan_unwrap)."""
+"""Pan branch selection over a horizon (pivotd.gimbal.pan_unwrap)."""
 
 from __future__ import annotations
 
@@ -10,20 +10,18 @@ import pytest
 
 from pivotd.geometry import pan_tilt_to_direction
 from pivotd.gimbal.kinematics import JointLimits, world_directions_to_joints
-from pivotd.gimbal.pan_unwrap import (
-    PROFILE_STEP,
-    long_slews,
-    pan_branches,
-    pan_profile,
-    sweep,
-    unwind_targets,
-    unwrap_pans,
-)
+from pivotd.gimbal.pan_unwrap import pan_branches, unwrap_pans
 
 D = math.radians
 WIDE = JointLimits(pan_min=D(-270), pan_max=D(270), tilt_min=D(-45), tilt_max=D(60))
 DEMO = JointLimits(pan_min=D(-170), pan_max=D(170), tilt_min=D(-45), tilt_max=D(60))
 SLIP = JointLimits(tilt_min=D(-45), tilt_max=D(60), continuous_pan=True)
+
+
+def long_slews(start: float, pans: np.ndarray) -> np.ndarray:
+    """Indices of the joint steps (from ``start`` into each waypoint) longer than π: the long way round."""
+    p = np.concatenate([[float(start)], np.asarray(pans, float)])
+    return np.flatnonzero(np.abs(np.diff(p)) > np.pi)
 
 
 def _total_slew(start: float, pans: np.ndarray) -> float:
@@ -108,67 +106,7 @@ def test_continuous_pan_is_the_nearest_unwrap():
     assert long_slews(0.0, out).size == 0
 
 
-def test_unwind_targets_slew_straight_to_the_first_rich_view():
-    counts = np.array([40, 0, 0, 3, 50, 200, 210, 30])
-    take = unwind_targets(counts, 3)
-    assert take.tolist() == [0, 5, 5, 5, 5, 5, 6, 7]  # blind lead-in and the slew region go to waypoint 5
-    assert unwind_targets(np.zeros(4), 1).tolist() == [0, 1, 2, 3]
-
-
 def _identity_mount():
     from pivotd.gimbal.kinematics import Mount
 
     return Mount()
-
-
-def _ring(centre_az: float, width: float, n: int = 400) -> np.ndarray:
-    """Level bearings (n, 3) spread uniformly over ``width`` [rad] of azimuth around ``centre_az``."""
-    az = centre_az + np.linspace(-0.5 * width, 0.5 * width, n)
-    return pan_tilt_to_direction(az, np.zeros(n))
-
-
-def test_profile_counts_the_landmarks_of_a_view():
-    b = _ring(D(40), D(60))
-    grid, counts, tilts = pan_profile(b, D(30), DEMO)
-    assert counts[np.argmin(np.abs(grid - D(40)))] >= 395
-    assert counts[np.argmin(np.abs(grid - D(-60)))] == 0
-    assert abs(tilts[np.argmin(np.abs(grid - D(40)))]) <= D(30)
-
-
-def test_sweep_measures_the_blind_arc_to_the_far_side():
-    """Landmarks around pan −150…−60° and 60…150°: a sweep up from −100° leaves the first set at about
-    −30° (its edge plus the half FoV), crosses nothing until about 30°, and ends at the far side's
-    farthest rich pan; from 100° upward there is no far side inside ±170°."""
-    b = np.concatenate([_ring(D(-105), D(90)), _ring(D(105), D(90))])
-    grid, counts, _ = pan_profile(b, D(30), DEMO)
-    blind, target = sweep(grid, counts, D(-100), up=True)
-    assert blind == pytest.approx(D(60), abs=2 * PROFILE_STEP)
-    assert target is not None and D(100) <= target <= D(170)
-    assert sweep(grid, counts, D(100), up=True) == (np.inf, None)
-    blind_down, target_down = sweep(grid, counts, D(100), up=False)
-    assert blind_down == pytest.approx(blind, abs=2 * PROFILE_STEP) and target_down <= D(-100)
-
-
-@pytest.mark.parametrize("half_fov_deg", [2.0, 30.0, 100.0])
-def test_profile_equals_the_window_of_shifted_histograms(half_fov_deg):
-    """The profile against its definition: per tilt band, the landmarks whose pan falls in each window of
-    2w + 1 cells, summed from shifted copies of the band's histogram (random bearings, any tilt)."""
-    from pivotd.geometry import direction_to_pan_tilt
-
-    rng = np.random.default_rng(4)
-    b = rng.normal(size=(3000, 3))
-    half = D(half_fov_deg)
-    grid, counts, tilts = pan_profile(b, half, DEMO)
-    pan, tl = direction_to_pan_tilt(b / np.linalg.norm(b, axis=1, keepdims=True))
-    bins = round(2 * np.pi / PROFILE_STEP)
-    cell = np.floor(np.remainder(pan + np.pi, 2 * np.pi) / PROFILE_STEP).astype(int) % bins
-    cells = np.floor(np.remainder(grid + np.pi, 2 * np.pi) / PROFILE_STEP).astype(int) % bins
-    w = int(np.floor(half / PROFILE_STEP))
-    bands = np.arange(max(DEMO.tilt_min, -np.pi / 2), min(DEMO.tilt_max, np.pi / 2) + 1e-9, 2 * PROFILE_STEP)
-    table = []
-    for tilt in bands:
-        hist = np.bincount(cell[np.abs(tl - tilt) <= half], minlength=bins).astype(float)
-        table.append(sum(np.roll(hist, -k) for k in range(-w, w + 1))[cells])
-    table = np.array(table)
-    assert np.array_equal(counts, table.max(axis=0))
-    assert np.array_equal(tilts, bands[np.argmax(table, axis=0)])

@@ -37,7 +37,7 @@ NOT_PLANNING = {"replan_hz", "replan_on_waypoint", "replan_max_interval", "repla
 
 #: a value other than the default for every mapped field
 CHANGED_PIVOT = dict(fov=math.radians(44.0), lam=0.35, transition_width=math.radians(2.5), iterations=33,
-                     distance_weights=False, smooth_knee=math.radians(2.0))
+                     distance_weights=True, smooth_knee=math.radians(2.0))
 CHANGED_PLANNER = dict(waypoint_spacing=0.4, horizon=17, max_landmarks_per_waypoint=1234, max_step=math.radians(5.0),
                        max_path_offset=2.5, normalise=Normalisation.ATTAINABLE, rescue_fraction=0.3,
                        replan_budget=1.5)

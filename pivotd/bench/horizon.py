@@ -184,7 +184,6 @@ def run(args: argparse.Namespace) -> int:
             far_plan = _replan(far[0], far[1], pos[0], qk, far_anchor, k * dt)
             far[2].append(time.perf_counter() - t1)
             far_anchor = far_plan.directions[0]
-        unwind_before = planner.unwind_target  # the reference replan below starts from the same state
         t1, c1 = time.perf_counter(), time.process_time()
         plan = _replan(planner, snap, pos[0], qk, anchor, k * dt)
         if fresh:
@@ -205,7 +204,7 @@ def run(args: argparse.Namespace) -> int:
             # Quality of the capped plan: hard visible count over the full retained sets, against a plan
             # optimised on the full sets from the same warm start.
             full.set_path(sc.path, None, planner._path_version)
-            full.progress, full.last_plan, full.unwind_target = planner.progress, prev, unwind_before
+            full.progress, full.last_plan = planner.progress, prev
             ref = _replan(full, snap, pos[0], qk, prev_anchor, None)
             ours = _visible_full(snap, plan, ret, settings.alpha)
             quality.append(ours / max(_visible_full(snap, ref, ret, settings.alpha), 1))

@@ -103,7 +103,7 @@ class PivotConfig:
     lam: float = 0.6
     transition_width: float = math.radians(4.0)
     iterations: int = 50
-    distance_weights: bool = True
+    distance_weights: bool = False  # true: eq. 15 of the paper (nearer landmarks weigh more); false: the count
     smooth_knee: float = math.radians(1.0)  # [rad] steps beyond about this cost in proportion to their size (0: the
     # paper's 1 − cos per step: a turn spread over many waypoints costs less than the same turn made at once)
 

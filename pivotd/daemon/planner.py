@@ -22,22 +22,16 @@ from enum import Enum
 import numpy as np
 
 from pivotd.config.settings import MAX_MARKER_LANDMARKS, MotionConfig, PivotConfig, PlannerConfig
-from pivotd.geometry import angle_between, normalize, pan_tilt_to_direction, quat_to_matrix, slerp
+from pivotd.geometry import normalize, pan_tilt_to_direction, quat_to_matrix, slerp
 from pivotd.gimbal.kinematics import (
     JointLimits,
     Mount,
     base_from_world,
-    joints_to_world_direction,
     world_direction_to_joints,
 )
 from pivotd.gimbal.pan_unwrap import (
-    PROFILE_STEP,
     base_pan_tilt,
     joint_pans,
-    long_slews,
-    pan_profile,
-    sweep,
-    unwind_targets,
 )
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapSnapshot
@@ -302,9 +296,7 @@ class RecedingHorizonPlanner:
         self.last_plan: Plan | None = None
         self._cache_key: tuple[int, int, int | None] | None = None
         self._cache: dict[int, np.ndarray] = {}
-        self.unwind_target: np.ndarray | None = None  # world direction of an unwind slew under way
         self._attainable_cache: dict[int, float] = {}
-        self._profile_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # pan profiles by grid key
         self._rejected: tuple[int, set[int]] = (0, set())  # horizon length, grid cells of blind waypoints tried
         self.solves = 0  # optimize_trajectory calls so far
         self.last_objective = math.nan  # the trajectory objective of the last replan's plan (before the unwinds)
@@ -324,7 +316,6 @@ class RecedingHorizonPlanner:
         self._tracker = (None if positions is None or len(positions) == 0
                          else Polyline(positions, quats, ignore_constant_quats=True))
         self.progress = None
-        self.unwind_target = None
         self._located_at = None
         self._off_moved = 0.0
 
@@ -398,7 +389,6 @@ class RecedingHorizonPlanner:
         if self._cache_key != key:
             self._cache_key, self._cache, self._attainable_cache = key, {}, {}
             self._joint_scores = {}
-            self._profile_cache = {}
             self._rejected = (0, set())
         keys = _grid_keys(s)
         cached = {i: self._cache.get(keys[i]) for i in range(1, s.shape[0])}
@@ -472,12 +462,9 @@ class RecedingHorizonPlanner:
         cams = camera_positions(body_pos, quats, self.mount)
         retained = self._retained(snapshot, cams, s)
         warm = self._warm_start(s, cams.shape[0], mode)
-        if self.unwind_target is not None and (
-                anchor is None or warm is None or angle_between(anchor, self.unwind_target) <= 0.5 * st.alpha):
-            self.unwind_target = None  # the camera got there (or the plan restarts)
         problem = trajectory_problem(
             snapshot.points, cams, st.alpha, st.lam, weights=snapshot.weights, retained=retained,
-            anchor=anchor if self.unwind_target is None else None,  # an unwind slew is not pulled back
+            anchor=anchor,
             constraint=self._constraint(quats), max_step=st.max_step, options=st.options,
         )
         executed = _Execution(self, s, quats, anchor)
@@ -496,8 +483,8 @@ class RecedingHorizonPlanner:
         if warm is not None and st.rescue_fraction is not None and not other_basin:
             result, rescue = self._rescue(snapshot, cams, s, retained, result, problem, executed)
         self.last_objective = result.objective
-        directions, visible, pans = self._joint_plan(snapshot, cams, s, retained, quats, result.directions,
-                                                     np.asarray(result.visible), anchor)
+        directions, visible = result.directions, np.asarray(result.visible)
+        pans = self._joint_pans(directions, quats, anchor)
         plan = Plan(
             created=time.monotonic(),
             positions=cams,
@@ -685,20 +672,11 @@ class RecedingHorizonPlanner:
         self._rejected = lost
         return result, Rescue.LOST
 
-    def _joint_plan(self, snapshot: MapSnapshot, cams: np.ndarray, s: np.ndarray, retained: list[np.ndarray],
-                    quats: np.ndarray,
-                    directions: np.ndarray, visible: np.ndarray,
-                    anchor: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Joint pans for the optimised ``directions`` (N, 3) over the whole horizon (pivotd.gimbal.pan_unwrap),
-        starting from the commanded pan, and the unwinds a bounded pan range forces on turning routes.
-
-        Where the joint sequence must take the long way round the pan axis, the plan unwinds now if this
-        waypoint's sweep across the landmark-free sector is the shortest before the limit (to the far-side
-        view with the most room), or at the limit by slewing straight to the first rich view beyond it.
-        An unwind, once started, is committed (:attr:`unwind_target`) until the camera gets there. Not with
-        ``max_step`` (the plan keeps its step guarantee). Returns directions (N, 3), hard counts (N,) and
-        joint pans (N,).
-        """
+    def _joint_pans(self, directions: np.ndarray, quats: np.ndarray, anchor: np.ndarray | None) -> np.ndarray:
+        """Joint pans (N,) [rad] for the planned ``directions`` (N, 3) over the whole horizon, from the commanded
+        pan (pivotd.gimbal.pan_unwrap.joint_pans: the least total slew inside the limits). When the bounded pan
+        range forces a slew the long way round, the joint-grid seed and the judge of plans as executed have
+        already weighed it (:class:`_Execution`)."""
         prev = self.last_plan
         reference = None if prev is None or prev.pans is None else float(prev.pans[0])
         if anchor is not None:
@@ -706,33 +684,7 @@ class RecedingHorizonPlanner:
                                               reference)[0]
         else:
             start = reference if reference is not None else self.limits.clamp(0.0, 0.0)[0]
-        pans, _ = joint_pans(directions, quats, self.mount, self.limits, start)
-        if self.settings.max_step is not None:
-            return directions, visible, pans
-        slews = long_slews(start, pans)
-        if anchor is None:
-            slews = slews[slews > 0]
-        take = np.arange(directions.shape[0])
-        if slews.size:
-            k = int(slews[0])
-            early = self._early_unwind(snapshot, cams, s, retained, quats, pans, k,
-                                       pans[k] > (pans[k - 1] if k else start))
-            if early is not None:
-                directions = np.repeat(early[None, :], directions.shape[0], axis=0)
-                take[:] = -1
-            else:
-                take = unwind_targets(visible, k)
-        moved = np.flatnonzero(take != np.arange(take.shape[0]))
-        if moved.size:
-            keep = take >= 0
-            directions = np.where(keep[:, None], directions[np.where(keep, take, 0)], directions)
-            visible = visible.copy()
-            for i in moved:
-                visible[i] = self._count(snapshot, cams[i], retained[i], directions[i])
-            pans, _ = joint_pans(directions, quats, self.mount, self.limits, start)
-        if self.unwind_target is not None or (moved.size and moved[0] == 0):
-            self.unwind_target = directions[0].copy()
-        return directions, visible, pans
+        return joint_pans(directions, quats, self.mount, self.limits, start)[0]
 
     def _count(self, snapshot: MapSnapshot, cam: np.ndarray, idx: np.ndarray, direction: np.ndarray) -> int:
         """Hard count of the retained landmarks ``idx`` within α of ``direction`` seen from ``cam``."""
@@ -740,31 +692,3 @@ class RecedingHorizonPlanner:
         rel = rel / np.maximum(np.linalg.norm(rel, axis=1, keepdims=True), 1e-12)
         return hard_count(direction, rel, self.settings.alpha)
 
-    def _early_unwind(self, snapshot: MapSnapshot, cams: np.ndarray, s: np.ndarray, retained: list[np.ndarray],
-                      quats: np.ndarray, pans: np.ndarray, k: int, up: bool) -> np.ndarray | None:
-        """World direction (3,) of an unwind to start now, when the sweep from here across the landmark-free
-        sector is shorter than from any later waypoint before the limit at waypoint ``k`` (the unwind moves
-        pan ``up`` or down); None otherwise. The pan profiles of grid waypoints (all but the first) are kept
-        while the path and map versions hold (their retained sets and attitudes do not change)."""
-        if k < 2 or len(snapshot) == 0:
-            return None
-        R = base_from_world(quats[:k], self.mount)
-        blind = np.full(k, np.inf)
-        target: tuple[float, float] | None = None
-        keys = _grid_keys(s[:k])
-        profiles = {key: self._profile_cache[key] for key in keys[1:] if key in self._profile_cache}
-        for j in range(k):
-            prof = profiles.get(keys[j]) if j > 0 else None
-            if prof is None:
-                rel = (snapshot.points[retained[j]] - cams[j]) @ R[j].T
-                prof = pan_profile(rel, self.settings.alpha, self.limits)
-                if j > 0:
-                    profiles[keys[j]] = prof
-            grid, counts, tilts = prof
-            blind[j], pan = sweep(grid, counts, float(pans[j]), up)
-            if j == 0 and pan is not None:
-                target = pan, float(tilts[int(np.argmin(np.abs(grid - pan)))])
-        self._profile_cache = profiles
-        if target is None or not blind[0] < np.min(blind[1:]) - PROFILE_STEP:
-            return None
-        return joints_to_world_direction(target[0], target[1], quats[0], self.mount)
