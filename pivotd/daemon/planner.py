@@ -303,6 +303,8 @@ class RecedingHorizonPlanner:
         self.rescues = 0  # replans whose rescue candidate was kept
         self.degrade = 0  # halvings of horizon and landmark cap in force (late replans; see _adapt)
         self._joint_scores: dict[int, np.ndarray] = {}  # joint-grid cell shares (P, T) by grid key
+        self._joint_keys: tuple[int, ...] = ()  # grid keys of the horizon when the joint-grid seed was last made
+        self._queried = False  # whether this replan queried the map for a waypoint new to the horizon
         self._grid: JointGrid | None = None
         self._moved: tuple[float, np.ndarray] | None = None  # (time [s], body position) of the last replan
         self.speed: float | None = None  # [m/s] the robot's measured speed (smoothed over replans)
@@ -393,6 +395,7 @@ class RecedingHorizonPlanner:
         keys = _grid_keys(s)
         cached = {i: self._cache.get(keys[i]) for i in range(1, s.shape[0])}
         todo = [0] + [i for i, r in cached.items() if r is None]
+        self._queried = len(todo) > 1
         # the snapshot's rows are in a spatial order fixed by the landmarks (pivotd.maps.store.spatial_cell_order),
         # so the cap's strided subsample (and the optimizer's) do not depend on the map's landmark order
         fresh = _cap_retained(snapshot.retained(cams[todo], self.settings.retained_filter), self._cap())
@@ -469,7 +472,14 @@ class RecedingHorizonPlanner:
         )
         executed = _Execution(self, s, quats, anchor)
         result = executed.best(problem, self._solve_each(problem, self._seeds(problem, warm, anchor)))
-        joint = self._joint_seed(problem, s, quats, anchor)
+        # the joint-grid seed where the problem brings something new: a plan without a previous one, or a waypoint
+        # that entered the horizon (between those the grid's answer barely moves; the rescue covers blind plans)
+        # (not on the replan that queried the map for it: the work of a new waypoint is spread over two replans)
+        keys = tuple(_grid_keys(s[1:]))
+        due = warm is None or (keys != self._joint_keys and not self._queried)
+        joint = self._joint_seed(problem, s, quats, anchor) if due else None
+        if due:
+            self._joint_keys = keys
         other_basin = joint is not None and self._other_basin(problem, joint, result, executed)
         if other_basin:
             self.joint_solves += 1
