@@ -4,28 +4,15 @@ seeds beside the commanded direction; the joint-grid seed keeps the plan executa
 import math
 
 import numpy as np
+from test_planner_rescue import BLANK, IDENTITY, snapshot
 
 from pivotd.daemon.planner import PathMode, Plan, PlannerSettings, RecedingHorizonPlanner
 from pivotd.geometry import angle_between
 from pivotd.gimbal.kinematics import JointLimits, Mount
 from pivotd.maps.filters import RetainedFilter
-from pivotd.maps.formats import LandmarkCloud
-from pivotd.maps.store import MapStore
 
-IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 N = 21
 LIMITS = JointLimits(math.radians(-170), math.radians(170), math.radians(-45), math.radians(60), False)
-BLANK = np.array([math.cos(math.radians(-50)), math.sin(math.radians(-50)), 0.0])  # 140° from the wall
-
-
-def snapshot():
-    """A dense textured wall 4 m to the left of a straight path along +x, one landmark far on the right."""
-    rng = np.random.default_rng(1)
-    wall = np.c_[rng.uniform(0, 22, 1500), np.full(1500, 4.0), rng.uniform(-1, 1.5, 1500)]
-    pts = np.vstack([wall, [[6.0, -6.0, 0.0]]]).astype(np.float32)
-    store = MapStore()
-    store.set_layer("base", LandmarkCloud(points=pts, weights=np.ones(pts.shape[0], np.float32)))
-    return store.snapshot()
 
 
 def planner(axis_speeds: tuple[float, float] | None = None) -> RecedingHorizonPlanner:
@@ -75,7 +62,10 @@ def test_the_joint_grid_seed_leaves_a_blank_warm_plan_within_the_axis_speeds():
     pl = planner(speeds)
     pl.set_path(path(), None, 1)
     pl.last_plan = blank_plan(snap)
-    plan = pl.replan(snap, np.zeros(3), IDENTITY, BLANK, now=0.0)
+    # the replan that queries the map for the horizon leaves the joint-grid seed to the next one
+    first = pl.replan(snap, np.zeros(3), IDENTITY, BLANK, now=0.0)
+    assert first.seed == "warm" and pl.joint_solves == 0
+    plan = pl.replan(snap, np.array([0.05, 0.0, 0.0]), IDENTITY, BLANK, now=0.05)
     assert plan.seed == "joint_grid" and pl.joint_solves == 1
     assert np.median(plan.visible) > 300
     # the commanded direction is where the plan starts from: its first move fits the pan speed at 1 m/s

@@ -251,6 +251,16 @@ def _window_max(V: np.ndarray, rp: int, rt: int, wrap: bool) -> np.ndarray:
     return np.asarray(M)
 
 
+def _scores(scores: np.ndarray, grid: JointGrid) -> np.ndarray:
+    """``scores`` as a float (N, P, T) array for ``grid``; ValueError on another shape or NaN."""
+    S = np.asarray(scores, dtype=float)
+    if S.ndim != 3 or S.shape[1:] != grid.shape or S.shape[0] == 0:
+        raise ValueError(f"scores must have shape (N, {grid.shape[0]}, {grid.shape[1]}), got {S.shape}")
+    if np.isnan(S).any():
+        raise ValueError("scores contain NaN")
+    return S
+
+
 def _steps(limit: np.ndarray | float, n: int, name: str) -> np.ndarray:
     a = np.broadcast_to(np.asarray(limit, dtype=float), (max(n - 1, 0),))
     if np.isnan(a).any() or (a < 0).any():
@@ -270,11 +280,7 @@ def best_joint_path(scores: np.ndarray, max_dpan: np.ndarray | float, max_dtilt:
     (|Δi| + |Δj| in cells, backwards from the last step), then the lowest flat index.
     Raises ValueError when no path is feasible.
     """
-    S = np.asarray(scores, dtype=float)
-    if S.ndim != 3 or S.shape[1:] != grid.shape or S.shape[0] == 0:
-        raise ValueError(f"scores must have shape (N, {grid.shape[0]}, {grid.shape[1]}), got {S.shape}")
-    if np.isnan(S).any():
-        raise ValueError("scores contain NaN")
+    S = _scores(scores, grid)
     N, _P, T = S.shape
     rp = [grid.pan_cells(v) for v in _steps(max_dpan, N, "max_dpan")]
     rt = [grid.tilt_cells(v) for v in _steps(max_dtilt, N, "max_dtilt")]
@@ -355,11 +361,7 @@ def best_smooth_joint_path(scores: np.ndarray, max_dpan: np.ndarray | float, max
     state index.
     Raises ValueError when no path is feasible.
     """
-    S = np.asarray(scores, dtype=float)
-    if S.ndim != 3 or S.shape[1:] != grid.shape or S.shape[0] == 0:
-        raise ValueError(f"scores must have shape (N, {grid.shape[0]}, {grid.shape[1]}), got {S.shape}")
-    if np.isnan(S).any():
-        raise ValueError("scores contain NaN")
+    S = _scores(scores, grid)
     N, P, T = S.shape
     C = np.asarray(centre, dtype=np.int64)
     if C.shape != (N, 2) or np.any(C < 0) or np.any(C[:, 0] >= P) or np.any(C[:, 1] >= T):
