@@ -79,7 +79,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--fov-carry", action="store_true",
         help="only: does lambda mean the same across FoVs? Smooth plans with a 2 and a 30 deg cone on the same "
-             "paths, visible sum as % of the lambda 0 plan's, with total and attainable normalisation",
+             "paths, visible sum as %% of the lambda 0 plan's, with total and attainable normalisation",
     )
     parser.add_argument(
         "--replan", action="store_true",
