@@ -219,17 +219,8 @@ class _Execution:
         self._on = st.axis_speeds is not None and s.shape[0] > 1
         if not self._on:
             return
-        speed = max(planner.speed if planner.speed is not None else st.nominal_speed, 1e-3)
-        dt = np.diff(s) / speed
-        self._dpan, self._dtilt = st.axis_speeds[0] * dt, st.axis_speeds[1] * dt
-        lim = planner.limits
-        if anchor is None:
-            self._start = None
-        else:
-            prev = planner.last_plan
-            pan, tilt, _ = world_direction_to_joints(np.asarray(anchor, float), quats[0], planner.mount, lim,
-                                                     None if prev is None or prev.pans is None else float(prev.pans[0]))
-            self._start = (pan, tilt)
+        self._dpan, self._dtilt = planner._step_limits(s)
+        self._start = planner._commanded_joints(anchor, quats[0])
 
     def directions(self, directions: np.ndarray) -> np.ndarray:
         """The directions (N, 3) of the rate-limited joint path following ``directions`` (N, 3)."""
@@ -237,8 +228,7 @@ class _Execution:
             return directions
         pl = self._planner
         pan0, tilt0 = (None, None) if self._start is None else self._start
-        pans, _ = joint_pans(directions, self._quats, pl.mount, pl.limits, pans_start(directions, self._quats, pl,
-                                                                                     pan0))
+        pans, _ = joint_pans(directions, self._quats, pl.mount, pl.limits, self._pan_start(directions, pan0))
         _, tilts = base_pan_tilt(directions, self._quats, pl.mount)
         tilts = np.clip(tilts, pl.limits.tilt_min, pl.limits.tilt_max)
         p, t = (pans[0], tilts[0]) if pan0 is None else (pan0, tilt0)
@@ -271,14 +261,13 @@ class _Execution:
         return TrajectoryResult(r.directions, r.rotations, r.visible, sum(x.iterations for x in results),
                                 r.objective, r.seed)
 
-
-def pans_start(directions: np.ndarray, quats: np.ndarray, planner: RecedingHorizonPlanner,
-               pan0: float | None) -> float:
-    """The pan a plan's joint sequence starts from: the commanded one, else the first waypoint's own."""
-    if pan0 is not None:
-        return pan0
-    pan, _ = base_pan_tilt(directions[:1], quats[:1], planner.mount)
-    return float(np.clip(pan[0], planner.limits.pan_min, planner.limits.pan_max))
+    def _pan_start(self, directions: np.ndarray, pan0: float | None) -> float:
+        """The pan a plan's joint sequence starts from: the commanded one, else the first waypoint's own."""
+        if pan0 is not None:
+            return pan0
+        pl = self._planner
+        pan, _ = base_pan_tilt(directions[:1], self._quats[:1], pl.mount)
+        return float(np.clip(pan[0], pl.limits.pan_min, pl.limits.pan_max))
 
 
 class RecedingHorizonPlanner:
@@ -573,15 +562,8 @@ class RecedingHorizonPlanner:
                 fresh[key] = sc
             scores[i] = sc
         self._joint_scores = fresh
-        speed = max(self.speed if self.speed is not None else st.nominal_speed, 1e-3)
-        dt = np.diff(s) / speed
-        start = None
-        if anchor is not None:
-            pan, tilt, _ = world_direction_to_joints(np.asarray(anchor, float), quats[0], self.mount, self.limits,
-                                                     None if self.last_plan is None or self.last_plan.pans is None
-                                                     else float(self.last_plan.pans[0]))
-            start = (pan, tilt)
-        path = best_joint_path(scores, st.axis_speeds[0] * dt, st.axis_speeds[1] * dt, grid, start=start)
+        dpan, dtilt = self._step_limits(s)
+        path = best_joint_path(scores, dpan, dtilt, grid, start=self._commanded_joints(anchor, quats[0]))
         dirs = np.einsum("nji,nj->ni", R, grid.base_directions()[path.cells[:, 0] * grid.shape[1] + path.cells[:, 1]])
         return Seed("joint_grid", dirs, SeedKind.WARM), path.total
 
@@ -687,14 +669,35 @@ class RecedingHorizonPlanner:
         pan (pivotd.gimbal.pan_unwrap.joint_pans: the least total slew inside the limits). When the bounded pan
         range forces a slew the long way round, the joint-grid seed and the judge of plans as executed have
         already weighed it (:class:`_Execution`)."""
-        prev = self.last_plan
-        reference = None if prev is None or prev.pans is None else float(prev.pans[0])
-        if anchor is not None:
-            start = world_direction_to_joints(np.asarray(anchor, float), quats[0], self.mount, self.limits,
-                                              reference)[0]
+        commanded = self._commanded_joints(anchor, quats[0])
+        if commanded is not None:
+            start = commanded[0]
         else:
+            reference = self._reference_pan()
             start = reference if reference is not None else self.limits.clamp(0.0, 0.0)[0]
         return joint_pans(directions, quats, self.mount, self.limits, start)[0]
+
+    def _reference_pan(self) -> float | None:
+        """The previous plan's first joint pan [rad] (the branch a direction's pan is taken nearest to), if any."""
+        prev = self.last_plan
+        return None if prev is None or prev.pans is None else float(prev.pans[0])
+
+    def _commanded_joints(self, anchor: np.ndarray | None, quat: np.ndarray) -> tuple[float, float] | None:
+        """Joints (pan, tilt) [rad] of the commanded direction ``anchor`` (3,) at the body attitude ``quat``, on the
+        branch nearest the previous plan's first pan; None without an anchor."""
+        if anchor is None:
+            return None
+        pan, tilt, _ = world_direction_to_joints(np.asarray(anchor, float), quat, self.mount, self.limits,
+                                                 self._reference_pan())
+        return pan, tilt
+
+    def _step_limits(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Largest pan and tilt moves [rad] (N − 1,) between waypoints at arc lengths ``s`` (N,) [m]: the axis speeds
+        times the time the robot takes between them (at :attr:`speed`, else ``nominal_speed``)."""
+        st = self.settings
+        speed = max(self.speed if self.speed is not None else st.nominal_speed, 1e-3)
+        dt = np.diff(s) / speed
+        return st.axis_speeds[0] * dt, st.axis_speeds[1] * dt
 
     def _count(self, snapshot: MapSnapshot, cam: np.ndarray, idx: np.ndarray, direction: np.ndarray) -> int:
         """Hard count of the retained landmarks ``idx`` within α of ``direction`` seen from ``cam``."""
