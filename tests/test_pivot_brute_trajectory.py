@@ -61,7 +61,8 @@ def test_visibility_counts_match_a_direct_count():
 def competing_plan():
     scene = competing_clusters_path()
     alpha = np.radians(30)
-    plan = optimize_trajectory(scene.points, scene.path, alpha, 0.6, options=TrajectoryOptions(distance_weights=False))
+    plan = optimize_trajectory(scene.points, scene.path, alpha, 0.6,
+                               options=TrajectoryOptions.paper(distance_weights=False))
     return scene, alpha, plan
 
 

@@ -178,7 +178,7 @@ def test_cold_trajectory_with_a_narrow_cone_finds_the_basins_the_single_view_sea
 
     hp = hard_path(family, 0, waypoints=20, scale=0.1)
     alpha = np.radians(2.0)
-    opts = TrajectoryOptions(distance_weights=False)
+    opts = TrajectoryOptions.paper(distance_weights=False)
     independent = optimize_trajectory(hp.points, hp.path, alpha, 0.0, options=opts)
     plan = optimize_trajectory(hp.points, hp.path, alpha, 0.6, options=opts)
     unseeded = optimize_trajectory(hp.points, hp.path, alpha, 0.6, options=replace(opts, narrow_seed_nodes=0))

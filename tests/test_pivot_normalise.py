@@ -105,7 +105,7 @@ def test_attainable_normalisation_turns_to_the_textured_wall():
     out = {}
     for norm in Normalisation:
         r = optimize_trajectory(P, T, alpha, lam, anchor=a, retained=ret,
-                                options=TrajectoryOptions(distance_weights=False, normalise=norm))
+                                options=TrajectoryOptions.paper(distance_weights=False, normalise=norm))
         out[norm] = r
     total, attain = out[Normalisation.TOTAL], out[Normalisation.ATTAINABLE]
     to_wall = lambda r: np.degrees(np.arccos(np.clip(r.directions @ b, -1, 1)))  # noqa: E731
@@ -123,7 +123,7 @@ def test_attainable_normalisation_turns_to_the_textured_wall():
 def test_normalise_option_is_validated():
     P, T, _, _ = _wall_scene()
     with pytest.raises(ValueError, match=re.escape("normalise must be one of total | attainable, got 'best'")):
-        optimize_trajectory(P, T, 0.5, 0.6, options=TrajectoryOptions(normalise="best"))
+        optimize_trajectory(P, T, 0.5, 0.6, options=TrajectoryOptions.paper(normalise="best"))
     assert Normalisation.parse("attainable") is Normalisation.ATTAINABLE
 
 

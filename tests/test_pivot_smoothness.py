@@ -70,9 +70,9 @@ def test_with_a_knee_the_plan_turns_at_once_where_the_view_changes_and_sees_more
     the plan makes the turn in a few steps and sees more landmarks in total."""
     pts, way = _two_patches()
     alpha = np.radians(30)
-    plain = optimize_trajectory(pts, way, alpha, 0.6, options=TrajectoryOptions(distance_weights=False))
+    plain = optimize_trajectory(pts, way, alpha, 0.6, options=TrajectoryOptions.paper(distance_weights=False))
     knee = optimize_trajectory(pts, way, alpha, 0.6,
-                               options=TrajectoryOptions(distance_weights=False, smooth_knee_deg=1.0))
+                               options=TrajectoryOptions.paper(distance_weights=False, smooth_knee_deg=1.0))
 
     def turning(C):  # waypoints whose step exceeds 5°
         return int(np.count_nonzero(np.degrees(angle_between(C[1:], C[:-1])) > 5.0))
@@ -89,7 +89,7 @@ def test_the_objective_adds_the_pairs_and_the_anchor_pair(knee_deg):
     P = T[rng.integers(0, 6, 300)] + 4.0 * normalize(rng.normal(size=(300, 3)))
     C = normalize(rng.normal(size=(6, 3)))
     anchor = normalize(rng.normal(size=3))
-    opts = TrajectoryOptions(smooth_knee_deg=knee_deg)
+    opts = TrajectoryOptions.paper(smooth_knee_deg=knee_deg)
     paired = trajectory_problem(P, T, np.radians(30), 0.6, options=opts)
     doubled = trajectory_problem(P, T, np.radians(30), 1.2, options=opts)
     anchored = trajectory_problem(P, T, np.radians(30), 0.6, anchor=anchor, options=opts)

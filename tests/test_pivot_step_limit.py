@@ -17,7 +17,7 @@ from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
 
 pytestmark = pytest.mark.slow  # seconds of CPU in all: `make test`, not `make test-fast`
 
-PLAN = TrajectoryOptions(distance_weights=False)  # the objective of `pivotd plan`: hard counts
+PLAN = TrajectoryOptions.paper(distance_weights=False)  # the objective of `pivotd plan`: hard counts
 
 
 def _random_scene(rng: np.random.Generator, n_way: int = 12, clusters: int = 4):
@@ -141,8 +141,8 @@ def test_competing_clusters_step_bound_is_what_the_exact_optimum_needs():
 def test_polish_keeps_the_largest_step():
     sc = competing_clusters_path()
     alpha = math.radians(30)
-    plain = optimize_trajectory(sc.points, sc.path, alpha, 0.6, options=TrajectoryOptions(distance_weights=False,
-                                                                                         step_polish_deg=0))
+    plain = optimize_trajectory(sc.points, sc.path, alpha, 0.6,
+                                options=TrajectoryOptions.paper(distance_weights=False, step_polish_deg=0))
     polished = optimize_trajectory(sc.points, sc.path, alpha, 0.6, options=PLAN)
     assert step_angles(polished.directions).max() <= step_angles(plain.directions).max() + 1e-9
     assert polished.visible.sum() >= plain.visible.sum()

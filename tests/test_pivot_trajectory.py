@@ -63,10 +63,11 @@ def test_warm_start_keeps_a_converged_plan_and_is_cheap(competing):
     scene, _, _ = competing
     alpha = np.radians(30)
     # converged for the smooth objective: without the hard-count polish, which leaves its optimum on purpose
-    smooth = optimize_trajectory(scene.points, scene.path, alpha, 0.6, options=TrajectoryOptions(step_polish_deg=0))
+    smooth = optimize_trajectory(scene.points, scene.path, alpha, 0.6,
+                                 options=TrajectoryOptions.paper(step_polish_deg=0))
     again = optimize_trajectory(scene.points, scene.path, alpha, 0.6, init_directions=smooth.directions)
     assert np.degrees(angle_between(again.directions, smooth.directions)).max() < 3.0
-    assert again.iterations <= TrajectoryOptions().warm_iterations
+    assert again.iterations <= TrajectoryOptions.paper().warm_iterations
 
 
 def test_anchor_pulls_the_first_waypoint_toward_it():
@@ -173,7 +174,7 @@ def test_distance_weights_prefer_near_landmarks():
     pts = np.vstack([near, far])
     path = np.zeros((1, 3))
     weighted = optimize_trajectory(pts, path, np.radians(10), 0.0)
-    plain = optimize_trajectory(pts, path, np.radians(10), 0.0, options=TrajectoryOptions(distance_weights=False))
+    plain = optimize_trajectory(pts, path, np.radians(10), 0.0, options=TrajectoryOptions.paper(distance_weights=False))
     assert weighted.directions[0, 1] > 0.9  # 40 near features outweigh 60 far ones
     assert plain.directions[0, 1] < -0.9
 
@@ -210,9 +211,10 @@ def test_single_waypoint_without_anchor_has_single_pose_quality():
     alpha = np.radians(15)
     for t in sc.path:
         ref = optimize_view(normalize(sc.points - t), None, alpha)
-        plan = optimize_trajectory(sc.points, t[None], alpha, 0.6, options=TrajectoryOptions(distance_weights=False))
+        plan = optimize_trajectory(sc.points, t[None], alpha, 0.6,
+                                   options=TrajectoryOptions.paper(distance_weights=False))
         # the same solver; only its strided candidate sample sees the landmarks in spatial order
         assert abs(int(plan.visible[0]) - ref.visible) <= 0.005 * ref.visible + 1
         anchored = optimize_trajectory(sc.points, t[None], alpha, 0.6, anchor=ref.direction,
-                                       options=TrajectoryOptions(distance_weights=False))
+                                       options=TrajectoryOptions.paper(distance_weights=False))
         assert anchored.visible[0] >= 0.9 * ref.visible  # with an anchor the smoothness term applies

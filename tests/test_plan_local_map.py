@@ -23,7 +23,7 @@ from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory, spat
 from pivotd.pivot.view import optimize_view
 
 REPO = Path(__file__).resolve().parent.parent
-PLAN = TrajectoryOptions(distance_weights=False)
+PLAN = TrajectoryOptions.paper(distance_weights=False)
 
 
 def _near_scene(seed: int = 0):

@@ -293,6 +293,13 @@ def _print_row(r: dict) -> None:
     )
 
 
+def _paper_options(options_type: type, **changes):
+    """The paper's settings with ``changes`` of a pivotd version's ``TrajectoryOptions`` (``paper()``, or the
+    defaults of a version older than it)."""
+    paper = getattr(options_type, "paper", None)
+    return paper(**changes) if paper is not None else options_type(**changes)
+
+
 def fif_section(repeats: int = 5) -> dict | None:
     """Whole-trajectory plan on the FIF y-corridor: time (median of ``repeats``), max step, visible vs λ = 0."""
     from pivotd.maps.formats import load_landmarks
@@ -306,7 +313,7 @@ def fif_section(repeats: int = 5) -> dict | None:
     pts = load_landmarks(map_file).points
     way = load_path(path_file).positions
     alpha = math.radians(15.0)
-    opts = TrajectoryOptions(distance_weights=False)  # as `pivotd plan`
+    opts = TrajectoryOptions.paper(distance_weights=False)  # as `pivotd plan`
     smooth, times = best_of(lambda: optimize_trajectory(pts, way, alpha, 0.6, options=opts), repeats)
     free, times0 = best_of(lambda: optimize_trajectory(pts, way, alpha, 0.0, options=opts), max(1, repeats // 2))
     C = smooth.directions
@@ -370,7 +377,7 @@ def pareto_rows(
     FoV), the competing-clusters path (60° FoV) and a 40-waypoint path through each hard scene family
     (30° FoV). Also the CPU time of the λ = 0.6 plan, with and without the step-limited polish, next to
     scoring the 2° grid at every waypoint, interleaved (:func:`interleaved_grid_speed`). ``compare_with``: a
-    renamed copy of another pivotd version whose λ = 0.6 plan (its default options, no distance weights) is
+    renamed copy of another pivotd version whose λ = 0.6 plan (its paper settings, no distance weights) is
     timed in the same interleaved run and judged the same way. ``only``: just the scenes with these names."""
     from pivotd.maps.formats import load_landmarks
     from pivotd.pivot.brute import best_grid_chain
@@ -392,7 +399,7 @@ def pareto_rows(
     if only is not None:
         scenes = [sc for sc in scenes if sc[0] in only]
     grid = sphere_grid(2.0)
-    opts = TrajectoryOptions(distance_weights=False, normalise=normalise)
+    opts = TrajectoryOptions.paper(distance_weights=False, normalise=normalise)
     other = None
     if compare_with:
         from pivotd.bench.horizon import _module
@@ -408,7 +415,7 @@ def pareto_rows(
         }
         if other is not None:
             variants["other"] = lambda pts=pts, way=way, alpha=alpha: other.optimize_trajectory(
-                pts, way, alpha, 0.6, options=other.TrajectoryOptions(distance_weights=False))
+                pts, way, alpha, 0.6, options=_paper_options(other.TrajectoryOptions, distance_weights=False))
         V, grid_s, plan_s, plans = interleaved_grid_speed(pts, way, alpha, grid, variants)
         plan, bare = plans["polish"], plans["bare"]
         idx = np.arange(V.shape[0])

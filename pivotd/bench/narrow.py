@@ -100,7 +100,7 @@ def plan_rows(half_angles: tuple[float, ...], scale: float, waypoints: int = 40,
     from pivotd.pivot.steps import step_angles
     from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
 
-    opts = TrajectoryOptions(distance_weights=False, normalise=normalise)
+    opts = TrajectoryOptions.paper(distance_weights=False, normalise=normalise)
     rows = []
     for h in half_angles:
         alpha = math.radians(h)

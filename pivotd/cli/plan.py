@@ -11,6 +11,7 @@ import logging
 import math
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -28,10 +29,10 @@ WEIGHTS_HELP = (
 )
 
 
-#: The paper mode's settings (without --config): FoV [deg], λ, smoothness knee [deg], weights column.
+#: The paper mode's settings (without --config): FoV [deg], λ, weights column; the optimizer's are
+#: TrajectoryOptions.paper() (its smoothness knee the default of --smooth-knee-deg), without distance weights.
 PAPER_FOV_DEG = 30.0
 PAPER_LAMBDA = 0.6
-PAPER_KNEE_DEG = 0.0
 PAPER_WEIGHTS_FROM = "auto"
 
 
@@ -80,13 +81,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object with the summary on stdout")
 
 
-def _paper_defaults(args: argparse.Namespace) -> None:
-    """Fill the paper mode's defaults into the options left out (they are None so --config can tell)."""
+def _paper_defaults(args: argparse.Namespace, knee_deg: float) -> None:
+    """Fill the paper mode's defaults into the options left out (they are None so --config can tell); ``knee_deg``:
+    the smoothness knee of the optimizer's paper settings [deg]."""
     if args.map is None:
         raise InputError("--map MAP is required (or --config CFG, whose map.file is the default)")
     if args.first_plan_out is not None:
         raise InputError("--first-plan-out needs --config (without it there is one plan, written by --out)")
-    for dest, value in (("fov_deg", PAPER_FOV_DEG), ("lam", PAPER_LAMBDA), ("smooth_knee_deg", PAPER_KNEE_DEG),
+    for dest, value in (("fov_deg", PAPER_FOV_DEG), ("lam", PAPER_LAMBDA), ("smooth_knee_deg", knee_deg),
                         ("weights_from", PAPER_WEIGHTS_FROM)):
         if getattr(args, dest) is None:
             setattr(args, dest, value)
@@ -192,7 +194,8 @@ def run(args: argparse.Namespace) -> int:
     from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory
     from pivotd.robot_path import load_path
 
-    _paper_defaults(args)
+    paper = TrajectoryOptions.paper()
+    _paper_defaults(args, paper.smooth_knee_deg)
     _check_args(args)
     path = load_path(args.path)
     waypoints = path.positions
@@ -206,12 +209,12 @@ def run(args: argparse.Namespace) -> int:
     alpha = math.radians(args.fov_deg) / 2.0
 
     t0 = time.perf_counter()
-    # The plan is judged by hard visible counts, so landmarks are weighted by their feature weight only
-    # (the paper's distance weights favour near landmarks over the count).
+    # The paper's settings, but the plan is judged by hard visible counts, so landmarks are weighted by their
+    # feature weight only (the paper's distance weights favour near landmarks over the count).
     max_step = None if args.max_step_deg is None else math.radians(args.max_step_deg)
     result = optimize_trajectory(
         points, waypoints, alpha, args.lam, weights=weights, retained=retained, max_step=max_step,
-        options=TrajectoryOptions(distance_weights=False, smooth_knee_deg=args.smooth_knee_deg),
+        options=replace(paper, distance_weights=False, smooth_knee_deg=args.smooth_knee_deg),
     )
     optimize_s = time.perf_counter() - t0 + filter_s
 

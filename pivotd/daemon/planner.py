@@ -142,7 +142,7 @@ class PlannerSettings:
     horizon: int = _PLANNER.horizon
     max_landmarks_per_waypoint: int | None = _PLANNER.max_landmarks_per_waypoint
     retained_filter: RetainedFilter = field(default_factory=RetainedFilter)
-    options: TrajectoryOptions | None = None  # None: the optimizer's own (the paper's settings)
+    options: TrajectoryOptions | None = None  # None: the paper's settings (TrajectoryOptions.paper())
     back_window: float = 1.0  # [m] no key: the stretch of the path searched behind the last progress ...
     ahead_window: float = 5.0  # [m] ... and ahead of it
     max_step: float | None = _PLANNER.max_step
@@ -544,7 +544,7 @@ class RecedingHorizonPlanner:
             self._grid = JointGrid.inside(lim.pan_min, lim.pan_max, lim.tilt_min, lim.tilt_max, st.joint_grid_step,
                                           continuous_pan=lim.continuous_pan)
         grid = self._grid
-        cap = max(1, (st.options or TrajectoryOptions()).seed_cap)
+        cap = max(1, (st.options or TrajectoryOptions.paper()).seed_cap)
         R = base_from_world(quats, self.mount)
         keys = _grid_keys(s)
         scores = np.empty((s.shape[0], *grid.shape))

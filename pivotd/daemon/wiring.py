@@ -102,9 +102,10 @@ RESCUE_REACH = 2
 
 
 def trajectory_options(cfg: Config) -> TrajectoryOptions:
-    """The optimizer's options from the ``pivot`` and ``planner`` sections (the others keep the optimizer's own
-    tuning: no config key sets them). Warm-started replans iterate at most min(``pivot.iterations``, the
-    optimizer's warm budget)."""
+    """The optimizer's options from the ``pivot`` and ``planner`` sections: every field a config key sets (those have
+    no default in :class:`TrajectoryOptions`, and the daemon never plans with :meth:`TrajectoryOptions.paper`); the
+    others keep the optimizer's own tuning, which no config key sets. Warm-started replans iterate at most
+    min(``pivot.iterations``, the optimizer's warm budget)."""
     p, pl = cfg.pivot, cfg.planner
     return TrajectoryOptions(width_deg=math.degrees(p.transition_width), max_iterations=p.iterations,
                              warm_iterations=min(p.iterations, TrajectoryOptions.warm_iterations),

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import Enum
 
 import numpy as np
@@ -42,26 +42,30 @@ __all__ = ["Seed", "SeedKind", "TrajectoryOptions", "TrajectoryProblem", "Trajec
            "optimize_trajectory", "path_directions", "spatial_order", "trajectory_problem"]
 
 
-@dataclass
+@dataclass(kw_only=True)
 class TrajectoryOptions:
-    """Tuning of the trajectory optimizer (angles in degrees). The defaults are the paper's settings, as
-    ``pivotd plan`` uses them without a config; the daemon sets the ones its config has keys for."""
+    """Tuning of the trajectory optimizer (angles in degrees), keyword fields only.
 
-    width_deg: float = 3.0  # sigmoid transition width at α (k_s from ks_from_width)
-    max_iterations: int = 60  # iteration budget of a cold seed (:class:`SeedKind`)
-    warm_iterations: int = 20  # iteration budget of a warm seed
+    The fields a config key sets (marked ``key:``) have no default: the daemon takes them from its config
+    (pivotd.daemon.wiring.trajectory_options), the paper's values are :meth:`paper`. The others are the optimizer's
+    own tuning, which no config key sets: their defaults are the only ones, the same for the daemon and the paper
+    (docs/design/optimizer.md, "One set of defaults")."""
+
+    width_deg: float  # key: pivot.transition_width_deg. Sigmoid transition width at α (k_s from ks_from_width)
+    max_iterations: int  # key: pivot.iterations. Iteration budget of a cold seed (:class:`SeedKind`)
+    warm_iterations: int = 20  # iteration budget of a warm seed (the daemon: at most pivot.iterations)
     warm_step_init_deg: float = 1.0  # first step bound of a warm or point seed (a grid seed: half its resolution)
     step_max_deg: float = 20.0
     tol_deg: float = 0.1
-    distance_weights: bool = True  # eq. 15 distance weights s_ij
+    distance_weights: bool  # key: pivot.distance_weights. Eq. 15 distance weights s_ij
     active_cap: int = 128  # landmarks per node waypoint (strided subsample) scoring the chain seed's grid
     final_cap: int = 256  # landmarks per waypoint near the cone boundary in the ascent's active set
     drift_deg: float = 12.0  # grid seed: rebuild a waypoint's active set after its axis moved this far
     warm_drift_deg: float = 5.0  # warm and point seeds: the same (tighter: warm bands are crowded, thinning hurts)
     settle_frac: float = 0.03  # stop once at most 3 % of the waypoints still move by ≥ tol per step
     smooth_scale: float = 25.0  # κ: the smoothness term is λκ Σ c_{i+1}·c_i against per-waypoint visible fractions
-    smooth_knee_deg: float = 0.0  # > 0: a step beyond about this angle costs in proportion to its size, not its
-    # square (pseudo-Huber of the chord, pivotd.pivot.smoothness); 0: the paper's 1 − cos per step
+    smooth_knee_deg: float  # key: pivot.smooth_knee_deg. > 0: a step beyond about this angle costs in proportion
+    # to its size, not its square (pseudo-Huber of the chord, pivotd.pivot.smoothness); 0: 1 − cos per step
     chain_resolution_deg: float = 12.0  # the chain seed's direction grid (pivotd.pivot.chain)
     chain_nodes: int = 64
     polish_tol_deg: float = 0.25  # step-limited polish (pivotd.pivot.polish): smallest ring radius
@@ -69,12 +73,22 @@ class TrajectoryOptions:
     step_polish_deg: float = 4.0  # ... largest ring radius, applied to cold seeds (0: off)
     seed_cap: int = 512  # landmarks per (node) waypoint scoring the grids of the step-limited seed (0: no such
     # seed) and of the joint-grid seed (pivotd.daemon.planner)
-    normalise: Normalisation = Normalisation.TOTAL  # W_i: total retained weight, or the attainable one (normalise.py)
+    normalise: Normalisation  # key: planner.normalise. W_i: total retained weight, or the attainable one
     fixed_nodes: int = 16  # a plan staying within α of one direction: the best single direction for this many
     # node waypoints is a seed (0: off)
     fixed_cap: int = 8192  # ... scored on at most this many strided landmarks per node waypoint
     narrow_seed_nodes: int = 16  # α below ViewOptions.narrow_deg: a seed through this many node waypoints'
     # single-view optima (optimize_view) (0: off)
+
+    @classmethod
+    def paper(cls, **changes) -> TrajectoryOptions:
+        """The paper's settings (§IV-B): a 3° transition width, 60 iterations, the distance weights of eq. 15, the
+        paper's 1 − cos per step (no knee), W_i the total retained weight; ``changes``: fields set otherwise.
+        What :func:`optimize_trajectory` uses without options, and ``pivotd plan`` without ``--config`` (there
+        without distance weights: its plans are judged by hard counts; the knee of ``--smooth-knee-deg``)."""
+        paper = cls(width_deg=3.0, max_iterations=60, distance_weights=True, smooth_knee_deg=0.0,
+                    normalise=Normalisation.TOTAL)
+        return replace(paper, **changes)
 
 
 class SeedKind(Enum):
@@ -260,9 +274,10 @@ def trajectory_problem(
     max_step: float | None = None,
     options: TrajectoryOptions | None = None,
 ) -> TrajectoryProblem:
-    """Prepare the problem of :func:`optimize_trajectory` (same arguments, without the seeds); raises ValueError
-    on NaN/inf or bad shapes. Only the retained rows of ``points`` are read."""
-    opts = options or TrajectoryOptions()
+    """Prepare the problem of :func:`optimize_trajectory` (same arguments, without the seeds; ``options`` None:
+    :meth:`TrajectoryOptions.paper`); raises ValueError on NaN/inf or bad shapes. Only the retained rows of
+    ``points`` are read."""
+    opts = options or TrajectoryOptions.paper()
     normalise = Normalisation.parse(opts.normalise)
     alpha = half_angle(alpha)
     lam = float(lam)

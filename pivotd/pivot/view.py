@@ -33,7 +33,8 @@ __all__ = ["ViewOptions", "ViewResult", "boundary_axes", "local_search", "optimi
 
 @dataclass
 class ViewOptions:
-    """Tuning of :func:`optimize_view` (angles in degrees)."""
+    """Tuning of :func:`optimize_view` (angles in degrees): the optimizer's own, no config key sets any of it (the
+    daemon solves its single views with these defaults), so every field keeps its default."""
 
     width_deg: float = 2.0  # sigmoid transition width at α (k_s from ks_from_width) ...
     width_ratio: float = 0.1  # ... but at least this fraction of α (wide cones need softer edges)
