@@ -6,15 +6,19 @@ import contextlib
 import csv
 import logging
 import math
+import signal
 import socket
 import threading
 import time
 from typing import Any
 
 import pytest
-from test_e2e_daemon import start_mock_gimbal
+from support import free_tcp_port, wait_until
+from test_e2e_daemon import start_daemon, start_mock_gimbal, start_sim, write_config
 
 from firmware_proto.realtime import CsvMessageLog, FaultInjector
+from pivotd.bus.probe import BusProbe
+from pivotd.config import load_config
 from pivotd.gimbal.interface import GimbalMode, LinkState
 from pivotd.gimbal.kinematics import JointLimits
 from pivotd.gimbal.mavlink_link import MavlinkGimbal, MavlinkSettings
@@ -317,3 +321,48 @@ def test_a_status_with_both_frame_flags_is_dropped_and_counted(caplog):
                 g.stop()
     dropped = [r for r in caplog.records if "GIMBAL_DEVICE_ATTITUDE_STATUS dropped" in r.getMessage()]
     assert len(dropped) == 1, [r.getMessage() for r in dropped]
+
+
+def device_states(path) -> list[dict]:
+    """The STATE rows (the joints relative to the vehicle) of the simulator's CSV log so far."""
+    with open(path, newline="") as fh:
+        return [r for r in csv.DictReader(fh) if r["dir"] == "tx" and r["type"] == "STATE" and r.get("pan")]
+
+
+@pytest.mark.timeout(180)
+def test_the_daemon_publishes_the_pan_of_an_earth_frame_gimbal_relative_to_the_vehicle(tmp_path):
+    """The real daemon drives ``tools/mock_gimbal --protocol mavlink --yaw-frame earth --heading-deg 90.1`` while
+    the simulated robot drives its route; once the robot stops publishing, the daemon holds the gimbal where it
+    measured it, and the pan it publishes is the gimbal's (relative to the vehicle) within 0.1 deg. Before, it was
+    off by the heading, and the state the control loop restarted from with it."""
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    mock, url, dev_log = start_mock_gimbal(tmp_path, "--yaw-frame", "earth", "--heading-deg", "90.1",
+                                           backend="mavlink")
+    config = write_config(tmp_path, endpoint, url, "mavlink")
+    cfg = load_config(config)
+    with mock, start_daemon(config) as daemon:
+        assert daemon.wait_stderr("ready", 30), daemon.output()
+        probe = BusProbe.connect(endpoint, cfg.topics)
+        try:
+            with start_sim(endpoint, "--speed", "1.0", "--duration", "8"):
+                assert wait_until(lambda: probe.status.get("state") == "tracking", 30), daemon.output()
+                assert wait_until(lambda: len({round(float(r["pan"]), 2) for r in device_states(dev_log)}) > 10,
+                                  30), daemon.output()
+
+            def at_rest() -> bool:
+                docs = [d for d in list(probe.statuses)[-3:] if d.get("gimbal")]
+                rows = device_states(dev_log)[-20:]
+                return (len(docs) == 3 and probe.status.get("state") != "tracking"
+                        and len({d["gimbal"]["pan_deg"] for d in docs}) == 1 and len(rows) == 20
+                        and max(float(r["pan"]) for r in rows) - min(float(r["pan"]) for r in rows) < 1e-6)
+
+            assert wait_until(at_rest, 60), (probe.status, daemon.output())
+            published = probe.status["gimbal"]["pan_deg"]
+            device = math.degrees(float(device_states(dev_log)[-1]["pan"]))
+            assert published == pytest.approx(device, abs=0.1), (published, device)
+            moved = [math.degrees(float(r["pan"])) for r in device_states(dev_log)]
+            assert max(moved) - min(moved) > 5.0, (min(moved), max(moved))  # it tracked, not just stood
+            assert probe.status["link_counters"]["heading_unknown"] == 0
+        finally:
+            probe.close()
+        assert daemon.stop(signal.SIGTERM, timeout=20) == 0, daemon.output()
