@@ -447,7 +447,7 @@ class MavlinkGimbal(SupervisedLink):
         if frame == mf.YawFrame.INVALID:
             return AttitudeDrop.YAW_FRAME_INVALID
         delta, delta_rate = math.nan, math.nan
-        if frame == mf.YawFrame.EARTH:  # by the legacy YAW_LOCK rule, delta_yaw is to be ignored
+        if frame == mf.YawFrame.EARTH:  # EARTH_LEGACY: delta_yaw is to be ignored (a device predating it sends 0)
             delta, delta_rate = float(msg.delta_yaw), float(msg.delta_yaw_velocity)
         given = self._heading
         if given is not None and now - given[2] > self.settings.heading_timeout_s:
