@@ -194,3 +194,77 @@ def test_limits_wider_than_the_device_are_refused_with_the_numbers():
     assert msg == "gimbal.limits pan [-68.8, 51.6] deg exceeds the device's [-57.3, 57.3] deg"
     assert "tilt" in mf.limits_problem(JointLimits(-0.9, 0.9, -0.6, 0.9), device, False)
     assert "infinite yaw" in mf.limits_problem(JointLimits(continuous_pan=True), device, False)
+
+
+def test_the_frame_flags_are_the_values_pymavlink_generates_from_common_xml():
+    assert mf.GIMBAL_DEVICE_FLAGS_YAW_LOCK == ML.GIMBAL_DEVICE_FLAGS_YAW_LOCK == 16
+    assert mf.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME == ML.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME == 32
+    assert mf.GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME == ML.GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME == 64
+
+
+@pytest.mark.parametrize(("flags", "frame"), [
+    (32, mf.YawFrame.VEHICLE), (32 | 16, mf.YawFrame.VEHICLE),  # the frame flag rules over the lock
+    (64, mf.YawFrame.EARTH), (64 | 8 | 4, mf.YawFrame.EARTH),
+    (16, mf.YawFrame.EARTH_LEGACY), (16 | 8 | 4, mf.YawFrame.EARTH_LEGACY),  # no frame flag: YAW_LOCK = earth
+    (0, mf.YawFrame.VEHICLE), (8 | 4, mf.YawFrame.VEHICLE),
+    (32 | 64, mf.YawFrame.INVALID),
+])
+def test_the_yaw_frame_follows_the_flags_by_the_rule_of_common_xml(flags, frame):
+    assert mf.yaw_frame(flags) == frame
+
+
+def quat_wxyz_frd_roll(pitch: float, yaw: float, roll: float) -> tuple[float, float, float, float]:
+    """Rz(yaw)·Ry(pitch)·Rx(roll) as (w, x, y, z), built from its matrix with pivotd.geometry (x, y, z, w)."""
+    from pivotd.geometry import matrix_to_quat, quat_to_matrix
+
+    cr, sr = math.cos(roll), math.sin(roll)
+    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    w, x, y, z = quat_wxyz_frd(pitch, yaw)
+    x, y, z, w = matrix_to_quat(quat_to_matrix(np.array([x, y, z, w])) @ Rx)
+    return w, x, y, z
+
+
+@pytest.mark.parametrize(("pan_deg", "tilt_deg", "roll_deg", "heading_deg"),
+                         [(30, 20, 0, 90.1), (-120, -35, 0, -170), (170, 5, 0, 45), (40, 30, 12, 90.1)])
+def test_an_earth_frame_attitude_status_decodes_to_the_joints_relative_to_the_vehicle(pan_deg, tilt_deg, roll_deg,
+                                                                                        heading_deg):
+    """YAW_IN_EARTH_FRAME with the vehicle's heading in delta_yaw: the quaternion is the camera's attitude from
+    North (yaw = the relative yaw + heading), the angular velocity's z is the relative yaw rate + the vehicle's
+    turn rate (delta_yaw_velocity), x and y in the earth axes. Decoded with delta_yaw, it gives the joints of the
+    optical axis relative to the vehicle; pitch and roll are untouched by the turn."""
+    pan, tilt, roll, heading = (math.radians(a) for a in (pan_deg, tilt_deg, roll_deg, heading_deg))
+    pitch, yaw = expected_pitch_yaw(pan, tilt)
+    q = quat_wxyz_frd_roll(pitch, yaw + heading, roll)
+    pan_rate, tilt_rate, turn = 0.4, -0.2, 0.3  # rad/s: the joints, and the vehicle turning right
+    yaw_rate_earth, pitch_rate = -pan_rate + turn, -tilt_rate
+    ye = yaw + heading
+    wx, wy = -math.sin(ye) * pitch_rate, math.cos(ye) * pitch_rate  # zero roll rate, earth axes
+    payload = struct.pack("<I4f3fIHBBffB", 1234, *q, wx, wy, yaw_rate_earth, 0, 64, 0, 0, heading, turn, 1)
+    (msg,) = ML.MAVLink(None).parse_buffer(frame_v2(GIMBAL_DEVICE_ATTITUDE_STATUS, payload, src=MANAGER))
+    assert mf.yaw_frame(msg.flags) == mf.YawFrame.EARTH
+    got = mf.joints_from_attitude(msg.q, msg.angular_velocity_x, msg.angular_velocity_y, msg.angular_velocity_z,
+                                  msg.delta_yaw, msg.delta_yaw_velocity)
+    np.testing.assert_allclose(got, (pan, tilt, pan_rate, tilt_rate), atol=2e-6)
+    # decoded as if it were in the vehicle frame, pan is off by the heading (the bug this guards against)
+    old = mf.joints_from_attitude(msg.q, msg.angular_velocity_x, msg.angular_velocity_y, msg.angular_velocity_z)
+    assert abs(mf.wrap_pi(old[0] - pan) + heading) < 1e-5 and old[1] == pytest.approx(tilt, abs=2e-6)
+
+
+def test_an_unknown_turn_rate_gives_an_unknown_pan_rate_and_a_known_tilt_rate():
+    q = quat_wxyz_frd(0.1, 0.2 + 1.5)
+    pan, tilt, pan_rate, tilt_rate = mf.joints_from_attitude(q, 0.0, 0.0, 0.3, 1.5, math.nan)
+    assert (pan, tilt) == pytest.approx((-0.2, -0.1)) and math.isnan(pan_rate) and tilt_rate == pytest.approx(0.0)
+
+
+@pytest.mark.parametrize(("enu_yaw_deg", "pitch_deg", "heading_deg"),
+                         [(0, 0, 90), (90, 0, 0), (-0.1, 0, 90.1), (180, 0, -90), (30, 20, 60)])
+def test_the_heading_of_a_pose_in_an_east_aligned_world_frame(enu_yaw_deg, pitch_deg, heading_deg):
+    """REP-103 world frame x East, y North: a body facing East has the MAVLink heading 90 deg (clockwise from
+    North); pitching the body does not change it."""
+    from pivotd.geometry import matrix_to_quat
+
+    y, p = math.radians(enu_yaw_deg), math.radians(pitch_deg)
+    Rz = np.array([[math.cos(y), -math.sin(y), 0], [math.sin(y), math.cos(y), 0], [0, 0, 1]])
+    Ry = np.array([[math.cos(p), 0, math.sin(p)], [0, 1, 0], [-math.sin(p), 0, math.cos(p)]])
+    heading = mf.heading_from_body_quat(matrix_to_quat(Rz @ Ry))
+    assert mf.wrap_pi(heading - math.radians(heading_deg)) == pytest.approx(0.0, abs=1e-9)

@@ -18,11 +18,20 @@ protocol) applies: after ``silence_periods`` attitude-status periods (estimated 
 manager's clock; at least ``silence_min_s``, at most ``state_timeout_s``) without a GIMBAL_DEVICE_ATTITUDE_STATUS,
 :meth:`MavlinkGimbal.send_setpoint` sends nothing and returns None (``setpoints_withheld``) and our HEARTBEAT is
 held back too (``heartbeats_withheld``); the control loop restarts from a state measured once the manager answers.
+
+The measured pan is relative to the vehicle whatever frame the device reports its yaw in (GIMBAL_DEVICE_FLAGS,
+:func:`pivotd.gimbal.mavlink_frames.yaw_frame`): a status in the earth frame is turned back by the vehicle heading,
+its ``delta_yaw`` (and ``delta_yaw_velocity`` for the pan rate); when the device does not know it (NaN), or by the
+older YAW_LOCK rule (no frame flag, ``delta_yaw`` to be ignored), by the heading last given to
+:meth:`MavlinkGimbal.set_vehicle_heading` (at most ``heading_timeout_s`` old). A status that cannot be turned back
+(no heading known: ``heading_unknown``; both frame flags set: ``yaw_frame_invalid``) is dropped, counted, logged
+once; it is not a measured state, so the silence rule and the state timeout treat it as none.
 """
 
 from __future__ import annotations
 
 import contextlib
+import enum
 import logging
 import math
 import os
@@ -94,6 +103,13 @@ def load_mavutil() -> Any:
     return mavutil
 
 
+class AttitudeDrop(enum.StrEnum):
+    """Why a GIMBAL_DEVICE_ATTITUDE_STATUS is no measured state (the value is its counter)."""
+
+    HEADING_UNKNOWN = "heading_unknown"  # yaw in the earth frame, no vehicle heading to turn it back by
+    YAW_FRAME_INVALID = "yaw_frame_invalid"  # both frame flags set
+
+
 @dataclass(frozen=True)
 class MavlinkSettings:
     """Identities (ours, the manager's: 0 = first heard, the device's: 0 = all), the configured joint limits
@@ -112,6 +128,7 @@ class MavlinkSettings:
     reconnect_backoff_s: tuple = (0.1, 2.0)
     silence_periods: float = 5.0  # no attitude status for this many of its periods -> no setpoints are sent
     silence_min_s: float = 0.1  # [s] floor of that bound (host scheduling jitter)
+    heading_timeout_s: float = 0.5  # a heading given to set_vehicle_heading counts for this long [s]
 
 
 class MavlinkGimbal(SupervisedLink):
@@ -123,7 +140,8 @@ class MavlinkGimbal(SupervisedLink):
         super().__init__(url, settings.reconnect_backoff_s,
                          ("messages_sent", "messages_received", "setpoints_sent", "heartbeats_received", "retries",
                           "reconnects", "link_losses", "command_failures", "tx_overflow", "rate_unknown",
-                          "setpoints_withheld", "heartbeats_withheld", "silences"))
+                          "setpoints_withheld", "heartbeats_withheld", "silences",
+                          *(d.value for d in AttitudeDrop)))
         self.url = url
         self.settings = settings
         self.baudrate = baudrate
@@ -136,6 +154,9 @@ class MavlinkGimbal(SupervisedLink):
         self._waiters: dict[str, list[tuple[Any, threading.Event, list]]] = {}
         self._last_state_rx = 0.0
         self._faults = 0
+        self._heading: tuple[float, float, float] | None = None  # (heading, rate, host time) from the vehicle
+        self._unusable: str | None = None  # why the newest attitude status was dropped (None: it was not)
+        self._warned: set[AttitudeDrop] = set()  # drop reasons logged already
         # the attitude-status period from consecutive time_boot_ms stamps (reader thread), and the silence
         self._silence = SilenceRule(settings.silence_periods, settings.silence_min_s, settings.state_timeout_s, url,
                                     "GIMBAL_DEVICE_ATTITUDE_STATUS", log)
@@ -151,6 +172,16 @@ class MavlinkGimbal(SupervisedLink):
         its status period (the smallest recent interval between statuses on its ``time_boot_ms`` clock), at least
         ``silence_min_s``, at most ``state_timeout_s`` (also before the period is known)."""
         return self._silence.silence_s()
+
+    def set_vehicle_heading(self, heading: float, rate: float = math.nan, at: float | None = None) -> None:
+        """The vehicle's heading [rad] in the gimbal's earth frame (NED: clockwise from North; from a pose in an
+        East-aligned world frame: :func:`pivotd.gimbal.mavlink_frames.heading_from_body_quat`), its rate [rad/s]
+        (NaN: unknown) and the host time it was measured at (``time.monotonic()`` [s], default now). Only used for
+        attitude statuses in the earth frame that carry no ``delta_yaw``, for ``heading_timeout_s``; a gimbal that
+        reports in the vehicle frame needs none. Thread-safe (one reference assignment)."""
+        if not math.isfinite(heading):
+            raise ValueError("heading must be finite")
+        self._heading = (float(heading), float(rate), time.monotonic() if at is None else float(at))
 
     def send_setpoint(self, pan: float, tilt: float, pan_rate: float = 0.0, tilt_rate: float = 0.0) -> int | None:
         """Queue one GIMBAL_MANAGER_SET_PITCHYAW (joint limits enforced here too); its count, or None if the link
@@ -269,7 +300,9 @@ class MavlinkGimbal(SupervisedLink):
         self._enqueue(conn, self._command(conn, MAV_CMD_SET_MESSAGE_INTERVAL, self._manager,
                                           MSG_GIMBAL_DEVICE_ATTITUDE_STATUS, ATTITUDE_INTERVAL_US))
         if self._wait_for("GIMBAL_DEVICE_ATTITUDE_STATUS", self._from_device, s.state_timeout_s) is None:
-            self._last_error = f"gimbal at {self.url} sends no GIMBAL_DEVICE_ATTITUDE_STATUS"
+            why = self._unusable
+            self._last_error = f"gimbal at {self.url} sends no usable GIMBAL_DEVICE_ATTITUDE_STATUS: {why}" if why \
+                else f"gimbal at {self.url} sends no GIMBAL_DEVICE_ATTITUDE_STATUS"
             return LinkState.DOWN
         log.info("gimbal manager %d/%d at %s: device %d, cap_flags 0x%x, pan [%.1f, %.1f] deg, tilt [%.1f, %.1f] deg",
                  *self._manager, self.url, info.gimbal_device_id, caps, math.degrees(device.pan_min),
@@ -332,7 +365,9 @@ class MavlinkGimbal(SupervisedLink):
         while not self._stopping.is_set() and conn.alive:
             now = time.monotonic()
             if self._silence_while_running(silence, self._last_state_rx) > s.state_timeout_s:
-                conn.error = f"no GIMBAL_DEVICE_ATTITUDE_STATUS for {s.state_timeout_s} s"
+                why = self._unusable
+                conn.error = f"no usable GIMBAL_DEVICE_ATTITUDE_STATUS for {s.state_timeout_s} s: {why}" if why \
+                    else f"no GIMBAL_DEVICE_ATTITUDE_STATUS for {s.state_timeout_s} s"
                 break
             if now >= next_hb:
                 next_hb += s.heartbeat_period_s
@@ -379,7 +414,8 @@ class MavlinkGimbal(SupervisedLink):
         if kind == "HEARTBEAT":
             self._n["heartbeats_received"] += 1
         elif kind == "GIMBAL_DEVICE_ATTITUDE_STATUS" and self._from_device(msg):
-            self._on_attitude(msg)
+            if not self._on_attitude(msg):
+                return  # not a measured state: nobody waiting for one gets it
         elif kind == "GIMBAL_MANAGER_STATUS" and self._manager == (msg.get_srcSystem(), msg.get_srcComponent()):
             s = self.settings
             self._in_control = (msg.primary_control_sysid, msg.primary_control_compid) == (s.system_id,
@@ -402,13 +438,57 @@ class MavlinkGimbal(SupervisedLink):
         if st is not None and st.mode != self._mode():
             self._state = replace(st, mode=self._mode())
 
-    def _on_attitude(self, msg: Any) -> None:
+    def _heading_of(self, msg: Any, now: float) -> tuple[float, float] | AttitudeDrop:
+        """The (delta_yaw [rad], delta_yaw_rate [rad/s]) that turn ``msg``'s attitude into the vehicle frame, or
+        why it cannot be."""
+        frame = mf.yaw_frame(int(msg.flags))
+        if frame == mf.YawFrame.VEHICLE:
+            return 0.0, 0.0
+        if frame == mf.YawFrame.INVALID:
+            return AttitudeDrop.YAW_FRAME_INVALID
+        delta, delta_rate = math.nan, math.nan
+        if frame == mf.YawFrame.EARTH:  # EARTH_LEGACY: delta_yaw is to be ignored (a device predating it sends 0)
+            delta, delta_rate = float(msg.delta_yaw), float(msg.delta_yaw_velocity)
+        given = self._heading
+        if given is not None and now - given[2] > self.settings.heading_timeout_s:
+            given = None
+        if not math.isfinite(delta):
+            if given is None:
+                return AttitudeDrop.HEADING_UNKNOWN
+            delta, delta_rate = given[0], given[1]
+        elif not math.isfinite(delta_rate) and given is not None:
+            delta_rate = given[1]
+        return delta, delta_rate
+
+    def _drop(self, reason: AttitudeDrop, msg: Any) -> None:
+        """Count an attitude status that is no measured state; log each reason once."""
+        self._n[reason.value] += 1
+        flags = int(msg.flags)
+        if reason == AttitudeDrop.HEADING_UNKNOWN:
+            text = f"yaw in the earth frame (flags 0x{flags:x}) without a delta_yaw (NaN, or to be ignored without " \
+                   f"a frame flag), and no vehicle heading given within {self.settings.heading_timeout_s} s"
+        else:
+            text = f"both YAW_IN_VEHICLE_FRAME and YAW_IN_EARTH_FRAME set (flags 0x{flags:x})"
+        self._unusable = text
+        if reason not in self._warned:
+            self._warned.add(reason)
+            log.warning("gimbal at %s: GIMBAL_DEVICE_ATTITUDE_STATUS dropped: %s (counted as %s)", self.url, text,
+                        reason.value)
+
+    def _on_attitude(self, msg: Any) -> bool:
+        """Take ``msg`` as the measured state; False when it is none (dropped)."""
         now = time.monotonic()
+        heading = self._heading_of(msg, now)
+        if isinstance(heading, AttitudeDrop):
+            self._drop(heading, msg)
+            return False
         try:
             pan, tilt, pan_rate, tilt_rate = mf.joints_from_attitude(msg.q, msg.angular_velocity_x,
-                                                                     msg.angular_velocity_y, msg.angular_velocity_z)
+                                                                     msg.angular_velocity_y, msg.angular_velocity_z,
+                                                                     *heading)
         except ValueError:
-            return
+            return False
+        self._unusable = None
         if not (math.isfinite(pan_rate) and math.isfinite(tilt_rate)):
             self._n["rate_unknown"] += 1
             pan_rate = tilt_rate = 0.0
@@ -421,3 +501,4 @@ class MavlinkGimbal(SupervisedLink):
             self._state = st
             self._last_state_rx = now
             self._changed.notify_all()
+        return True

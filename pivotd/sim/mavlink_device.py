@@ -8,10 +8,19 @@ GIMBAL_MANAGER_SET_PITCHYAW from the component in primary control (clamped to it
 feed-forward and holds the angle when setpoints stop for ``setpoint_timeout_s``, and stops moving while a
 failure flag is set. Every setpoint and state goes to ``log`` in pivotd's pan/tilt convention (the CSV of the
 serial protocol's mock), commands as notes.
+
+The gimbal sits on a vehicle at ``heading`` (NED, clockwise from North [rad]) turning at ``heading_rate``
+[rad/s]; the attitude status reports its yaw in the frame ``yaw_frame`` (:class:`StatusFrame`) picks: the vehicle
+frame (YAW_IN_VEHICLE_FRAME), the earth frame (YAW_IN_EARTH_FRAME, with ``delta_yaw`` / ``delta_yaw_velocity``
+or with both NaN), or by the older rule without a frame flag (YAW_LOCK set: earth frame; none: vehicle frame),
+with the zeros a device predating the extension fields leaves in them. The earth-frame attitude is built here
+directly at yaw = relative yaw + heading, not with the host's conversion. The log's states are relative to the
+vehicle (the joint angles) whatever the frame.
 """
 
 from __future__ import annotations
 
+import enum
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -30,6 +39,17 @@ CAP_FLAGS = (mf.GIMBAL_MANAGER_CAP_FLAGS_HAS_PITCH_AXIS | mf.GIMBAL_MANAGER_CAP_
 SUBSTEP = 0.001  # s
 
 
+class StatusFrame(enum.StrEnum):
+    """The frame GIMBAL_DEVICE_ATTITUDE_STATUS reports yaw in, and what it puts in ``flags`` and ``delta_yaw``."""
+
+    VEHICLE = "vehicle"  # YAW_IN_VEHICLE_FRAME, delta_yaw = the heading
+    EARTH = "earth"  # YAW_IN_EARTH_FRAME, delta_yaw = the heading
+    EARTH_NO_DELTA = "earth-no-delta"  # YAW_IN_EARTH_FRAME, delta_yaw NaN (the device does not know the heading)
+    LEGACY_LOCK = "legacy-lock"  # no frame flag, YAW_LOCK: earth frame; delta_yaw 0 (a field it does not know)
+    LEGACY_FOLLOW = "legacy-follow"  # no frame flag, no YAW_LOCK: vehicle frame; delta_yaw 0
+    BOTH_FLAGS = "both-flags"  # both frame flags (not allowed; the attitude as in the vehicle frame)
+
+
 @dataclass
 class MavlinkGimbalModel:
     """Manager + device. ``limits``: the device's range in pivotd's convention [rad]; ``vmax`` [rad/s], ``amax``
@@ -45,6 +65,9 @@ class MavlinkGimbalModel:
     log: CsvMessageLog | None = None
     pan: Axis = field(default_factory=Axis)
     tilt: Axis = field(default_factory=Axis)
+    yaw_frame: StatusFrame = StatusFrame.VEHICLE
+    heading: float = 0.0  # the vehicle's heading [rad], NED (clockwise from North)
+    heading_rate: float = 0.0  # [rad/s]
 
     def __post_init__(self) -> None:
         mavutil = load_mavutil()
@@ -155,6 +178,7 @@ class MavlinkGimbalModel:
         while self.now < t:
             dt = min(SUBSTEP, t - self.now)
             self.now += dt
+            self.heading += self.heading_rate * dt
             if self.failure_flags and self.now >= self.failure_until:
                 self.failure_flags = 0
                 self.failure_until = math.inf
@@ -173,7 +197,10 @@ class MavlinkGimbalModel:
             return m.MAVLink_heartbeat_message(m.MAV_TYPE_GIMBAL, m.MAV_AUTOPILOT_INVALID, 0, 0, m.MAV_STATE_ACTIVE, 3)
         if kind == "manager":
             return m.MAVLink_gimbal_manager_status_message(boot_ms, mf.SETPOINT_FLAGS, DEVICE_ID, *self.primary, 0, 0)
-        py = mf.to_pitch_yaw(self.pan.pos, self.tilt.pos, self.pan.vel, self.tilt.vel)
+        py = mf.to_pitch_yaw(self.pan.pos, self.tilt.pos, self.pan.vel, self.tilt.vel)  # relative to the vehicle
+        flags, earth, delta, delta_rate = self._status_frame()
+        if earth:
+            py = mf.PitchYaw(py.pitch, py.yaw + self.heading, py.pitch_rate, py.yaw_rate + self.heading_rate)
         q = mf.quaternion_from_pitch_yaw(py.pitch, py.yaw)
         wx, wy, wz = _angular_velocity(py)
         if self.log is not None:
@@ -181,7 +208,20 @@ class MavlinkGimbalModel:
                           self.mode, mf.device_faults(self.failure_flags))
             self.log("tx", state, 0, now)
         return m.MAVLink_gimbal_device_attitude_status_message(
-            0, 0, boot_ms, mf.SETPOINT_FLAGS, q, wx, wy, wz, self.failure_flags, math.nan, math.nan, DEVICE_ID)
+            0, 0, boot_ms, flags, q, wx, wy, wz, self.failure_flags, delta, delta_rate, DEVICE_ID)
+
+    def _status_frame(self) -> tuple[int, bool, float, float]:
+        """(flags, whether yaw is in the earth frame, delta_yaw [rad], delta_yaw_velocity [rad/s]) of a status."""
+        heading = mf.wrap_pi(self.heading)
+        both = mf.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME | mf.GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME
+        return {
+            StatusFrame.VEHICLE: (mf.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME, False, heading, self.heading_rate),
+            StatusFrame.EARTH: (mf.GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME, True, heading, self.heading_rate),
+            StatusFrame.EARTH_NO_DELTA: (mf.GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME, True, math.nan, math.nan),
+            StatusFrame.LEGACY_LOCK: (mf.GIMBAL_DEVICE_FLAGS_YAW_LOCK, True, 0.0, 0.0),
+            StatusFrame.LEGACY_FOLLOW: (0, False, 0.0, 0.0),
+            StatusFrame.BOTH_FLAGS: (both, False, heading, self.heading_rate),
+        }[self.yaw_frame]
 
     def _information(self, now: float) -> Any:
         m, lim = self.mavlink, self.limits

@@ -5,6 +5,8 @@ The first stdout line is the bound UDP port (connect with ``udpout:127.0.0.1:POR
 address the last datagram came from. Link faults (drop, bit flips, latency) apply per datagram in both
 directions; a simulated unplug (``--disconnect-after``) ignores everything and sends nothing until
 ``--reconnect-after``; ``--fault-at SECONDS:BIT`` sets GIMBAL_DEVICE_ERROR_FLAGS bit BIT for ``--fault-duration``.
+``--yaw-frame`` picks the frame the attitude status reports yaw in, on a vehicle at ``--heading-deg`` turning at
+``--heading-rate-deg-s``.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from firmware_proto.mock_server import add_fault_arguments, parse_simulator_args
 from firmware_proto.realtime import CsvMessageLog, FaultInjector
 from pivotd.gimbal.kinematics import JointLimits
 from pivotd.gimbal.mavlink_link import load_mavutil
-from pivotd.sim.mavlink_device import MavlinkGimbalModel
+from pivotd.sim.mavlink_device import MavlinkGimbalModel, StatusFrame
 
 log = logging.getLogger("mock_gimbal.mavlink")
 
@@ -56,6 +58,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--amax-deg-s2", type=float, default=720.0, help="axis acceleration limit [deg/s²]")
     p.add_argument("--setpoint-timeout-ms", type=float, default=250.0,
                    help="without setpoints for this long the device holds its angle")
+    p.add_argument("--yaw-frame", choices=[f.value for f in StatusFrame], default=StatusFrame.VEHICLE.value,
+                   help="frame of the reported yaw: vehicle / earth (YAW_IN_*_FRAME, delta_yaw = the heading), "
+                        "earth-no-delta (delta_yaw NaN), legacy-lock / legacy-follow (no frame flag, YAW_LOCK set or "
+                        "not), both-flags (not allowed)")
+    p.add_argument("--heading-deg", type=float, default=0.0,
+                   help="the vehicle's heading, clockwise from North [deg]")
+    p.add_argument("--heading-rate-deg-s", type=float, default=0.0, help="the vehicle's turn rate [deg/s]")
     p.add_argument("--log", metavar="FILE", help="CSV log (the serial mock's columns, pivotd's pan/tilt convention)")
     p.add_argument("-v", "--verbose", action="store_true")
     return p
@@ -161,7 +170,9 @@ def main(argv: list[str] | None = None) -> int:
     limits = JointLimits(*(math.radians(a) for a in (*pan, *tilt)))
     msg_log = CsvMessageLog(args.log) if args.log else None
     model = MavlinkGimbalModel(limits, math.radians(args.vmax_deg_s), math.radians(args.amax_deg_s2), args.state_hz,
-                               args.setpoint_timeout_ms / 1000.0, log=msg_log)
+                               args.setpoint_timeout_ms / 1000.0, log=msg_log, yaw_frame=StatusFrame(args.yaw_frame),
+                               heading=math.radians(args.heading_deg),
+                               heading_rate=math.radians(args.heading_rate_deg_s))
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         sock.bind((host or "127.0.0.1", int(port)))
