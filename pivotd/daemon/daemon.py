@@ -171,7 +171,9 @@ class Daemon:
             return
         last = self.pose
         where = "" if last is None else f" (last accepted at {np.round(last.position, 2).tolist()})"
-        self._rl.warning(f"pose:{verdict.value}", f"{self.cfg.topics.pose}: pose at "
+        t = self.cfg.topics
+        source = f"TF {t.map_frame} -> {t.base_frame}" if t.pose_from_tf else t.pose
+        self._rl.warning(f"pose:{verdict.value}", f"{source}: pose at "
                          f"{np.round(pose.position, 2).tolist()} refused: exceeds the pose_gate {verdict.value} "
                          f"limit{where}")
 
@@ -621,7 +623,8 @@ class Daemon:
             return False
         self.bus = PivotBus(self.session, cfg.topics, node_name=cfg.name, on_pose=self._on_pose,
                             on_path=self._on_path, on_cloud=self._on_cloud,
-                            on_raw=self._recorder.write if self._recorder is not None else None, qos=cfg.ros.qos)
+                            on_raw=self._recorder.write if self._recorder is not None else None, qos=cfg.ros.qos,
+                            tf_timeout=cfg.control.pose_timeout_s)
         self.visuals = build_plan_visuals(self.bus, cfg)
         log.info("pivotd %r ready: %d landmarks, gimbal %s, zenoh %s", cfg.name, self.worker.map_info.landmarks,
                  cfg.gimbal.port, where)
