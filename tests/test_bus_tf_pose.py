@@ -260,3 +260,23 @@ def test_topic_source_is_unchanged_and_tf_topics_are_inputs_only_for_tf():
         BusTopics(pose_source="amcl")
     with pytest.raises(ConfigError, match="must differ"):
         BusTopics(map_frame="base_link")
+
+
+def test_pose_from_tf_keys_load_and_bad_ones_name_file_line_and_key(tmp_path):
+    from pivotd.config import load_config
+
+    good = tmp_path / "tf.yaml"
+    good.write_text("map:\n  allow_empty: true\ntopics:\n  namespace: /robot1\n  pose_source: tf\n"
+                    "  base_frame: base_footprint\n  tf_max_frames: 64\n  max_tf_bytes: 4096\n")
+    t = load_config(good).topics
+    assert (t.pose_source, t.map_frame, t.base_frame, t.tf, t.tf_static, t.tf_max_frames, t.max_tf_bytes) == (
+        "tf", "map", "base_footprint", "/robot1/tf", "/robot1/tf_static", 64, 4096)
+    assert "0/robot1/tf_static/**" in input_key_exprs(t)
+    for body, message in (("  pose_source: amcl\n", ":4: topics.pose_source: must be one of topic, tf"),
+                          ("  map_frame: base_link\n", ":3: topics.base_frame: must differ from map_frame"),
+                          ("  tf_max_frames: 0\n", ":4: topics.tf_max_frames: must be"),
+                          ("  max_tf_bytes: 10\n", ":4: topics.max_tf_bytes: must be")):
+        bad = tmp_path / "bad.yaml"
+        bad.write_text("map:\n  allow_empty: true\ntopics:\n" + body)
+        with pytest.raises(ConfigError, match=message.replace(".", r"\.")):
+            load_config(bad)

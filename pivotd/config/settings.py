@@ -498,6 +498,10 @@ def _topics(s: Section) -> BusTopics:
     def topic(key: str) -> str:
         return s.string(key, relative[key], pattern=_TOPIC_RE, pattern_help=help_topic)
 
+    map_frame = s.string("map_frame", d.map_frame, pattern=_FRAME_RE, pattern_help="a TF frame name")
+    base_frame = s.string("base_frame", d.base_frame, pattern=_FRAME_RE, pattern_help="a TF frame name")
+    if base_frame.strip("/") == map_frame.strip("/"):
+        raise s.error("base_frame", f"must differ from map_frame ({map_frame!r})")
     out = BusTopics(
         namespace=s.string("namespace", d.namespace, pattern=_NAMESPACE_RE,
                            pattern_help="a ROS namespace such as /robot1"),
@@ -511,8 +515,8 @@ def _topics(s: Section) -> BusTopics:
         view_plan=topic("view_plan"),
         frame_id=s.string("frame_id", d.frame_id, pattern=_FRAME_RE, pattern_help="a TF frame name"),
         pose_source=s.string("pose_source", d.pose_source, choices=POSE_SOURCES),
-        map_frame=s.string("map_frame", d.map_frame, pattern=_FRAME_RE, pattern_help="a TF frame name"),
-        base_frame=s.string("base_frame", d.base_frame, pattern=_FRAME_RE, pattern_help="a TF frame name"),
+        map_frame=map_frame,
+        base_frame=base_frame,
         tf=topic("tf"),
         tf_static=topic("tf_static"),
         tf_max_frames=s.number("tf_max_frames", d.tf_max_frames, min=1, max=MAX_TF_FRAMES, integer=True),
