@@ -201,15 +201,6 @@ def test_clock_jump_back_restarts_the_link():
     assert tree.counts["jump_back"] == 1
 
 
-def test_uses_tells_whether_a_link_is_on_the_chain():
-    tree = TfTree()
-    tree.add(rec("map", "odom"))
-    tree.add(rec("odom", "base_link"))
-    tree.add(rec("base_link", "camera"))
-    assert tree.uses("odom", "map", "base_link") and tree.uses("/base_link", "map", "base_link")
-    assert not tree.uses("camera", "map", "base_link")
-
-
 def test_random_chains_match_the_product_of_transforms():
     rng = np.random.default_rng(3)
     for _ in range(20):

@@ -267,12 +267,6 @@ class TfTree:
                 return f, tuple(up_t[:on_t[f]]) + tuple(reversed(up_s[:i + 1]))
         return None
 
-    def uses(self, child: str, target: str, source: str) -> bool:
-        """Whether the link of ``child`` is on the chain from ``target`` to ``source`` (its update changes the pose)."""
-        chain, child = self.chain(target, source), frame_name(child)
-        link = self._links.get(child)
-        return chain is not None and link is not None and child in chain and link.parent in chain
-
     def lookup(self, target: str, source: str, now: float, timeout: float) -> ComposedPose | Rejection:
         """Pose of ``source`` in ``target`` from the newest transform of each link between them, or why not
         (``missing_link``; ``stale``: a dynamic link last received more than ``timeout`` s before ``now``); counted."""
