@@ -87,8 +87,9 @@ another) and should be short. ``on_raw(topic, msgtype,
             if topics.pose_from_tf:
                 self.tf_pose = TfPose(topics.map_frame, topics.base_frame, tf_timeout, topics.tf_max_frames,
                                       self._count, on_pose)
-                for topic, static, topic_qos in ((topics.tf, False, qos.pose_tf),
-                                                 (topics.tf_static, True, qos.pose_tf_static)):
+                # /tf_static first: the decoder serves topics in that order, so a busy /tf cannot starve it
+                for topic, static, topic_qos in ((topics.tf_static, True, qos.pose_tf_static),
+                                                 (topics.tf, False, qos.pose_tf)):
                     self._entities.append(self.node.subscriber(topic, m.TF_MESSAGE, self._handler(
                         topic, m.TF_MESSAGE, self._tf_taker(topic, static), self._pose_inbox, topics.max_tf_bytes,
                         TF_INBOX_CAPACITY, with_source=True), topic_qos, any_type=True))
@@ -158,8 +159,9 @@ another) and should be short. ``on_raw(topic, msgtype,
 
         return on_sample
 
-    def _decode(self, name: str, item: tuple[bytes, float]) -> None:
-        """Decode one queued payload (decoding thread): typed message to the daemon's callback, counted."""
+    def _decode(self, name: str, item: tuple) -> None:
+        """Decode one queued payload (decoding thread): typed message to the daemon's callback, counted. ``item``:
+        (payload, reception time [s]) and, for the TF topics, the publisher's id."""
         payload, rx, *extra = item
         try:
             self._takers[name](payload, rx, *extra)
