@@ -4,6 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 BACKEND ?= pivot
+POSE ?= topic
 
 .PHONY: demo test test-fast lint bench clean
 
@@ -14,8 +15,9 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 # `make demo BACKEND=mavlink` (or dynamixel): the same run against that backend's simulator.
+# `make demo POSE=tf` (or tf-static): the daemon takes the pose from /tf and /tf_static instead of /odom.
 demo: $(STAMP)
-	$(BIN)/python tools/demo.py --backend $(BACKEND)
+	$(BIN)/python tools/demo.py --backend $(BACKEND) --pose $(POSE)
 
 test: $(STAMP)
 	$(BIN)/ruff check .

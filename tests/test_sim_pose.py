@@ -329,3 +329,51 @@ def test_sim_pose_plays_the_stop_turn_route_in_place(listener, tmp_path):
     assert held.sum() > 50  # more than a second standing at the corner
     assert abs(yaw[held].max() - yaw[held].min()) == pytest.approx(np.pi / 2, abs=1e-6)
     assert np.ptp(pos[~held], axis=0)[:2].min() > 0.5  # it drives along x before the turn and along y after
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("map_odom_hz", [0.0, 5.0])
+def test_sim_pose_tf_composes_to_the_published_pose(listener, map_odom_hz):
+    """``--tf``: map -> odom (static, or on /tf at 5 Hz with a moving correction) and odom -> base_link at the pose
+    rate; pivotd's bus, taking the pose from TF, composes exactly the poses sim_pose publishes on /odom."""
+    session, endpoint = listener
+    composed: queue.Queue = queue.Queue()
+    truth: queue.Queue = queue.Queue()
+    topics = BusTopics(pose_source="tf")
+    bus = PivotBus(session, topics, on_pose=composed.put, tf_timeout=30.0)
+    recorder = record_poses(session, BusTopics(), truth)
+    args = ["--tf-map-odom-hz", str(map_odom_hz)] if map_odom_hz else []
+    proc = run_tool("--connect", endpoint, "--tf", *args, "--rate", "50", "--speed", "1.0", "--duration", "60",
+                    "--wait-subscribers", "30", "--quiet")
+    got, odom = [], []
+    try:
+        def collect():
+            got.extend(drain(composed, 500, timeout=0.05))
+            odom.extend(drain(truth, 500, timeout=0.05))
+            return len(got) >= 60 and len(odom) >= 60
+
+        assert wait_for(collect, timeout=60), f"{len(got)} composed poses, {len(odom)} on /odom"
+    finally:
+        stop_tool(proc)
+        recorder.undeclare()
+        bus.close()
+    assert proc.returncode == 0
+    by_stamp = {round(p.stamp, 6): p for p in odom}
+    matched = 0
+    for p in got:
+        twin = [o for o in odom if np.allclose(o.position, p.position, atol=1e-9)]
+        if twin:
+            matched += 1
+            np.testing.assert_allclose(abs(np.dot(twin[0].quat, p.quat)), 1.0, atol=1e-9)
+        if not map_odom_hz:
+            assert round(p.stamp, 6) in by_stamp  # the static link does not count: the odometry's stamp
+            np.testing.assert_allclose(by_stamp[round(p.stamp, 6)].position, p.position, atol=1e-9)
+    assert matched >= len(got) - 2  # a composed pose at either end of the two recordings may have no twin
+    st = bus.tf_pose.status()
+    assert st["chain"] == ["map", "odom", "base_link"]
+    # nothing dropped, except missing links while the first of the two links had arrived and the other not yet
+    assert all(v == 0 for k, v in st["dropped"].items() if k != "missing_link")
+    c = bus.counters()
+    assert c["/tf_static"]["accepted"] == (0 if map_odom_hz else 1)
+    if map_odom_hz:  # map -> odom's stamp is older than the odometry's between its publications
+        assert any(p.stamp < max(q.stamp for q in got) - 0.1 for p in got)

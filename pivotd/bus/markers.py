@@ -24,7 +24,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pivotd.bus.marker_cdr import MarkerSpec, encode_marker_array
-from pivotd.bus.messages import _header, _t, seconds_to_stamp, serialize, view_plan_quats
+from pivotd.bus.messages import encode_transforms, seconds_to_stamp, view_plan_quats
+from pivotd.bus.topics import TF_MESSAGE
 from pivotd.geometry import optical_frame_from_direction, pan_tilt_to_direction
 from pivotd.gimbal.kinematics import JointLimits, Mount, base_from_world
 
@@ -32,7 +33,6 @@ if TYPE_CHECKING:
     from pivotd.bus.pivot_bus import PivotBus
 
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
-TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 CONE_GENERATORS = 32
 REACH_SAMPLES = 48  # points per edge of the joint-limit boundary
 ARROW, LINE_LIST, SPHERE_LIST, DELETEALL, ADD = 0, 5, 7, 3, 0
@@ -131,13 +131,7 @@ def encode_camera_tf(stamp: float, parent_frame: str, child_frame: str, position
     """tf2_msgs/TFMessage CDR with one TransformStamped: camera centre ``position`` (3,) [m] in the parent frame,
     orientation whose +z is ``direction`` (3,) (ROS optical frame, image up kept near world +z)."""
     q = view_plan_quats(np.asarray(direction, float).reshape(1, 3))[0]
-    p = [float(v) for v in np.asarray(position, float).reshape(3)]
-    tf = _t("geometry_msgs/msg/TransformStamped")(
-        header=_header(stamp, parent_frame), child_frame_id=child_frame,
-        transform=_t("geometry_msgs/msg/Transform")(
-            translation=_t("geometry_msgs/msg/Vector3")(x=p[0], y=p[1], z=p[2]),
-            rotation=_t("geometry_msgs/msg/Quaternion")(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))))
-    return serialize(_t(TF_MESSAGE)(transforms=[tf]), TF_MESSAGE)
+    return encode_transforms([(stamp, parent_frame, child_frame, np.asarray(position, float).reshape(3), q)])
 
 
 class PlanVisuals:

@@ -23,10 +23,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from pivotd.bus.ros import typestore
+from pivotd.bus.tf_tree import TransformRecord
 from pivotd.bus.topics import ODOMETRY as ODOMETRY
 from pivotd.bus.topics import POSE_STAMPED as POSE_STAMPED
 from pivotd.bus.topics import POSE_TYPES as POSE_TYPES
 from pivotd.bus.topics import POSE_WITH_COVARIANCE_STAMPED as POSE_WITH_COVARIANCE_STAMPED
+from pivotd.bus.topics import TF_MESSAGE as TF_MESSAGE
 from pivotd.errors import PivotdError
 from pivotd.geometry import MAX_COORDINATE, matrix_to_quat, optical_frame_from_direction, safe_unit_quats
 
@@ -168,6 +170,35 @@ def decode_pose(payload: bytes, msgtype: str, topic: str, expected_frame: str | 
     position, quat = _pose_arrays(pose, topic, "pose")
     stamp = stamp_to_seconds(msg.header.stamp)  # type: ignore[attr-defined]
     return PoseSample(stamp=stamp, frame_id=frame, position=position, quat=quat, rx_time=rx)
+
+
+def decode_transforms(payload: bytes, topic: str, rx_time: float, static: bool = False,
+                      source: str = "") -> list[TransformRecord]:
+    """The transforms of a ``tf2_msgs/msg/TFMessage`` payload as they were sent (validated by
+    :meth:`pivotd.bus.tf_tree.TfTree.add`, which counts what it drops); ``malformed`` when it is not CDR of it."""
+    msg = deserialize(payload, TF_MESSAGE, topic)
+    out = []
+    for tf in msg.transforms:  # type: ignore[attr-defined]
+        tr, rot = tf.transform.translation, tf.transform.rotation
+        out.append(TransformRecord(tf.header.frame_id, tf.child_frame_id, stamp_to_seconds(tf.header.stamp),
+                                   np.array([tr.x, tr.y, tr.z], dtype=float),
+                                   np.array([rot.x, rot.y, rot.z, rot.w], dtype=float), rx_time, static, source))
+    return out
+
+
+def encode_transforms(transforms: list[tuple[float, str, str, np.ndarray, np.ndarray]]) -> bytes:
+    """``tf2_msgs/msg/TFMessage`` CDR of (stamp [s], parent, child, translation (3,) [m], rotation (4,) (x, y, z, w))
+    tuples (the rotation is sent as given, unnormalised)."""
+    vec, quat = _t("geometry_msgs/msg/Vector3"), _t("geometry_msgs/msg/Quaternion")
+    msgs = []
+    for stamp, parent, child, translation, rotation in transforms:
+        p = [float(v) for v in np.asarray(translation, float).reshape(3)]
+        q = [float(v) for v in np.asarray(rotation, float).reshape(4)]
+        msgs.append(_t("geometry_msgs/msg/TransformStamped")(
+            header=_header(stamp, parent), child_frame_id=child,
+            transform=_t("geometry_msgs/msg/Transform")(translation=vec(x=p[0], y=p[1], z=p[2]),
+                                                        rotation=quat(x=q[0], y=q[1], z=q[2], w=q[3]))))
+    return serialize(_t(TF_MESSAGE)(transforms=msgs), TF_MESSAGE)
 
 
 def decode_path(payload: bytes, topic: str, expected_frame: str | None = "map",
@@ -456,6 +487,8 @@ def warm_up() -> None:
     decode_pose(encode_pose_with_covariance_stamped(0.0, "map", np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])),
                 POSE_WITH_COVARIANCE_STAMPED, "warm-up")
     decode_path(encode_path(0.0, "map", np.zeros((2, 3))), "warm-up")
+    decode_transforms(encode_transforms([(0.0, "map", "b", np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))]), "warm-up",
+                      0.0)
     decode_cloud(encode_cloud(0.0, "map", np.zeros((2, 3)), np.ones(2)), "warm-up")
     encode_joint_state(0.0, ["pan"], [0.0], [0.0])
 

@@ -1,7 +1,8 @@
 """The daemon-facing bus facade: ROS 2 topics in and out over Zenoh, plus the JSON status key.
 
-:class:`PivotBus` declares one rmw_zenoh node with subscriptions for the pose, path, landmarks and
-targets, publishers for joint states and the view plan, and a plain Zenoh publisher + queryable for
+:class:`PivotBus` declares one rmw_zenoh node with subscriptions for the pose (the pose topic, or with
+``topics.pose_source: tf`` the ``/tf`` and ``/tf_static`` topics the pose is composed from, :mod:`pivotd.bus.tf_pose`),
+path, landmarks and targets, publishers for joint states and the view plan, and a plain Zenoh publisher + queryable for
 status. The map layers also take the latest stored sample at start (:mod:`pivotd.bus.stored`).
 Subscription callbacks run on Zenoh's threads and only check the message type and the payload
 size (``topics.max_*_bytes``) before queueing the raw payload (:mod:`pivotd.bus.inbox`, newest kept);
@@ -26,8 +27,9 @@ from pivotd.bus import messages as m
 from pivotd.bus.inbox import Decoder, Inbox
 from pivotd.bus.qos import QoS, TopicQoS
 from pivotd.bus.ratelimit import RateLimitedLog
-from pivotd.bus.ros import RosNode, RosPublisher, msgtype_of_key
+from pivotd.bus.ros import Attachment, RosNode, RosPublisher, msgtype_of_key
 from pivotd.bus.stored import fetch_stored
+from pivotd.bus.tf_pose import TfPose
 from pivotd.bus.topics import BusTopics, normalize_topic
 
 log = logging.getLogger(__name__)
@@ -39,6 +41,9 @@ INBOX_CAPACITY = 1
 #: A payload at least this large [bytes] was reassembled by Zenoh in many small buffers; once it is dropped or
 #: decoded, :meth:`PivotBus.large_payload_seen` says so, and the daemon gives the freed heap back to the OS.
 LARGE_PAYLOAD_BYTES = 1 << 20
+#: Payloads ``/tf`` and ``/tf_static`` may each hold while waiting to be decoded: unlike the other inputs, one TF
+#: topic carries many frame pairs from many publishers, so a message does not supersede the one before it.
+TF_INBOX_CAPACITY = 64
 
 
 class PivotBus:
@@ -48,14 +53,16 @@ class PivotBus:
     ``"landmarks"`` or ``"targets"``. They run on the bus's decoding threads (poses on one, paths and clouds on
 another) and should be short. ``on_raw(topic, msgtype,
     cdr)`` (e.g. for an MCAP recorder) sees every accepted input and every published ROS message; on the
-    publishing side it runs on the caller's thread.
+    publishing side it runs on the caller's thread. ``tf_timeout`` [s]: with the pose from TF, a dynamic link of
+    the chain not received for this long makes the pose stale (the daemon passes ``control.pose_timeout_s``).
     """
 
     def __init__(self, session: zenoh.Session, topics: BusTopics, node_name: str = "pivotd",
                  on_pose: Callable[[m.PoseSample], None] | None = None,
                  on_path: Callable[[m.PathMsg], None] | None = None,
                  on_cloud: Callable[[str, m.CloudMsg], None] | None = None,
-                 on_raw: Callable[[str, str, bytes], None] | None = None, qos: TopicQoS | None = None) -> None:
+                 on_raw: Callable[[str, str, bytes], None] | None = None, qos: TopicQoS | None = None,
+                 tf_timeout: float = 0.5) -> None:
         self.topics = topics
         self.qos = qos = qos or TopicQoS()
         self.session = session
@@ -74,11 +81,22 @@ another) and should be short. ``on_raw(topic, msgtype,
         # Poses are decoded on their own thread so that a large path or cloud never delays them.
         self._pose_inbox, self._bulk_inbox = Inbox(), Inbox()
         self._decoders: list[Decoder] = []
+        self.tf_pose: TfPose | None = None
         m.warm_up()
         try:
-            self._entities.append(self.node.subscriber(topics.pose, topics.pose_type, self._handler(
-                topics.pose, topics.pose_type, self._take_pose, self._pose_inbox, topics.max_pose_bytes),
-                qos.pose, any_type=True))
+            if topics.pose_from_tf:
+                self.tf_pose = TfPose(topics.map_frame, topics.base_frame, tf_timeout, topics.tf_max_frames,
+                                      self._count, on_pose)
+                # /tf_static first: the decoder serves topics in that order, so a busy /tf cannot starve it
+                for topic, static, topic_qos in ((topics.tf_static, True, qos.pose_tf_static),
+                                                 (topics.tf, False, qos.pose_tf)):
+                    self._entities.append(self.node.subscriber(topic, m.TF_MESSAGE, self._handler(
+                        topic, m.TF_MESSAGE, self._tf_taker(topic, static), self._pose_inbox, topics.max_tf_bytes,
+                        TF_INBOX_CAPACITY, with_source=True), topic_qos, any_type=True))
+            else:
+                self._entities.append(self.node.subscriber(topics.pose, topics.pose_type, self._handler(
+                    topics.pose, topics.pose_type, self._take_pose, self._pose_inbox, topics.max_pose_bytes),
+                    qos.pose, any_type=True))
             self._entities.append(self.node.subscriber(topics.path, m.PATH, self._handler(
                 topics.path, m.PATH, self._take_path, self._bulk_inbox, topics.max_path_bytes), qos.path,
                 any_type=True))
@@ -100,19 +118,27 @@ another) and should be short. ``on_raw(topic, msgtype,
         except Exception:
             self.close()
             raise
-        for topic in (topics.pose, topics.path, topics.landmarks, topics.targets):
+        for topic in (*self.pose_topics, topics.path, topics.landmarks, topics.targets):
             self._counters.setdefault(normalize_topic(topic), {"received": 0, "accepted": 0})
 
     # ------------------------------------------------------------------ inputs
 
-    def _handler(self, topic: str, msgtype: str, take: Callable[[bytes, float], None],
-                 inbox: Inbox, max_bytes: int) -> Callable[[zenoh.Sample], None]:
+    @property
+    def pose_topics(self) -> tuple[str, ...]:
+        """The topics the pose comes from: the pose topic, or ``tf`` and ``tf_static``."""
+        t = self.topics
+        return (normalize_topic(t.tf), normalize_topic(t.tf_static)) if t.pose_from_tf else (normalize_topic(t.pose),)
+
+    def _handler(self, topic: str, msgtype: str, take: Callable[..., None], inbox: Inbox, max_bytes: int,
+                 capacity: int = INBOX_CAPACITY, with_source: bool = False) -> Callable[[zenoh.Sample], None]:
         """The Zenoh callback of an input topic: type and size checks only, then the raw payload goes to
-        ``inbox`` for the decoding thread (nothing is decoded on Zenoh's thread)."""
+        ``inbox`` for the decoding thread (nothing is decoded on Zenoh's thread). ``take(payload, rx)``, or with
+        ``with_source`` ``take(payload, rx, source)`` with the publisher's GID in hex ("" without an rmw_zenoh
+        attachment)."""
         name = normalize_topic(topic)
         self._takers[name] = take
         self._msgtypes[name] = msgtype
-        inbox.add_topic(name, INBOX_CAPACITY)
+        inbox.add_topic(name, capacity)
 
         def on_sample(sample: zenoh.Sample) -> None:
             rx = time.monotonic()
@@ -127,16 +153,18 @@ another) and should be short. ``on_raw(topic, msgtype,
             if size > max_bytes:
                 self._drop(name, "too_large", f"{name}: payload of {size} bytes exceeds the {max_bytes}-byte limit")
                 return
-            if not inbox.put(name, (sample.payload.to_bytes(), rx)) and not self._closed:
+            item = (sample.payload.to_bytes(), rx, *((_publisher_id(sample),) if with_source else ()))
+            if not inbox.put(name, item) and not self._closed:
                 self._drop(name, "queue_full", f"{name}: a newer message replaced one not yet decoded")
 
         return on_sample
 
-    def _decode(self, name: str, item: tuple[bytes, float]) -> None:
-        """Decode one queued payload (decoding thread): typed message to the daemon's callback, counted."""
-        payload, rx = item
+    def _decode(self, name: str, item: tuple) -> None:
+        """Decode one queued payload (decoding thread): typed message to the daemon's callback, counted. ``item``:
+        (payload, reception time [s]) and, for the TF topics, the publisher's id."""
+        payload, rx, *extra = item
         try:
-            self._takers[name](payload, rx)
+            self._takers[name](payload, rx, *extra)
             if self._on_raw is not None:
                 self._on_raw(name, self._msgtypes[name], payload)
         except m.MessageError as exc:
@@ -169,6 +197,15 @@ another) and should be short. ``on_raw(topic, msgtype,
         if self._on_pose is not None:
             self._on_pose(sample)
 
+    def _tf_taker(self, topic: str, static: bool) -> Callable[[bytes, float, str], None]:
+        name = normalize_topic(topic)
+
+        def take(payload: bytes, rx: float, source: str) -> None:
+            assert self.tf_pose is not None
+            self.tf_pose.take(name, payload, rx, static, source)
+
+        return take
+
     def _take_path(self, payload: bytes, rx: float) -> None:
         t = self.topics
         path = m.decode_path(payload, normalize_topic(t.path), t.frame_id, t.accept_empty_frame)
@@ -199,7 +236,8 @@ another) and should be short. ``on_raw(topic, msgtype,
 
         Reasons: ``wrong_type``, ``too_large`` (above the payload limit, not decoded), ``queue_full`` (replaced
         by a newer message before it was decoded), ``callback_error`` and the decoders' reasons
-        (:class:`~pivotd.bus.messages.MessageError`)."""
+        (:class:`~pivotd.bus.messages.MessageError`). On the TF topics, the transforms the TF tree drops are counted
+        too, one per transform (:data:`~pivotd.bus.tf_tree.TRANSFORM_DROPS`: ``loop``, ``two_parents``, ...)."""
         with self._lock:
             return {topic: dict(c) for topic, c in self._counters.items()}
 
@@ -244,6 +282,8 @@ another) and should be short. ``on_raw(topic, msgtype,
         """
         doc = dict(status)
         doc.setdefault("bus", self.counters())
+        if self.tf_pose is not None:
+            doc.setdefault("tf", self.tf_pose.status())
         payload = json.dumps(doc, default=_json_default, separators=(",", ":")).encode()
         with self._lock:
             self._status_json = payload
@@ -287,6 +327,17 @@ another) and should be short. ``on_raw(topic, msgtype,
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _publisher_id(sample: zenoh.Sample) -> str:
+    """The GID (hex) in a sample's rmw_zenoh attachment; "" when it has none."""
+    att = sample.attachment
+    if att is None:
+        return ""
+    try:
+        return Attachment.decode(att.to_bytes()).gid.hex()
+    except ValueError:
+        return ""
 
 
 def _json_default(obj: object) -> Any:

@@ -68,7 +68,9 @@ class TopicQoS:
     Inputs that a node typically publishes once or rarely (path, landmark map, targets) are
     subscribed ``TRANSIENT_LOCAL``: pivotd then gets the last message of a transient-local publisher
     that started before it, and still every message of a volatile one. The view plan is published
-    ``TRANSIENT_LOCAL`` so a late transient-local subscriber gets the current plan.
+    ``TRANSIENT_LOCAL`` so a late transient-local subscriber gets the current plan. ``pose_tf`` and
+    ``pose_tf_static`` are the subscriptions of ``/tf`` and ``/tf_static`` when the pose comes from TF (tf2's own
+    listener QoS: volatile and transient local, depth 100); ``tf`` is the camera TF publisher.
     """
 
     pose: QoS = field(default_factory=lambda: QoS(depth=10))
@@ -79,3 +81,5 @@ class TopicQoS:
     view_plan: QoS = field(default_factory=lambda: _transient(1))
     markers: QoS = field(default_factory=lambda: QoS(depth=1))
     tf: QoS = field(default_factory=lambda: QoS(depth=100))
+    pose_tf: QoS = field(default_factory=lambda: QoS(depth=100))
+    pose_tf_static: QoS = field(default_factory=lambda: _transient(100))

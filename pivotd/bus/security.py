@@ -30,7 +30,8 @@ _SECURE_PROTOCOLS = ("tls", "quic")
 
 def input_key_exprs(topics: BusTopics) -> list[str]:
     """Key expressions covering every rmw_zenoh data key of pivotd's input topics (any type, any hash)."""
-    names = (topics.pose, topics.path, topics.landmarks, topics.targets)
+    names = (topics.pose, topics.path, topics.landmarks, topics.targets,
+             *((topics.tf, topics.tf_static) if topics.pose_from_tf else ()))
     return sorted({f"{topics.domain_id}/{name.strip('/')}/**" for name in names})
 
 

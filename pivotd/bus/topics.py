@@ -15,10 +15,16 @@ ODOMETRY = "nav_msgs/msg/Odometry"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 POSE_WITH_COVARIANCE_STAMPED = "geometry_msgs/msg/PoseWithCovarianceStamped"  # e.g. AMCL's /amcl_pose
 POSE_TYPES = (ODOMETRY, POSE_STAMPED, POSE_WITH_COVARIANCE_STAMPED)
-TOPIC_FIELDS = ("pose", "path", "landmarks", "targets", "joint_states", "view_plan")
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+#: Where the body pose comes from (``topics.pose_source``): a pose topic, or the TF tree (``/tf``, ``/tf_static``).
+POSE_SOURCE_TOPIC, POSE_SOURCE_TF = "topic", "tf"
+POSE_SOURCES = (POSE_SOURCE_TOPIC, POSE_SOURCE_TF)
+TOPIC_FIELDS = ("pose", "path", "landmarks", "targets", "joint_states", "view_plan", "tf", "tf_static")
 #: Payload size limits of the input topics (``topics`` keys) [bytes] and their smallest allowed value.
-PAYLOAD_LIMITS = ("max_pose_bytes", "max_path_bytes", "max_cloud_bytes")
+PAYLOAD_LIMITS = ("max_pose_bytes", "max_path_bytes", "max_cloud_bytes", "max_tf_bytes")
 MIN_PAYLOAD_LIMIT = 256
+#: Largest ``topics.tf_max_frames``.
+MAX_TF_FRAMES = 10_000
 
 
 def status_key_for(name: str) -> str:
@@ -66,7 +72,9 @@ class BusTopics:
     and keep their defaults in the daemon: ``accept_empty_frame``: messages with an empty ``frame_id`` are
     taken as being in ``frame_id``; ``humble``: publish with rmw_zenoh's Humble key form (no type hash)
     instead of RIHS01 hashes. ``frame_id`` None accepts any frame.
-    ``max_*_bytes``: payload size limits [bytes] of the pose, path and cloud topics, checked before decoding.
+    ``max_*_bytes``: payload size limits [bytes] of the pose, path, cloud and TF topics, checked before decoding.
+    ``pose_source``: ``"topic"`` (the pose topic) or ``"tf"``: the pose of ``base_frame`` in ``map_frame``
+    composed from ``tf`` and ``tf_static`` (:mod:`pivotd.bus.tf_tree`, at most ``tf_max_frames`` frames).
     """
 
     domain_id: int = 0
@@ -82,6 +90,13 @@ class BusTopics:
     max_pose_bytes: int = 16 * 1024
     max_path_bytes: int = 4 * 1024 * 1024
     max_cloud_bytes: int = 32 * 1024 * 1024
+    pose_source: str = POSE_SOURCE_TOPIC
+    map_frame: str = "map"
+    base_frame: str = "base_link"
+    tf: str = "tf"
+    tf_static: str = "tf_static"
+    max_tf_bytes: int = 256 * 1024
+    tf_max_frames: int = 256
     status_key: str = status_key_for("pivotd")
     accept_empty_frame: bool = True
     namespace: str = "/"
@@ -90,6 +105,16 @@ class BusTopics:
     def __post_init__(self) -> None:
         if self.pose_type not in POSE_TYPES:
             raise ConfigError(f"pose_type {self.pose_type!r} must be one of {', '.join(POSE_TYPES)}")
+        if self.pose_source not in POSE_SOURCES:
+            raise ConfigError(f"pose_source {self.pose_source!r} must be one of {', '.join(POSE_SOURCES)}")
+        for name in ("map_frame", "base_frame"):
+            frame = getattr(self, name)
+            if not isinstance(frame, str) or not frame.strip().lstrip("/"):
+                raise ConfigError(f"{name} must be a TF frame name, got {frame!r}")
+        if self.map_frame.strip().lstrip("/") == self.base_frame.strip().lstrip("/"):
+            raise ConfigError(f"map_frame and base_frame must differ, both are {self.map_frame!r}")
+        if isinstance(self.tf_max_frames, bool) or not 1 <= self.tf_max_frames <= MAX_TF_FRAMES:
+            raise ConfigError(f"tf_max_frames must be in 1..{MAX_TF_FRAMES}, got {self.tf_max_frames!r}")
         if self.max_cloud_points < 1:
             raise ConfigError(f"max_cloud_points must be >= 1, got {self.max_cloud_points}")
         for name in PAYLOAD_LIMITS:
@@ -103,6 +128,11 @@ class BusTopics:
         key = self.status_key
         if not key or key.startswith("/") or key.endswith("/") or any(c in key for c in "*$?# "):
             raise ConfigError(f"status_key {key!r} is not a plain Zenoh key such as pivot/pivotd/status")
+
+    @property
+    def pose_from_tf(self) -> bool:
+        """Whether the pose is composed from the TF tree rather than read from the pose topic."""
+        return self.pose_source == POSE_SOURCE_TF
 
     @property
     def max_message_bytes(self) -> int:

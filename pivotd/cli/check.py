@@ -86,7 +86,10 @@ def summary_lines(cfg: Config, cloud: LandmarkCloud | None) -> list[str]:
         + (f", config file {z.config_file}" if z.config_file else "")
         + (", mutual TLS" if z.security.tls else "")
         + (", access control on the inputs" if z.security.access_control else ""),
-        f"topics (domain {t.domain_id}): pose {t.pose} [{t.pose_type}], path {t.path}, landmarks {t.landmarks}, "
+        f"topics (domain {t.domain_id}): pose "
+        + (f"from TF {t.map_frame} -> {t.base_frame} on {t.tf}, {t.tf_static}" if t.pose_from_tf else
+           f"{t.pose} [{t.pose_type}]")
+        + f", path {t.path}, landmarks {t.landmarks}, "
         f"targets {t.targets}, joint states {t.joint_states}, view plan {t.view_plan}, frame {t.frame_id}",
         map_line,
         f"filters: range {f.min_range:g}..{f.max_range:g} m"

@@ -18,7 +18,15 @@ from firmware_proto.messages import Config as ConfigMessage
 from firmware_proto.messages import config_problems
 from pivotd.bus.qos import DURABILITY_NAMES, MAX_DEPTH, RELIABILITY_NAMES, QoS, TopicQoS
 from pivotd.bus.security_settings import ZenohSecurity
-from pivotd.bus.topics import MIN_PAYLOAD_LIMIT, PAYLOAD_LIMITS, POSE_TYPES, BusTopics, status_key_for
+from pivotd.bus.topics import (
+    MAX_TF_FRAMES,
+    MIN_PAYLOAD_LIMIT,
+    PAYLOAD_LIMITS,
+    POSE_SOURCES,
+    POSE_TYPES,
+    BusTopics,
+    status_key_for,
+)
 from pivotd.config.yaml_reader import Section, read_yaml
 from pivotd.errors import ConfigError, InputError
 from pivotd.gimbal.kinematics import JointLimits, Mount
@@ -490,6 +498,10 @@ def _topics(s: Section) -> BusTopics:
     def topic(key: str) -> str:
         return s.string(key, relative[key], pattern=_TOPIC_RE, pattern_help=help_topic)
 
+    map_frame = s.string("map_frame", d.map_frame, pattern=_FRAME_RE, pattern_help="a TF frame name")
+    base_frame = s.string("base_frame", d.base_frame, pattern=_FRAME_RE, pattern_help="a TF frame name")
+    if base_frame.strip("/") == map_frame.strip("/"):
+        raise s.error("base_frame", f"must differ from map_frame ({map_frame!r})")
     out = BusTopics(
         namespace=s.string("namespace", d.namespace, pattern=_NAMESPACE_RE,
                            pattern_help="a ROS namespace such as /robot1"),
@@ -502,6 +514,12 @@ def _topics(s: Section) -> BusTopics:
         joint_states=topic("joint_states"),
         view_plan=topic("view_plan"),
         frame_id=s.string("frame_id", d.frame_id, pattern=_FRAME_RE, pattern_help="a TF frame name"),
+        pose_source=s.string("pose_source", d.pose_source, choices=POSE_SOURCES),
+        map_frame=map_frame,
+        base_frame=base_frame,
+        tf=topic("tf"),
+        tf_static=topic("tf_static"),
+        tf_max_frames=s.number("tf_max_frames", d.tf_max_frames, min=1, max=MAX_TF_FRAMES, integer=True),
         max_cloud_points=s.number("max_cloud_points", d.max_cloud_points, min=1, integer=True),
         **{k: s.number(k, getattr(d, k), min=MIN_PAYLOAD_LIMIT, integer=True) for k in PAYLOAD_LIMITS},
     )

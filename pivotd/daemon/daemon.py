@@ -168,12 +168,25 @@ class Daemon:
         verdict = self._pose_gate.check(pose, self.cfg.pose_gate, self.cfg.control.pose_timeout_s)
         if verdict is PoseVerdict.ACCEPTED:
             self.pose = pose
+            if self._recorder is not None and self.cfg.topics.pose_from_tf:  # the bus recorded only the TF messages
+                self._record_tf_pose(pose)
             return
         last = self.pose
         where = "" if last is None else f" (last accepted at {np.round(last.position, 2).tolist()})"
-        self._rl.warning(f"pose:{verdict.value}", f"{self.cfg.topics.pose}: pose at "
+        t = self.cfg.topics
+        source = f"TF {t.map_frame} -> {t.base_frame}" if t.pose_from_tf else t.pose
+        self._rl.warning(f"pose:{verdict.value}", f"{source}: pose at "
                          f"{np.round(pose.position, 2).tolist()} refused: exceeds the pose_gate {verdict.value} "
                          f"limit{where}")
+
+    def _record_tf_pose(self, pose: PoseSample) -> None:
+        """Record a pose composed from TF on the recording's TF pose channel (queued, never raises)."""
+        from pivotd.bus.messages import POSE_STAMPED, encode_pose_stamped
+        from pivotd.daemon.recorder import TF_POSE_TOPIC
+
+        self._recorder.write(TF_POSE_TOPIC, POSE_STAMPED,
+                             encode_pose_stamped(pose.stamp, pose.frame_id, pose.position, pose.quat),
+                             int(pose.stamp * 1e9))
 
     def _on_path(self, path: PathMsg) -> None:
         with self._lock:
@@ -621,7 +634,8 @@ class Daemon:
             return False
         self.bus = PivotBus(self.session, cfg.topics, node_name=cfg.name, on_pose=self._on_pose,
                             on_path=self._on_path, on_cloud=self._on_cloud,
-                            on_raw=self._recorder.write if self._recorder is not None else None, qos=cfg.ros.qos)
+                            on_raw=self._recorder.write if self._recorder is not None else None, qos=cfg.ros.qos,
+                            tf_timeout=cfg.control.pose_timeout_s)
         self.visuals = build_plan_visuals(self.bus, cfg)
         log.info("pivotd %r ready: %d landmarks, gimbal %s, zenoh %s", cfg.name, self.worker.map_info.landmarks,
                  cfg.gimbal.port, where)

@@ -5,7 +5,9 @@ encoding, so `ros2 bag play`, Foxglove or rosbags read the file directly.
 
 Besides the bus traffic the daemon records the setpoints it sends to the gimbal on
 :data:`JOINT_COMMAND_TOPIC` (``sensor_msgs/msg/JointState``: commanded pan/tilt [rad] and rates [rad/s]),
-and a metadata record :data:`METADATA_NAME` naming its config file, so ``pivotd plot`` can draw the run.
+with ``topics.pose_source: tf`` each pose it accepted from TF on :data:`TF_POSE_TOPIC`
+(``geometry_msgs/msg/PoseStamped`` in the map frame, stamped with the chain's oldest stamp), and a metadata
+record :data:`METADATA_NAME` naming its config file, so ``pivotd plot`` can draw the run.
 
 The callers are the control thread (setpoints), the planner thread and the bus threads (the bus's raw tap):
 none of them may block on a slow disk or die of a full one. :meth:`Recorder.write` therefore only queues the
@@ -36,6 +38,8 @@ log = logging.getLogger(__name__)
 CHUNK_BYTES = 128 * 1024
 #: recording-only channel of the setpoints sent to the gimbal (not published on the bus)
 JOINT_COMMAND_TOPIC = "/pivot/joint_command"
+#: recording-only channel of the poses composed from TF that the daemon accepted (``topics.pose_source: tf``)
+TF_POSE_TOPIC = "/pivot/tf_pose"
 #: MCAP metadata record written at the start: ``config`` (absolute path of the config file), ``name``
 METADATA_NAME = "pivotd"
 #: payload bytes waiting for the writer thread; a message beyond this is dropped (and counted)

@@ -26,7 +26,7 @@ from pivotd.bench.achievable import achievable, summary_line
 from pivotd.config import Config
 from pivotd.sim.analysis import dynamics_lines
 from pivotd.sim.launch import REPO, SIMULATED_BACKENDS
-from pivotd.sim.stack import run_stack
+from pivotd.sim.stack import POSE_SOURCES, run_stack
 from pivotd.viz.figures import build_figure, save_figure
 
 log = logging.getLogger("pivotd.demo")
@@ -60,27 +60,29 @@ class DemoSummary:
 
 def run_demo(config_path: Path, out_dir: Path, speed: float = 1.2, timeout: float | None = None,
              live: bool = True, backend: str | None = None, route: str | None = None,
-             map_file: Path | None = None, timed: bool = False, plot: bool = True) -> DemoSummary:
+             map_file: Path | None = None, timed: bool = False, plot: bool = True, pose: str = "topic") -> DemoSummary:
     """Run the whole demo (with the config's gimbal backend, or ``backend`` against its simulator) on ``route`` (a
     ``sim_pose`` route spec; default: the config's ``sim.route``, else the hallway) and ``map_file`` (default: the
-    config's map) through :func:`pivotd.sim.stack.run_stack`; returns the summary (also printed)."""
+    config's map) through :func:`pivotd.sim.stack.run_stack`, the daemon taking the pose from ``pose``
+    (:data:`pivotd.sim.stack.POSE_SOURCES`); returns the summary (also printed)."""
     on_status = (lambda elapsed, st: print(_status_line(elapsed, st), flush=True)) if live else None
     result = run_stack(config_path, out_dir, route=route, map_file=map_file, speed=speed, timeout=timeout,
-                       backend=backend, timed=timed, on_status=on_status)
+                       backend=backend, timed=timed, on_status=on_status, pose=pose)
     cfg, report, exit_code = result.cfg, result.report, result.daemon_exit
     ach = achievable(result.run)
     report["achievable"] = ach.report
     png = save_figure(build_figure(result.run, "all", achievable=ach.series), out_dir / "demo.png") if plot else None
     (out_dir / "summary.json").write_text(json.dumps(report, indent=2, default=str))
-    _print_summary(report, cfg, png)
+    _print_summary(report, cfg, png, pose)
     return DemoSummary(report["frames"], report["visible_mean_pivot"], report["visible_mean_forward"],
                        report["setpoints"], report["within_limits"], exit_code, report, result.recording)
 
 
-def _print_summary(r: dict, cfg: Config, png: Path | None) -> None:
+def _print_summary(r: dict, cfg: Config, png: Path | None, pose: str = "topic") -> None:
     print()
+    source = "" if pose == "topic" else f", pose from {pose.upper().replace('-', ' ')}"
     print(f"pivotd demo summary ({r['frames']} frames at {cfg.control.joint_state_hz:g} Hz, "
-          f"FoV {np.degrees(cfg.pivot.fov):.0f}°, gimbal backend {cfg.gimbal.backend})")
+          f"FoV {np.degrees(cfg.pivot.fov):.0f}°, gimbal backend {cfg.gimbal.backend}{source})")
     print(f"  landmarks visible per frame: PIVOT {r['visible_mean_pivot']:.1f}, forward-facing "
           f"{r['visible_mean_forward']:.1f}  ->  {r['visible_ratio']:.2f}x")
     print(f"  frames with < 10 landmarks visible: PIVOT {r['frames_pivot_below_10']}, "
@@ -110,9 +112,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timed", action="store_true", help="play the route by its time stamps (sim_pose --timed)")
     parser.add_argument("--backend", choices=SIMULATED_BACKENDS, default=None,
                         help="gimbal backend, driven against its simulator (default: the config's)")
+    parser.add_argument("--pose", choices=tuple(POSE_SOURCES), default="topic",
+                        help="where the daemon takes the pose from: topic (/odom, the default), tf (map -> odom at 5 "
+                             "Hz and odom -> base_link on /tf), tf-static (map -> odom on /tf_static)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
     summary = run_demo(args.config, args.out, speed=args.speed, backend=args.backend, route=args.route,
-                       map_file=args.map, timed=args.timed)
+                       map_file=args.map, timed=args.timed, pose=args.pose)
     ok = summary.daemon_exit == 0 and summary.within_limits and summary.frames > 0
     return 0 if ok else 1

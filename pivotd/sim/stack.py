@@ -28,6 +28,11 @@ from pivotd.sim.routes import load_route
 from pivotd.viz.recording import Recording, read_recording
 
 MIN_TIMEOUT = 90.0  # [s] wall time allowed for the robot's walk at least
+#: Where the daemon takes the pose from in a run (``run_stack(pose=...)``, ``make demo POSE=...``): the ``sim_pose``
+#: options of each choice. ``topic``: /odom; ``tf``: TF with map -> odom at 5 Hz on /tf, odom -> base_link at the
+#: pose rate; ``tf-static``: TF with map -> odom on /tf_static. With TF, /odom is still published (the analysis
+#: measures visibility at its poses) but the daemon does not subscribe to it.
+POSE_SOURCES = {"topic": (), "tf": ("--tf", "--tf-map-odom-hz", "5"), "tf-static": ("--tf",)}
 
 
 @dataclass(frozen=True)
@@ -61,10 +66,11 @@ def route_duration(route: str, speed: float, timed: bool = False) -> float:
 
 def run_stack(config_path: Path, out_dir: Path, route: str | None = None, map_file: Path | None = None,
               speed: float = 1.2, timeout: float | None = None, backend: str | None = None, timed: bool = False,
-              on_status: Callable[[float, dict], None] | None = None) -> StackRun:
+              on_status: Callable[[float, dict], None] | None = None, pose: str = "topic") -> StackRun:
     """Run the daemon with config ``config_path`` (its gimbal backend, or ``backend`` against its simulator; its map,
     or ``map_file``) while ``sim_pose`` walks ``route`` (a spec of :func:`pivotd.sim.routes.load_route`; default: the
-    config's ``sim.route``, else the hallway) at ``speed`` [m/s], or by its time stamps when ``timed``.
+    config's ``sim.route``, else the hallway) at ``speed`` [m/s], or by its time stamps when ``timed``. ``pose``: where
+    the daemon takes the pose from (:data:`POSE_SOURCES`).
 
     Everything is written to ``out_dir`` (derived config ``demo.yaml``, ``run.mcap``, ``gimbal_log.csv``, logs).
     ``timeout`` [s] bounds the walk (default: 1.5 × the route's duration + 30 s, at least 90 s); ``on_status`` is
@@ -78,7 +84,11 @@ def run_stack(config_path: Path, out_dir: Path, route: str | None = None, map_fi
         timeout = max(MIN_TIMEOUT, 1.5 * route_duration(route, speed, timed) + 30.0)
     device_log = out_dir / "gimbal_log.csv"
     gimbal, port = start_gimbal_simulator(backend, device_log, out_dir / "mock_gimbal.log")
+    if pose not in POSE_SOURCES:
+        raise ValueError(f"pose must be one of {', '.join(POSE_SOURCES)}, got {pose!r}")
     changes: dict[str, object] = {"gimbal.backend": backend, "gimbal.port": port}
+    if pose != "topic":
+        changes["topics.pose_source"] = "tf"
     if map_file is not None:
         changes["map.file"] = str(Path(map_file).resolve())
     config_path = derive_config(config_path, out_dir / "demo.yaml", changes)
@@ -100,7 +110,7 @@ def run_stack(config_path: Path, out_dir: Path, route: str | None = None, map_fi
             time.sleep(0.1)
         sim = spawn([py, str(REPO / "tools" / "sim_pose"), "--route", route, "--connect", endpoint,
                      "--speed", str(speed), "--rate", "50", "--wait-subscribers", "10", "--quiet",
-                     *(["--timed"] if timed else [])], out_dir / "sim_pose.log")
+                     *(["--timed"] if timed else []), *POSE_SOURCES[pose]], out_dir / "sim_pose.log")
         start = time.monotonic()
         last_print = 0.0
         while sim.poll() is None and time.monotonic() - start < timeout:

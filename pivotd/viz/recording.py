@@ -14,7 +14,7 @@ import numpy as np
 
 from pivotd.bus import messages as m
 from pivotd.config import Config, load_config
-from pivotd.daemon.recorder import JOINT_COMMAND_TOPIC, METADATA_NAME
+from pivotd.daemon.recorder import JOINT_COMMAND_TOPIC, METADATA_NAME, TF_POSE_TOPIC
 from pivotd.errors import InputError
 from pivotd.maps.formats import load_landmarks
 
@@ -138,13 +138,14 @@ def read_recording(path: str | Path, config: str | Path | None = None) -> Record
     contents = _read_mcap(path)
     cfg = _config(path, contents.metadata, config)
     t = cfg.topics
+    pose_topic = TF_POSE_TOPIC if t.pose_from_tf else t.pose  # with TF: the poses the daemon composed and took
     poses: list[tuple[float, m.PoseSample]] = []
     measured: list[tuple[float, object]] = []
     commanded: list[tuple[float, object]] = []
     for topic, msgtype, log_ns, data in contents.messages:
         time_s = log_ns * 1e-9
         try:
-            if topic == t.pose and msgtype in m.POSE_TYPES:
+            if topic == pose_topic and msgtype in m.POSE_TYPES:
                 poses.append((time_s, m.decode_pose(data, msgtype, topic, None)))
             elif topic in (t.joint_states, JOINT_COMMAND_TOPIC) and msgtype == m.JOINT_STATE:
                 msg = m.deserialize(data, m.JOINT_STATE, topic)
@@ -158,7 +159,7 @@ def read_recording(path: str | Path, config: str | Path | None = None) -> Record
         log.warning("%s: the recording ends early (no summary); using the %d complete messages", path,
                     len(poses) + len(measured) + len(commanded))
     if not poses:
-        raise InputError(f"{path}: no poses on {t.pose} (the run's pose topic) in the recording")
+        raise InputError(f"{path}: no poses on {pose_topic} (the run's pose topic) in the recording")
     if not measured:
         raise InputError(f"{path}: no joint states on {t.joint_states} in the recording")
     poses.sort(key=lambda p: p[0])
