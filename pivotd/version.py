@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import functools
 import importlib.metadata
 
 import pivotd
 
 
+@functools.cache
 def version() -> str:
     """The version string of this pivotd (``pivotd --version``, the ready line, the status document)."""
     try:

@@ -128,7 +128,9 @@ another) and should be short. ``on_raw(topic, msgtype,
                 self._drop(name, "too_large", f"{name}: payload of {size} bytes exceeds the {max_bytes}-byte limit")
                 return
             if not inbox.put(name, (sample.payload.to_bytes(), rx)) and not self._closed:
-                self._drop(name, "queue_full", f"{name}: a newer message replaced one not yet decoded")
+                # normal under load: every input is a state, the newer message supersedes the undecoded one
+                self._count(name, "superseded")
+                log.debug("%s: a newer message superseded one not yet decoded", name)
 
         return on_sample
 
@@ -195,11 +197,11 @@ another) and should be short. ``on_raw(topic, msgtype,
             return self._counters.get(topic, {}).get("received", 0)
 
     def counters(self) -> dict[str, dict[str, int]]:
-        """Per input topic: ``received``, ``accepted`` and ``dropped_<reason>`` counts (a copy).
+        """Per input topic: ``received``, ``accepted``, ``superseded`` (replaced by a newer message before it was
+        decoded: normal, not a drop; present once it happened) and ``dropped_<reason>`` counts (a copy).
 
-        Reasons: ``wrong_type``, ``too_large`` (above the payload limit, not decoded), ``queue_full`` (replaced
-        by a newer message before it was decoded), ``callback_error`` and the decoders' reasons
-        (:class:`~pivotd.bus.messages.MessageError`)."""
+        Reasons: ``wrong_type``, ``too_large`` (above the payload limit, not decoded), ``callback_error`` and the
+        decoders' reasons (:class:`~pivotd.bus.messages.MessageError`)."""
         with self._lock:
             return {topic: dict(c) for topic, c in self._counters.items()}
 
