@@ -622,11 +622,14 @@ class Daemon:
                               multicast_scouting=z.multicast_scouting, security=z.security,
                               input_keys=input_key_exprs(cfg.topics), max_message_bytes=cfg.topics.max_message_bytes)
         build_config(**zenoh_settings)  # bad Zenoh settings exit (2) before the gimbal is touched
-        if self.overrides.record is not None:
-            from pivotd.daemon.recorder import METADATA_NAME, Recorder
+        record = self.overrides.record if self.overrides.record is not None else cfg.record.path
+        if record is not None:
+            from pivotd.daemon.recorder import open_recording, record_run
 
-            self._recorder = Recorder(self.overrides.record)
-            self._recorder.add_metadata(METADATA_NAME, {"name": cfg.name, "config": str(cfg.source or "")})
+            r = cfg.record
+            self._recorder = open_recording(record, r.max_bytes, r.max_duration_s,
+                                            what="--record" if self.overrides.record is not None else "record.path")
+            record_run(self._recorder, cfg.name, cfg.source, version(), cfg.map.file, r.map_max_bytes)
         self.link = build_gimbal(cfg)
         self.link.start()
         self.control = build_control_loop(cfg, self.link)
