@@ -336,8 +336,12 @@ class Recorder:
             except Exception as exc:
                 self._fail(_describe(exc))
 
+    def _splits(self) -> bool:
+        """Whether this recording goes on in new files (limits set)."""
+        return self._files is not None and bool(self.max_bytes or self.max_duration_s)
+
     def _file_full(self) -> bool:
-        if self._files is None:
+        if not self._splits():
             return False
         if self.max_bytes and self._stream.written + self._unflushed >= self.max_bytes:
             return True
@@ -372,7 +376,8 @@ class Recorder:
         if kind == "map":
             item = ("map_record", *_map_record(item[1], item[2]))
         if kind != "message":
-            self._header.append(item)
+            if self._splits():  # kept (the map's bytes too) only to start the next files with it
+                self._header.append(item)
             self._write_header_item(item)
             return
         _, topic, ros_type, data, log_time, publish_time = item
