@@ -563,8 +563,7 @@ class Daemon:
         self.state = DaemonState.PARKING
         target = park_joints(self.cfg)
         control.override_target = target
-        start = time.monotonic()
-        deadline = start + self.cfg.gimbal.park_timeout_s
+        deadline = time.monotonic() + self.cfg.gimbal.park_timeout_s
         down_since: float | None = None
         tol = np.radians(0.5)
         while time.monotonic() < deadline:
