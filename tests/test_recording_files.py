@@ -94,7 +94,7 @@ def test_split_by_size_every_file_complete_with_the_header(tmp_path):
     rng = np.random.default_rng(1)
     payloads = [rng.bytes(100_000) for _ in range(40)]  # incompressible: 4 MB
     rec = open_recording(tmp_path / "rec/", max_bytes=1 << 20)
-    record_run(rec, "demo", config, "9.9.9", cfg.map.file)
+    record_run(rec, "demo", config, "9.9.9", cfg.map.file, cfg.record.map_max_bytes)
     for k, data in enumerate(payloads):
         rec.write("/blob", JOINT_STATE, data, log_time_ns=1_000_000_000 + k)
     rec.close()
@@ -147,7 +147,7 @@ def test_a_fifo_is_written_as_it_is(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.fifo"]
 
 
-def write_run(tmp: Path, target: Path) -> tuple[Path, np.ndarray]:
+def write_run(tmp: Path, target: Path, map_max_bytes: int | None = None) -> tuple[Path, np.ndarray]:
     """A short recording made as the daemon makes it (header, poses, joint states) of a run whose config and
     map live in ``tmp/site``; returns the config and the map's landmarks."""
     site = tmp / "site"
@@ -159,7 +159,8 @@ def write_run(tmp: Path, target: Path) -> tuple[Path, np.ndarray]:
                                                                              "map.file": "walls.txt"})
     cfg = load_config(config)
     rec = open_recording(target)
-    record_run(rec, cfg.name, cfg.source, "1.0", cfg.map.file)
+    record_run(rec, cfg.name, cfg.source, "1.0", cfg.map.file,
+               cfg.record.map_max_bytes if map_max_bytes is None else map_max_bytes)
     t0 = 1_700_000_000_000_000_000
     quat = np.array([0.0, 0.0, np.sin(np.pi / 4), np.cos(np.pi / 4)])
     for k in range(60):
@@ -189,6 +190,25 @@ def test_a_recording_needs_nothing_else_on_another_machine(tmp_path):
     config.write_text(config.read_text().replace("name: elsewhere", "name: edited"))
     assert read_recording(target).cfg.name == "elsewhere"
     assert read_recording(target, config).cfg.name == "edited"  # unless --config says otherwise
+
+
+def test_a_map_over_map_max_bytes_is_recorded_by_its_checksum_only(tmp_path):
+    target = tmp_path / "out" / "run.mcap"
+    config, landmarks = write_run(tmp_path, target, map_max_bytes=100)
+    recorded = RecordingFiles(target).existing()[0]
+    _, metadata, attachments = read(recorded)
+    map_file = tmp_path / "site" / "walls.txt"
+    assert metadata[MAP_METADATA_NAME] == {"file": str(map_file), "sha256": map_checksum(map_file)[0],
+                                           "bytes": str(map_file.stat().st_size), "attached": "false",
+                                           "files": '["map/walls.txt"]'}
+    assert set(attachments) == {CONFIG_ATTACHMENT}
+    config.unlink()  # the config is gone, the map is still here: the recorded config with this map
+    np.testing.assert_allclose(np.sort(read_recording(target).landmarks, axis=0), np.sort(landmarks, axis=0),
+                               atol=1e-6)
+    map_file.unlink()
+    with pytest.raises(InputError, match=r"the run's map .*walls\.txt is not in the recording \(over "
+                                         r"record\.map_max_bytes\) and not here; pass --config FILE$"):
+        read_recording(target)
 
 
 def test_plot_draws_a_recording_whose_config_and_map_are_gone(tmp_path, capsys):

@@ -60,8 +60,6 @@ CONFIG_ATTACHMENT = "config.yaml"
 MAP_METADATA_NAME = "pivotd.map"
 #: names of the map's attachments: this prefix + the file name (a COLMAP model: + its directory's name + "/")
 MAP_ATTACHMENT_PREFIX = "map/"
-#: default of ``record.map_max_bytes``: larger maps are recorded by their checksum only
-MAP_MAX_BYTES = 64 * 1024 * 1024
 #: the UTC start time in a recording's file names
 STAMP_FORMAT = "%Y%m%d-%H%M%S"
 #: payload bytes waiting for the writer thread; a message beyond this is dropped (and counted)
@@ -271,7 +269,7 @@ class Recorder:
         """Queue an MCAP attachment (repeated at the start of every file)."""
         self._put(("attachment", name, media_type, bytes(data)), len(data))
 
-    def add_map(self, map_file: Path | None, max_bytes: int = MAP_MAX_BYTES) -> None:
+    def add_map(self, map_file: Path | None, max_bytes: int) -> None:
         """Queue the map's record: its checksum (metadata :data:`MAP_METADATA_NAME`) and, when its files total at
         most ``max_bytes``, the files as attachments. Read and hashed by the writer thread."""
         if map_file is not None:
@@ -456,7 +454,7 @@ def _map_record(map_file: Path, max_bytes: int) -> tuple[dict[str, str], list[tu
 
 
 def record_run(recorder: Recorder, name: str, config_file: Path | None, version: str, map_file: Path | None,
-               map_max_bytes: int = MAP_MAX_BYTES) -> None:
+               map_max_bytes: int) -> None:
     """Queue the header of the daemon's recording: who recorded (``name``, ``version``), the config file (its path
     and its text) and the map (:meth:`Recorder.add_map`)."""
     recorder.add_metadata(METADATA_NAME, {"name": name, "config": str(config_file or ""), "version": version})
