@@ -28,6 +28,10 @@ test-fast: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q -m "not slow"
 
+# ruff over the whole tree (the check `make test` starts with).
+lint: $(STAMP)
+	$(BIN)/ruff check .
+
 bench: $(STAMP)
 	$(BIN)/pivotd bench montecarlo --quick
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import queue
 import threading
 import time
@@ -139,9 +140,10 @@ def test_oversize_and_field_heavy_messages_are_dropped_before_decoding(sessions)
         bus.close()
 
 
-def test_a_slow_path_consumer_never_delays_poses(sessions):
+def test_a_slow_path_consumer_never_delays_poses(sessions, caplog):
     """Paths and clouds are decoded and handed over on their own thread: while the daemon's path callback is
     busy, poses keep arriving; the paths that came meanwhile are replaced by the newest (counted)."""
+    caplog.set_level(logging.DEBUG, logger="pivotd.bus.pivot_bus")
     release = threading.Event()
     poses = queue.Queue()
     paths = []
@@ -164,7 +166,11 @@ def test_a_slow_path_consumer_never_delays_poses(sessions):
         for k in range(5):
             odom.put(m.encode_odometry(0.0, "map", "b", [float(k), 0, 0], [0, 0, 0, 1]))
             assert drain(poses, 1), "a pose was held up behind the path"
-        assert wait_for(lambda: bus.counters()["/plan"].get("dropped_queue_full", 0) == 2)
+        # the two paths replaced before decoding are superseded, not dropped
+        assert wait_for(lambda: bus.counters()["/plan"].get("superseded", 0) == 2)
+        assert not any(k.startswith("dropped_") for k in bus.counters()["/plan"]), bus.counters()["/plan"]
+        superseded = [r for r in caplog.records if "superseded" in r.getMessage()]
+        assert len(superseded) == 2 and {r.levelno for r in superseded} == {logging.DEBUG}, superseded
         release.set()
         assert wait_for(lambda: len(paths) == 2)
         np.testing.assert_allclose(paths[1].positions[-1], [4.0, 0, 0])  # the newest one

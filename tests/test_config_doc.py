@@ -65,7 +65,7 @@ DOCUMENTED = documented_defaults()
 def test_the_doc_documents_every_section_with_defaults():
     sections = {k.split(".")[0] for k, _ in DOCUMENTED}
     assert sections == {"name", "zenoh", "topics", "map", "pivot", "planner", "gimbal", "motion", "control",
-                        "logging", "pose_gate", "sim", "ros"}
+                        "logging", "pose_gate", "sim", "ros", "record"}
     assert len(DOCUMENTED) >= 50
 
 

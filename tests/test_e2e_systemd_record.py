@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import signal
 import socket
 
@@ -14,7 +15,10 @@ from pivotd.bus.messages import JOINT_STATE, ODOMETRY, PATH, deserialize
 from pivotd.bus.session import open_session
 from pivotd.bus.topics import status_key_for
 from pivotd.cli.status import query_status
+from pivotd.config import load_config
+from pivotd.daemon.recorder import CONFIG_ATTACHMENT, RecordingFiles, map_checksum
 from pivotd.sim.launch import derive_config
+from pivotd.version import version
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(120)]
 
@@ -79,11 +83,24 @@ def test_notify_watchdog_and_mcap_recording(tmp_path):
     first_stop = next(i for i, m in enumerate(messages) if "STOPPING=1" in m)
     assert first_ready < first_stop
 
+    # --record run.mcap wrote one new file named after it with its UTC start time (never run.mcap itself)
+    files = RecordingFiles(record).existing()
+    assert len(files) == 1 and re.fullmatch(r"run-\d{8}-\d{6}\.mcap", files[0].name), files
+    assert not record.exists()
+    record = files[0]
     # The recording is a valid MCAP with ROS 2 schemas: rosbags decodes every message.
     counts: dict[str, int] = {}
     with open(record, "rb") as fh:
         reader = make_reader(fh)
         assert reader.get_header().profile == "ros2"
+        # it carries the run: the config text, the map (its checksum and its file), pivotd's version
+        attachments = {a.name: a.data for a in reader.iter_attachments()}
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+        cfg = load_config(config)
+        assert attachments[CONFIG_ATTACHMENT] == config.read_bytes()
+        assert attachments[f"map/{cfg.map.file.name}"] == cfg.map.file.read_bytes()
+        assert metadata["pivotd.map"]["sha256"] == map_checksum(cfg.map.file)[0]
+        assert metadata["pivotd"]["version"] == version() and metadata["pivotd"]["part"] == "1"
         for schema, channel, message in reader.iter_messages():
             assert schema.encoding == "ros2msg" and channel.message_encoding == "cdr"
             deserialize(message.data, schema.name, channel.topic)

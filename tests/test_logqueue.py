@@ -3,8 +3,10 @@ records and counts them; the listener reports the drops once the stream drains."
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import re
 import threading
 
 from support import wait_until
@@ -80,3 +82,58 @@ def test_stop_returns_while_the_stream_is_stuck():
     assert finished.wait(30)
     os.close(r)  # the listener's write fails (EPIPE): it goes on quietly
     os.close(w)
+
+
+def journal_queue(monkeypatch, matching: bool) -> tuple[LogQueue, int]:
+    r, w = os.pipe()
+    st = os.fstat(w if matching else r)  # the read end: another inode, so not the journal's stream
+    monkeypatch.setenv("JOURNAL_STREAM", f"{st.st_dev}:{st.st_ino + (0 if matching else 1)}")
+    lq = LogQueue(fd=w)
+    lq.start()
+    return lq, r
+
+
+def read_lines(r: int, lq: LogQueue) -> list[str]:
+    lq.stop()
+    os.set_blocking(r, False)
+    data = b""
+    with contextlib.suppress(BlockingIOError):
+        while chunk := os.read(r, 65536):
+            data += chunk
+    return data.decode().splitlines()
+
+
+def log_some(lq: LogQueue, name: str) -> None:
+    logger = logging.getLogger(name)
+    logger.propagate = False
+    logger.addHandler(lq.handler)
+    logger.setLevel(logging.DEBUG)
+    logger.debug("d")
+    logger.info("i")
+    logger.warning("w")
+    try:
+        raise ValueError("boom")
+    except ValueError:
+        logger.exception("e")
+    logger.critical("c")
+    logger.removeHandler(lq.handler)
+
+
+def test_on_the_journal_each_line_has_its_priority_and_no_timestamp(monkeypatch):
+    lq, r = journal_queue(monkeypatch, matching=True)
+    log_some(lq, "test.journal")
+    lines = read_lines(r, lq)
+    assert lines[:4] == ["<7>DEBUG test.journal: d", "<6>INFO test.journal: i", "<4>WARNING test.journal: w",
+                         "<3>ERROR test.journal: e"]
+    traceback = lines[4:-1]  # every line of the traceback is an error line too
+    assert traceback[0] == "<3>Traceback (most recent call last):" and traceback[-1] == "<3>ValueError: boom"
+    assert all(line.startswith("<3>") for line in traceback)
+    assert lines[-1] == "<2>CRITICAL test.journal: c"
+
+
+def test_off_the_journal_lines_keep_their_timestamp_and_no_prefix(monkeypatch):
+    lq, r = journal_queue(monkeypatch, matching=False)
+    log_some(lq, "test.notjournal")
+    lines = read_lines(r, lq)
+    assert re.match(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3} DEBUG test.notjournal: d$", lines[0]), lines
+    assert not any(line.startswith("<") for line in lines)

@@ -3,7 +3,8 @@
 Zenoh's callbacks only check a payload's size and drop it into an :class:`Inbox`; a :class:`Decoder`
 thread takes payloads out and decodes them, so a large or slow message never blocks Zenoh's threads and
 never piles up: each topic holds at most ``capacity`` payloads and a new one evicts the oldest
-(``capacity`` 1 is latest-wins). Evictions are reported to the caller, which counts them.
+(``capacity`` 1 is latest-wins). Evictions are reported to the caller, which counts them as ``superseded``:
+a newer state replacing an undecoded one is normal under load, not a lost message.
 """
 
 from __future__ import annotations

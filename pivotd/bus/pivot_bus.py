@@ -155,7 +155,9 @@ another) and should be short. ``on_raw(topic, msgtype,
                 return
             item = (sample.payload.to_bytes(), rx, *((_publisher_id(sample),) if with_source else ()))
             if not inbox.put(name, item) and not self._closed:
-                self._drop(name, "queue_full", f"{name}: a newer message replaced one not yet decoded")
+                # normal under load: every input is a state, the newer message supersedes the undecoded one
+                self._count(name, "superseded")
+                log.debug("%s: a newer message superseded one not yet decoded", name)
 
         return on_sample
 
@@ -232,12 +234,13 @@ another) and should be short. ``on_raw(topic, msgtype,
             return self._counters.get(topic, {}).get("received", 0)
 
     def counters(self) -> dict[str, dict[str, int]]:
-        """Per input topic: ``received``, ``accepted`` and ``dropped_<reason>`` counts (a copy).
+        """Per input topic: ``received``, ``accepted``, ``superseded`` (replaced by a newer message before it was
+        decoded: normal, not a drop; present once it happened) and ``dropped_<reason>`` counts (a copy).
 
-        Reasons: ``wrong_type``, ``too_large`` (above the payload limit, not decoded), ``queue_full`` (replaced
-        by a newer message before it was decoded), ``callback_error`` and the decoders' reasons
-        (:class:`~pivotd.bus.messages.MessageError`). On the TF topics, the transforms the TF tree drops are counted
-        too, one per transform (:data:`~pivotd.bus.tf_tree.TRANSFORM_DROPS`: ``loop``, ``two_parents``, ...)."""
+        Reasons: ``wrong_type``, ``too_large`` (above the payload limit, not decoded), ``callback_error`` and the
+        decoders' reasons (:class:`~pivotd.bus.messages.MessageError`). On the TF topics, the transforms the TF tree
+        drops are counted too, one per transform (:data:`~pivotd.bus.tf_tree.TRANSFORM_DROPS`: ``loop``,
+        ``two_parents``, ...)."""
         with self._lock:
             return {topic: dict(c) for topic, c in self._counters.items()}
 

@@ -1,4 +1,4 @@
-"""pivotd, the PIVOT gimbal controller: run (the default command), check, plan, bench.
+"""pivotd, the PIVOT gimbal controller: run (the default command), check, plan, bench, status, plot.
 
 Each command lives in its own module exposing ``configure(parser)`` and ``run(args) -> int``;
 this module only dispatches and turns :class:`~pivotd.errors.PivotdError` into exit code 2.
@@ -7,11 +7,13 @@ this module only dispatches and turns :class:`~pivotd.errors.PivotdError` into e
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import logging
 import sys
 
 from pivotd.errors import PivotdError
+from pivotd.version import version
 
 # command name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -32,7 +34,8 @@ class _ArgumentParser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     """The full ``pivotd`` argument parser with every available sub-command."""
     parser = _ArgumentParser(prog="pivotd", description=__doc__.splitlines()[0])
-    subs = parser.add_subparsers(dest="command", parser_class=_ArgumentParser)
+    parser.add_argument("--version", action="version", version=f"pivotd {version()}")
+    subs = parser.add_subparsers(dest="command", parser_class=_ArgumentParser, metavar="COMMAND")
     for name, (module_name, help_text) in COMMANDS.items():
         try:
             module = importlib.import_module(module_name)
@@ -44,11 +47,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def unknown_command(name: str) -> str:
+    """The one-line error for a command ``name`` pivotd does not have, with the nearest one when there is one."""
+    close = difflib.get_close_matches(name, COMMANDS, n=1, cutoff=0.6)
+    hint = f" (did you mean {close[0]}?)" if close else f" (commands: {', '.join(COMMANDS)})"
+    return f"unknown command {name!r}{hint}"
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``pivotd`` console script; returns the process exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and not argv[0].startswith("-") and argv[0] not in COMMANDS:
+        print(f"pivotd: error: {unknown_command(argv[0])}", file=sys.stderr)
+        return 2
     # `pivotd [--config FILE] ...` without a sub-command means `pivotd run ...`.
-    if not argv or (argv[0] not in COMMANDS and argv[0] not in ("-h", "--help")):
+    if not argv or (argv[0] not in COMMANDS and argv[0] not in ("-h", "--help", "--version")):
         argv = ["run", *argv]
     args = build_parser().parse_args(argv)
     if args.command is None:

@@ -237,6 +237,7 @@ def run(args: argparse.Namespace) -> int:
         "max_step_limit_deg": args.max_step_deg,
         "iterations": int(result.iterations),
         "out": args.out,
+        **filter_settings(args),
     }
     if args.json:
         sys.stdout.write(json.dumps(summary) + "\n")
@@ -249,6 +250,15 @@ def run(args: argparse.Namespace) -> int:
             + (f"\nwrote {args.out}" if args.out else "")
         )
     return 0
+
+
+def filter_settings(args: argparse.Namespace) -> dict:
+    """The paper mode's landmark filter settings as given (None: not set): ranges [m], view angle [deg], occlusion
+    voxel [m], occupancy file, where weights come from and the weight property (``plan --json``, docs/CLI.md)."""
+    return {"min_range": args.min_range, "max_range": args.max_range, "max_view_angle_deg": args.max_view_angle_deg,
+            "occlusion_voxel": args.occlusion_voxel,
+            "occupancy": None if args.occupancy is None else str(args.occupancy),
+            "weights_from": args.weights_from.lower(), "weight_property": args.weight_property}
 
 
 def write_csv(out: Path, waypoints: np.ndarray, dirs: np.ndarray, visible: np.ndarray,

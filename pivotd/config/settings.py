@@ -232,6 +232,24 @@ class LoggingConfig:
     level: str = "INFO"
 
 
+#: smallest ``record.max_bytes`` other than 0 [bytes]: a file holds at least one MCAP chunk or so
+MIN_RECORD_BYTES = 1 << 20
+#: smallest ``record.max_duration_s`` other than 0 [s]
+MIN_RECORD_DURATION_S = 1.0
+
+
+@dataclass(frozen=True)
+class RecordConfig:
+    """MCAP recording (pivotd/daemon/recorder.py): ``path`` a directory or a ``STEM.mcap`` name (None: no recording
+    unless ``--record``); a new file past ``max_bytes`` [bytes] or ``max_duration_s`` [s] (0: never); map files up to
+    ``map_max_bytes`` [bytes] in total are attached to each file (larger: their checksum only)."""
+
+    path: Path | None = None
+    max_bytes: int = 0
+    max_duration_s: float = 0.0
+    map_max_bytes: int = 64 * 1024 * 1024
+
+
 @dataclass(frozen=True)
 class SimConfig:
     """Simulated robot for the demo: route file (None = the built-in hallway), speed [m/s], pose rate [Hz]."""
@@ -275,6 +293,7 @@ class Config:
     pose_gate: PoseGateConfig = field(default_factory=PoseGateConfig)
     sim: SimConfig | None = None
     ros: RosConfig = field(default_factory=RosConfig)
+    record: RecordConfig = field(default_factory=RecordConfig)
     source: Path | None = None  # the file this was loaded from
 
     def __post_init__(self) -> None:
@@ -372,6 +391,7 @@ def load_config(path: str | Path) -> Config:
         pose_gate=_pose_gate(root.section("pose_gate")),
         sim=_sim(root.section("sim")) if root.has("sim") else None,
         ros=_ros(root.section("ros")),
+        record=_record(root.section("record")),
         source=path.resolve(),
     )
     _check_wire(root, cfg.gimbal, cfg.motion)
@@ -776,6 +796,24 @@ def _logging(s: Section) -> LoggingConfig:
         raise s.error("level", f"must be one of {', '.join(LOG_LEVELS)}; got {level!r}")
     s.finish()
     return LoggingConfig(level.upper())
+
+
+def _record(s: Section) -> RecordConfig:
+    d = RecordConfig()
+    max_bytes = s.number("max_bytes", d.max_bytes, min=0, integer=True)
+    if 0 < max_bytes < MIN_RECORD_BYTES:
+        raise s.error("max_bytes", f"must be 0 (no limit) or ≥ {MIN_RECORD_BYTES} (1 MiB), got {max_bytes}")
+    max_duration = s.number("max_duration_s", d.max_duration_s, min=0.0)
+    if 0 < max_duration < MIN_RECORD_DURATION_S:
+        raise s.error("max_duration_s", f"must be 0 (no limit) or ≥ {MIN_RECORD_DURATION_S:g} s, got {max_duration:g}")
+    out = RecordConfig(
+        path=s.path_value("path", None, must_exist=False),
+        max_bytes=max_bytes,
+        max_duration_s=max_duration,
+        map_max_bytes=s.number("map_max_bytes", d.map_max_bytes, min=0, integer=True),
+    )
+    s.finish()
+    return out
 
 
 def _sim(s: Section) -> SimConfig:

@@ -38,6 +38,7 @@ from pivotd.daemon.planner import Plan, Rescue
 from pivotd.daemon.pose_gate import PoseGate, PoseVerdict
 from pivotd.daemon.recorder import off_status as recording_off
 from pivotd.daemon.reload import apply_reload, plan_reload
+from pivotd.daemon.state_log import StateLog
 from pivotd.daemon.states import DaemonState
 from pivotd.daemon.systemd import Notifier, watchdog_interval
 from pivotd.daemon.visuals import build_plan_visuals
@@ -57,12 +58,14 @@ from pivotd.errors import PivotdError
 from pivotd.gimbal.interface import GimbalInterface, GimbalMode, LinkState
 from pivotd.gimbal.kinematics import joints_to_world_direction
 from pivotd.maps.formats import LandmarkCloud, make_cloud
+from pivotd.version import version
 
 log = logging.getLogger("pivotd.daemon")
 
 SWITCH_INTERVAL_S = 0.0005
 HOST_STALL_S = 0.25  # [s] a supervision pass this much later than its period: the process stalled
 HOST_STALL_WINDOW_S = 2.0  # [s] a watchdog hold reported this soon after a stall of the process is the stall's
+PARK_LINK_GRACE_S = 1.0  # [s] parking waits this long for a link lost meanwhile to come back, then stops
 
 
 @dataclass(frozen=True)
@@ -145,6 +148,7 @@ class Daemon:
         self._last_clear = 0.0
         self._last_link_error: str | None = None
         self._rl = RateLimitedLog(log)
+        self._states = StateLog(self.cfg.topics.pose, self.cfg.topics.path, log)  # state changes, logged once each
         self._threads: list[threading.Thread] = []
         self._recorder = None
 
@@ -170,6 +174,7 @@ class Daemon:
             self.pose = pose
             if self._recorder is not None and self.cfg.topics.pose_from_tf:  # the bus recorded only the TF messages
                 self._record_tf_pose(pose)
+            self._states.pose(pose)
             return
         last = self.pose
         where = "" if last is None else f" (last accepted at {np.round(last.position, 2).tolist()})"
@@ -192,6 +197,7 @@ class Daemon:
         with self._lock:
             self._path_version += 1
             self._path = (path.positions, path.quats, self._path_version)
+        self._states.path(int(path.positions.shape[0]))
 
     def _on_cloud(self, layer: str, cloud: CloudMsg) -> None:
         with self._lock:
@@ -342,8 +348,10 @@ class Daemon:
             # Nothing in a tick may end this thread: an exception anywhere is logged (rate-limited) and the next
             # tick comes at its deadline (the tick after a failed one restarts from what the link reports).
             try:
-                tick = self.control.tick(now, self.pose, self.plan)
+                pose = self.pose
+                tick = self.control.tick(now, pose, self.plan)
                 self.state = tick.mode
+                self._states.tick(now, tick.mode, pose, self.cfg.control.pose_timeout_s)
                 if tick.setpoint is not None and self._recorder is not None:
                     self._record_setpoint(tick.setpoint)
             except Exception as exc:
@@ -436,6 +444,7 @@ class Daemon:
             state = DaemonState.FAILED
         return {
             "name": self.cfg.name,
+            "version": version(),
             "state": state,
             "time": time.time(),
             "pose_age_s": None if pose is None else round(time.monotonic() - pose.rx_time, 3),
@@ -560,16 +569,28 @@ class Daemon:
         if "pivotd-control" in self._check_threads():
             log.error("cannot park: the control thread is gone; disabling the gimbal where it stands")
             return
+        if link.link_state != LinkState.UP:  # nothing to park: the device's watchdog holds it where it is
+            log.warning("gimbal link %s: not parking (stopping now; the gimbal's own watchdog holds it)",
+                        link.link_state)
+            return
         self.state = DaemonState.PARKING
         target = park_joints(self.cfg)
         control.override_target = target
         deadline = time.monotonic() + self.cfg.gimbal.park_timeout_s
+        down_since: float | None = None
         tol = np.radians(0.5)
         while time.monotonic() < deadline:
             st = link.state
-            if link.link_state != LinkState.UP:  # a link hiccup: the supervisor reconnects; keep parking
+            if link.link_state != LinkState.UP:  # a link hiccup: the supervisor reconnects; keep parking a while
+                now = time.monotonic()
+                down_since = now if down_since is None else down_since
+                if now - down_since > PARK_LINK_GRACE_S:
+                    log.warning("gimbal link lost while parking (down for %.1f s): stopping without the park pose",
+                                now - down_since)
+                    break
                 time.sleep(0.02)
                 continue
+            down_since = None
             if st is not None and abs(st.pan - target[0]) < tol and abs(st.tilt - target[1]) < tol \
                     and abs(st.pan_rate) < 0.01 and abs(st.tilt_rate) < 0.01:
                 break
@@ -613,11 +634,14 @@ class Daemon:
                               multicast_scouting=z.multicast_scouting, security=z.security,
                               input_keys=input_key_exprs(cfg.topics), max_message_bytes=cfg.topics.max_message_bytes)
         build_config(**zenoh_settings)  # bad Zenoh settings exit (2) before the gimbal is touched
-        if self.overrides.record is not None:
-            from pivotd.daemon.recorder import METADATA_NAME, Recorder
+        record = self.overrides.record if self.overrides.record is not None else cfg.record.path
+        if record is not None:
+            from pivotd.daemon.recorder import open_recording, record_run
 
-            self._recorder = Recorder(self.overrides.record)
-            self._recorder.add_metadata(METADATA_NAME, {"name": cfg.name, "config": str(cfg.source or "")})
+            r = cfg.record
+            self._recorder = open_recording(record, r.max_bytes, r.max_duration_s,
+                                            what="--record" if self.overrides.record is not None else "record.path")
+            record_run(self._recorder, cfg.name, cfg.source, version(), cfg.map.file, r.map_max_bytes)
         self.link = build_gimbal(cfg)
         self.link.start()
         self.control = build_control_loop(cfg, self.link)
@@ -637,8 +661,8 @@ class Daemon:
                             on_raw=self._recorder.write if self._recorder is not None else None, qos=cfg.ros.qos,
                             tf_timeout=cfg.control.pose_timeout_s)
         self.visuals = build_plan_visuals(self.bus, cfg)
-        log.info("pivotd %r ready: %d landmarks, gimbal %s, zenoh %s", cfg.name, self.worker.map_info.landmarks,
-                 cfg.gimbal.port, where)
+        log.info("pivotd %s %r ready: %d landmarks, gimbal %s, zenoh %s", version(), cfg.name,
+                 self.worker.map_info.landmarks, cfg.gimbal.port, where)
         return True
 
     def _wait_supervising(self, seconds: float) -> bool:

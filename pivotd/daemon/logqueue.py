@@ -6,6 +6,10 @@ writes the queued records to the log stream (stderr, which is the journal under 
 nobody reads that stream (a pipe nobody drains, a stalled journal) only the listener waits, holding no lock that a
 logging thread, the signal handler or the interpreter's exit needs. When the stream drains again, the listener
 reports how many records were dropped meanwhile.
+
+When that stream is the journal (systemd's ``$JOURNAL_STREAM`` names it), every line starts with its syslog
+priority as an sd-daemon prefix (``<3>`` error, ``<4>`` warning, ``<6>`` info, ``<7>`` debug: ``man sd-daemon``),
+so ``journalctl -p warning`` filters them, and carries no timestamp: the journal stamps each line itself.
 """
 
 from __future__ import annotations
@@ -19,9 +23,13 @@ import sys
 import threading
 from typing import Any
 
+from pivotd.daemon.systemd import is_journal_stream
+
 #: records waiting for the listener; beyond this a record is dropped and counted
 QUEUE_RECORDS = 10_000
 FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+#: sd-daemon priority of each logging level (a level between two takes the lower one's: ``priority``)
+SYSLOG_PRIORITY = {logging.CRITICAL: 2, logging.ERROR: 3, logging.WARNING: 4, logging.INFO: 6, logging.DEBUG: 7}
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +52,25 @@ class _DroppingQueueHandler(logging.handlers.QueueHandler):
                 self.dropped += 1
 
 
+def priority(levelno: int) -> int:
+    """The syslog priority (0 emergency … 7 debug) of a logging level."""
+    for level, prio in sorted(SYSLOG_PRIORITY.items(), reverse=True):
+        if levelno >= level:
+            return prio
+    return 7
+
+
+class JournalFormatter(logging.Formatter):
+    """``fmt`` without its timestamp, each line (a traceback's too) prefixed with the record's ``<priority>``."""
+
+    def __init__(self, fmt: str) -> None:
+        super().__init__(fmt.replace("%(asctime)s ", "").replace("%(asctime)s", ""))
+
+    def format(self, record: logging.LogRecord) -> str:
+        prefix = f"<{priority(record.levelno)}>"
+        return "\n".join(prefix + line for line in super().format(record).split("\n"))
+
+
 class _FdHandler(logging.Handler):
     """Writes each formatted record as one line to a file descriptor with ``os.write``. Used by the listener thread
     only, so :meth:`handle` takes no handler lock: a write blocked on a full pipe must not hold the lock that
@@ -52,7 +79,8 @@ class _FdHandler(logging.Handler):
     def __init__(self, fd: int, fmt: str) -> None:
         super().__init__()
         self.fd = fd
-        self.setFormatter(logging.Formatter(fmt))
+        self.journal = is_journal_stream(fd)
+        self.setFormatter(JournalFormatter(fmt) if self.journal else logging.Formatter(fmt))
 
     def handle(self, record: logging.LogRecord) -> bool:
         rv = self.filter(record)
@@ -124,8 +152,9 @@ class LogQueue:
             self._out.handle(record)
             dropped = self.handler.dropped
             if dropped != self._reported and self._queue.empty():
-                self._out.write(f"{dropped - self._reported} log records dropped: the log output was not read fast "
-                                f"enough ({dropped} since start)\n".encode())
+                prefix = f"<{SYSLOG_PRIORITY[logging.WARNING]}>" if self._out.journal else ""
+                self._out.write(f"{prefix}{dropped - self._reported} log records dropped: the log output was not read "
+                                f"fast enough ({dropped} since start)\n".encode())
                 self._reported = dropped
 
     def stop(self, timeout: float = 2.0) -> None:

@@ -6,7 +6,8 @@ timeout, ``sim``. Restart-only (kept at their running values, logged as "needs r
 ``name``, ``zenoh``, ``topics`` (sessions and subscriptions), ``gimbal.backend``, ``port``, ``baud``,
 ``mavlink`` / ``dynamixel`` (the connection), ``limits`` and ``watchdog_ms`` (sent to the device at the
 handshake), ``motion`` (the device's rate limits), ``control`` (the control thread's rate and clock) and
-``logging`` (the command line may override it) and ``ros`` (publishers and QoS).
+``logging`` (the command line may override it), ``ros`` (publishers and QoS) and ``record`` (the recording
+opened at the start).
 
 What a reload costs depends on what changed. Nothing that affects the plan (no setting, or only the park pose,
 ``pose_gate``, ``sim``, restart-only ones): the planner process is not asked at all and the running plan stays.
@@ -34,7 +35,7 @@ from pivotd.maps.fingerprint import MapIdentity
 log = logging.getLogger(__name__)
 
 #: Config sections whose changes only take effect at the next start.
-RESTART_SECTIONS = ("name", "zenoh", "topics", "motion", "control", "logging", "ros")
+RESTART_SECTIONS = ("name", "zenoh", "topics", "motion", "control", "logging", "ros", "record")
 #: ``gimbal`` fields whose changes only take effect at the next start (the rest of ``gimbal`` is live).
 RESTART_GIMBAL_FIELDS = ("backend", "port", "baud", "limits", "watchdog_ms", "mavlink", "dynamixel")
 _NOT_SETTINGS = ("source",)
@@ -110,6 +111,7 @@ def plan_reload(running: Config, loaded: Config, running_map: MapIdentity | None
         "control": running.control,
         "logging": running.logging,
         "ros": running.ros,
+        "record": running.record,
         "gimbal": replace(loaded.gimbal, **{k: getattr(running.gimbal, k) for k in RESTART_GIMBAL_FIELDS}),
     }
     return ReloadPlan(

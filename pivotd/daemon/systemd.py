@@ -124,3 +124,15 @@ def watchdog_interval() -> float | None:
     if value <= 0:
         return None
     return value / 1e6
+
+
+def is_journal_stream(fd: int) -> bool:
+    """Whether ``fd`` is the journal's stream that systemd connected (``$JOURNAL_STREAM`` is ``device:inode`` of it,
+    as sd_journal_stream_fd documents): its lines may then carry ``<N>`` priority prefixes (``man sd-daemon``)."""
+    value = os.environ.get("JOURNAL_STREAM", "")
+    dev, _, ino = value.partition(":")
+    try:
+        st = os.fstat(fd)
+        return bool(ino) and (int(dev), int(ino)) == (st.st_dev, st.st_ino)
+    except (OSError, ValueError):
+        return False

@@ -8,7 +8,7 @@ talking Zenoh on loopback only (the run itself: :func:`pivotd.sim.stack.run_stac
 walks, a live status line shows what the daemon reports. Afterwards it prints a summary: landmarks
 visible per frame with PIVOT versus a forward-facing camera on the same route, the share of the achievable view
 (``pivotd bench achievable`` on its recording) the daemon saw, setpoints sent, worst
-velocity/acceleration/jerk versus the limits, and draws its recording (``run.mcap``) as ``pivotd plot``
+velocity/acceleration/jerk versus the limits, and draws its recording (``run-<UTC time>.mcap``) as ``pivotd plot``
 does.
 """
 
@@ -46,7 +46,7 @@ def _status_line(elapsed: float, st: dict) -> str:
 
 @dataclass(frozen=True)
 class DemoSummary:
-    """Numbers the demo reports (also returned for tests and benchmarks); ``recording``: its ``run.mcap``."""
+    """Numbers the demo reports (also returned for tests and benchmarks); ``recording``: its ``run-<UTC time>.mcap``."""
 
     frames: int
     pivot_visible_mean: float

@@ -3,7 +3,8 @@
 The demo (:mod:`pivotd.sim.demo`) and ``pivotd bench gap`` run the daemon through :func:`run_stack`: a config
 (derived into the output directory with the simulator's port and, optionally, another map), a route spec for
 ``sim_pose`` and a speed; afterwards the bus observations and the device log are analysed
-(:func:`pivotd.sim.analysis.analyse_run`) and the recording (``run.mcap``) is read back.
+(:func:`pivotd.sim.analysis.analyse_run`) and the recording (``--record OUT/run.mcap``: the file
+``OUT/run-<UTC time>.mcap``, the newest there) is read back.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import numpy as np
 
 from pivotd.bus.probe import BusProbe
 from pivotd.config import Config, load_config
+from pivotd.daemon.recorder import resolve_recording
 from pivotd.robot_path import Polyline
 from pivotd.sim.analysis import analyse_run
 from pivotd.sim.launch import REPO, derive_config, free_port, spawn, start_gimbal_simulator
@@ -72,7 +74,8 @@ def run_stack(config_path: Path, out_dir: Path, route: str | None = None, map_fi
     config's ``sim.route``, else the hallway) at ``speed`` [m/s], or by its time stamps when ``timed``. ``pose``: where
     the daemon takes the pose from (:data:`POSE_SOURCES`).
 
-    Everything is written to ``out_dir`` (derived config ``demo.yaml``, ``run.mcap``, ``gimbal_log.csv``, logs).
+    Everything is written to ``out_dir`` (derived config ``demo.yaml``, the recording ``run-<UTC time>.mcap``,
+    ``gimbal_log.csv``, logs).
     ``timeout`` [s] bounds the walk (default: 1.5 × the route's duration + 30 s, at least 90 s); ``on_status`` is
     called about once a second with the elapsed time [s] and the daemon's last status.
     """
@@ -145,6 +148,7 @@ def run_stack(config_path: Path, out_dir: Path, route: str | None = None, map_fi
         if probe is not None:
             probe.close()
     obs = probe.observations()
+    recording = resolve_recording(recording)  # the file this run wrote: run-<UTC time>.mcap, the newest
     run = read_recording(recording, config_path)
     report, series = analyse_run(cfg, obs, device_log, (run.commanded.angles, run.commanded.rates))
     report["daemon_exit_code"] = exit_code

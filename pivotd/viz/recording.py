@@ -2,19 +2,35 @@
 
 Times are the recording's log times (the daemon's wall clock when it received or sent a message) in seconds
 since the first recorded message, so inputs from other machines and the daemon's own outputs share one clock.
+
+The run's config and map come from the recording itself when the files it names are not here as they were (another
+machine, a config edited since): the config text and the map files it carries (pivotd/daemon/recorder.py). A name
+that is no file finds the newest recording of that target (``out/demo/run.mcap`` → ``out/demo/run-…mcap``).
 """
 
 from __future__ import annotations
 
+import json
 import logging
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from pivotd.bus import messages as m
 from pivotd.config import Config, load_config
-from pivotd.daemon.recorder import JOINT_COMMAND_TOPIC, METADATA_NAME, TF_POSE_TOPIC
+from pivotd.daemon.recorder import (
+    CONFIG_ATTACHMENT,
+    JOINT_COMMAND_TOPIC,
+    MAP_ATTACHMENT_PREFIX,
+    MAP_METADATA_NAME,
+    METADATA_NAME,
+    TF_POSE_TOPIC,
+    map_checksum,
+    resolve_recording,
+)
 from pivotd.errors import InputError
 from pivotd.maps.formats import load_landmarks
 
@@ -81,6 +97,7 @@ class _Contents:
     cloud per topic only), the first log time [ns], and whether the file ended early."""
 
     metadata: dict[str, dict[str, str]]
+    attachments: dict[str, bytes]
     messages: list[tuple[str, str, int, bytes]]
     clouds: dict[str, bytes]
     first_ns: int | None
@@ -91,7 +108,7 @@ def _read_mcap(path: Path) -> _Contents:
     """Stream the MCAP file's records (chunks unpacked; no index needed). A file cut short (a daemon killed
     while recording leaves no summary and maybe half a chunk) keeps what was complete."""
     try:
-        from mcap.records import Channel, DataEnd, Footer, Message, Metadata, Schema
+        from mcap.records import Attachment, Channel, DataEnd, Footer, Message, Metadata, Schema
         from mcap.stream_reader import StreamReader
     except ImportError:
         raise InputError("reading MCAP needs the 'mcap' package: pip install 'pivotd[record]'") from None
@@ -99,7 +116,7 @@ def _read_mcap(path: Path) -> _Contents:
         fh = path.open("rb")
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
-    out = _Contents({}, [], {}, None, True)
+    out = _Contents({}, {}, [], {}, None, True)
     schemas: dict[int, str] = {}
     channels: dict[int, tuple[str, str]] = {}
     seen = 0
@@ -120,6 +137,8 @@ def _read_mcap(path: Path) -> _Contents:
                     schemas[record.id] = record.name
                 elif isinstance(record, Metadata):
                     out.metadata[record.name] = dict(record.metadata)
+                elif isinstance(record, Attachment):
+                    out.attachments[record.name] = bytes(record.data)
                 elif isinstance(record, DataEnd | Footer):
                     out.truncated = False
                     break
@@ -134,9 +153,14 @@ def read_recording(path: str | Path, config: str | Path | None = None) -> Record
     """Read ``path`` (an MCAP file written by ``pivotd --record``) with the config it names in its metadata, or
     ``config`` when given. A file cut short (the daemon was killed) is read up to its last complete chunk.
     Raises :class:`InputError` naming the file on anything missing or unreadable."""
-    path = Path(path)
+    path = resolve_recording(path)
     contents = _read_mcap(path)
-    cfg = _config(path, contents.metadata, config)
+    with tempfile.TemporaryDirectory(prefix="pivotd-recording-") as tmp:
+        cfg = _config(path, contents, config, Path(tmp))
+        return _recording(path, contents, cfg)
+
+
+def _recording(path: Path, contents: _Contents, cfg: Config) -> Recording:
     t = cfg.topics
     pose_topic = TF_POSE_TOPIC if t.pose_from_tf else t.pose  # with TF: the poses the daemon composed and took
     poses: list[tuple[float, m.PoseSample]] = []
@@ -178,15 +202,87 @@ def _shift(series: JointSeries, t0: float) -> JointSeries:
     return JointSeries(series.t - t0, series.angles, series.rates)
 
 
-def _config(path: Path, meta: dict[str, dict[str, str]], override: str | Path | None) -> Config:
+def _config(path: Path, contents: _Contents, override: str | Path | None, tmp: Path) -> Config:
+    """The run's config: ``override``; else the config file the recording names, if it is here as recorded (same
+    text, same map); else the config text and map files the recording carries, unpacked into ``tmp``."""
     if override is not None:
         return load_config(override)
-    recorded = (meta.get(METADATA_NAME) or {}).get("config")
-    if not recorded:
-        raise InputError(f"{path}: the recording names no config file; pass --config FILE (the run's config)")
-    if not Path(recorded).is_file():
+    recorded = (contents.metadata.get(METADATA_NAME) or {}).get("config")
+    text = contents.attachments.get(CONFIG_ATTACHMENT)
+    map_meta = contents.metadata.get(MAP_METADATA_NAME)
+    if recorded and Path(recorded).is_file() and (text is None or Path(recorded).read_bytes() == text):
+        cfg = load_config(recorded)
+        if text is None or _same_map(cfg.map.file, map_meta):
+            return cfg
+    if text is None:
+        if not recorded:
+            raise InputError(f"{path}: the recording names no config file; pass --config FILE (the run's config)")
         raise InputError(f"{path}: the run's config {recorded} is not there any more; pass --config FILE")
-    return load_config(recorded)
+    return _unpacked_config(path, text, recorded, map_meta, contents.attachments, tmp)
+
+
+def _same_map(map_file: Path | None, meta: dict[str, str] | None) -> bool:
+    """Whether ``map_file`` is the map the run recorded (no checksum recorded: assumed)."""
+    if map_file is None or not meta or not meta.get("sha256"):
+        return True
+    try:
+        return map_checksum(map_file)[0] == meta["sha256"]
+    except OSError:
+        return False
+
+
+def _unpacked_config(path: Path, text: bytes, recorded: str | None, map_meta: dict[str, str] | None,
+                     attachments: dict[str, bytes], tmp: Path) -> Config:
+    """The recorded config text as a config in ``tmp``: the map from the recording's attachments (else the map file
+    it names, if that is the run's), its files elsewhere dropped when not here (Zenoh, the demo's route, an
+    occupancy file: a figure needs none of them)."""
+    try:
+        doc = yaml.safe_load(text.decode("utf-8"))
+    except (UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise InputError(f"{path}: the recorded config does not parse ({type(exc).__name__})") from None
+    if not isinstance(doc, dict):
+        raise InputError(f"{path}: the recorded config is not a mapping")
+    doc.pop("zenoh", None)
+    doc.pop("sim", None)
+    doc.pop("record", None)
+    base = Path(recorded).parent if recorded else tmp
+    map_doc = doc.get("map") if isinstance(doc.get("map"), dict) else {}
+    filters = map_doc.get("filters") if isinstance(map_doc.get("filters"), dict) else {}
+    occupancy = filters.get("occupancy_file")
+    if occupancy is not None and not (base / str(occupancy)).expanduser().exists():
+        filters.pop("occupancy_file")
+        log.warning("%s: the run's occupancy file %s is not here; the figures do without it", path, occupancy)
+    elif occupancy is not None:
+        filters["occupancy_file"] = str((base / str(occupancy)).expanduser())
+    if map_meta and map_meta.get("file"):
+        map_doc["file"] = str(_run_map(path, map_meta, attachments, tmp))
+        doc["map"] = map_doc
+    config = tmp / "config.yaml"
+    config.write_text(yaml.safe_dump(doc))
+    log.info("%s: using the config%s recorded with the run", path, " and map" if map_meta else "")
+    return load_config(config)
+
+
+def _run_map(path: Path, meta: dict[str, str], attachments: dict[str, bytes], tmp: Path) -> Path:
+    """The run's map file: unpacked from the recording into ``tmp``, or the file it names when that is the same."""
+    original = Path(meta["file"])
+    if meta.get("attached") == "true":
+        names = json.loads(meta.get("files") or "[]")
+        missing = [n for n in names if n not in attachments]
+        if not missing:
+            for name in names:
+                out = tmp / name
+                out.parent.mkdir(parents=True, exist_ok=True)
+                out.write_bytes(attachments[name])
+            inner = names[0][len(MAP_ATTACHMENT_PREFIX):] if names else original.name
+            return tmp / MAP_ATTACHMENT_PREFIX / inner.split("/")[0]
+    if original.exists():
+        if not _same_map(original, meta):
+            log.warning("%s: the map %s differs from the run's (sha256 %s); using it all the same", path, original,
+                        meta.get("sha256", "")[:12])
+        return original
+    raise InputError(f"{path}: the run's map {original} is not in the recording (over record.map_max_bytes) and "
+                     "not here; pass --config FILE")
 
 
 def _landmarks(path: Path, cfg: Config, cloud_payload: bytes | None) -> np.ndarray:
