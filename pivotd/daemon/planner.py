@@ -22,7 +22,7 @@ from enum import Enum
 import numpy as np
 
 from pivotd.config.settings import MAX_MARKER_LANDMARKS, MotionConfig, PivotConfig, PlannerConfig
-from pivotd.geometry import normalize, pan_tilt_to_direction, quat_to_matrix, slerp
+from pivotd.geometry import direction_to_pan_tilt, normalize, pan_tilt_to_direction, quat_to_matrix, slerp
 from pivotd.gimbal.kinematics import (
     JointLimits,
     Mount,
@@ -32,6 +32,7 @@ from pivotd.gimbal.kinematics import (
 from pivotd.gimbal.pan_unwrap import (
     base_pan_tilt,
     joint_pans,
+    unwrap_pans,
 )
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapSnapshot
@@ -220,25 +221,37 @@ class _Execution:
         if not self._on:
             return
         self._dpan, self._dtilt = planner._step_limits(s)
+        self._dpan_l, self._dtilt_l = self._dpan.tolist(), self._dtilt.tolist()
         self._start = planner._commanded_joints(anchor, quats[0])
+        self._memo: dict[bytes, np.ndarray] = {}  # executed directions by the plan's bytes
 
     def directions(self, directions: np.ndarray) -> np.ndarray:
-        """The directions (N, 3) of the rate-limited joint path following ``directions`` (N, 3)."""
+        """The directions (N, 3) of the rate-limited joint path following ``directions`` (N, 3) (each plan's
+        computed once per replan)."""
         if not self._on:
             return directions
+        key = np.asarray(directions, float).tobytes()
+        out = self._memo.get(key)
+        if out is None:
+            out = self._memo[key] = self._follow(directions)
+        return out
+
+    def _follow(self, directions: np.ndarray) -> np.ndarray:
         pl = self._planner
         pan0, tilt0 = (None, None) if self._start is None else self._start
-        pans, _ = joint_pans(directions, self._quats, pl.mount, pl.limits, self._pan_start(directions, pan0))
-        _, tilts = base_pan_tilt(directions, self._quats, pl.mount)
+        d = np.einsum("nij,nj->ni", self._R, np.asarray(directions, float).reshape(-1, 3))  # base_pan_tilt's
+        pans, tilts = direction_to_pan_tilt(d)
+        pans, _ = unwrap_pans(pans, self._pan_start(directions, pan0), pl.limits)  # joint_pans
         tilts = np.clip(tilts, pl.limits.tilt_min, pl.limits.tilt_max)
-        p, t = (pans[0], tilts[0]) if pan0 is None else (pan0, tilt0)
-        out_p, out_t = np.empty_like(pans), np.empty_like(tilts)
-        out_p[0], out_t[0] = p, t
-        for k in range(1, pans.shape[0]):
-            p += float(np.clip(pans[k] - p, -self._dpan[k - 1], self._dpan[k - 1]))
-            t += float(np.clip(tilts[k] - t, -self._dtilt[k - 1], self._dtilt[k - 1]))
-            out_p[k], out_t[k] = p, t
-        d_base = pan_tilt_to_direction(out_p, out_t)
+        pan_l, tilt_l = pans.tolist(), tilts.tolist()
+        p, t = (pan_l[0], tilt_l[0]) if pan0 is None else (pan0, tilt0)
+        out_p, out_t = [p], [t]
+        for k, (dp, dt) in enumerate(zip(self._dpan_l, self._dtilt_l, strict=True), start=1):
+            p += min(max(pan_l[k] - p, -dp), dp)
+            t += min(max(tilt_l[k] - t, -dt), dt)
+            out_p.append(p)
+            out_t.append(t)
+        d_base = pan_tilt_to_direction(np.array(out_p), np.array(out_t))
         return np.einsum("nji,nj->ni", self._R, d_base)
 
     def objective(self, problem: TrajectoryProblem, result: TrajectoryResult) -> float:
