@@ -309,6 +309,8 @@ def ascend(
     C_ref = C.copy()
     cos_drift = np.cos(settings.drift)
     cos_pairs = np.ones(K)  # cosines of consecutive axes (K − 1,), then of the anchor and the first axis
+    s_scale = (float(quarter_ks) * inv_norm)[:, None]  # the visible gradient's factor k_s/4 / W_k (K, 1)
+    flat_w = np.full(K - 1, lam)  # the pair weights without a knee
     for _ in range(settings.iterations):
         total += 1
         t = np.matmul(B, C.astype(np.float32)[:, :, None])[..., 0]  # cos θ (K, L)
@@ -319,7 +321,7 @@ def ascend(
         g = np.subtract(np.float32(1.0), t, out=t)
         g *= Wa  # ∝ s_j v (1 − v): the k_s/4 factor is applied to the (K, 3) sum
         S = np.matmul(g[:, None, :], B)[:, 0, :].astype(float)
-        S *= (float(quarter_ks) * inv_norm)[:, None]
+        S *= s_scale
         if coupled:  # J = c × (S_vis / W + Σ_neighbours w · c_nb): one cross product for both terms
             # w = λ × the pair value's slope at the current step (λ itself without a knee)
             if knee > 0:  # the slopes of the K − 1 pairs and of the anchor's pair, in one pass
@@ -329,7 +331,7 @@ def ascend(
                 slopes = lam * pair_slope(cos_pairs, knee)
                 pair_w, anchor_w = slopes[:-1], float(slopes[-1])
             else:
-                pair_w, anchor_w = np.full(K - 1, lam), lam
+                pair_w, anchor_w = flat_w, lam
             S[1:] += pair_w[:, None] * C[:-1]
             S[:-1] += pair_w[:, None] * C[1:]
             if anchor is not None:
