@@ -36,6 +36,7 @@ from pivotd.gimbal.pan_unwrap import (
 )
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapSnapshot
+from pivotd.pivot.cone_kernel import ConeKernel, cone_kernel
 from pivotd.pivot.constraints import PanTiltConstraint
 from pivotd.pivot.joint_dp import JointGrid, best_joint_path, cell_counts
 from pivotd.pivot.normalise import attainable_counts
@@ -50,7 +51,7 @@ from pivotd.pivot.trajectory import (
     best_of,
     trajectory_problem,
 )
-from pivotd.pivot.view import optimize_view
+from pivotd.pivot.view import ViewOptions, optimize_view
 from pivotd.pivot.visibility import hard_count, in_cone
 from pivotd.robot_path import Polyline, project_onto_polyline
 
@@ -311,6 +312,7 @@ class RecedingHorizonPlanner:
         self._moved: tuple[float, np.ndarray] | None = None  # (time [s], body position) of the last replan
         self.speed: float | None = None  # [m/s] the robot's measured speed (smoothed over replans)
         self.joint_solves = 0  # replans that solved the joint-grid seed (another basin than the plan's)
+        self._kernel: ConeKernel | None = None  # the rescue's single-view cone kernel (see _view_kernel)
 
     def set_path(self, positions: np.ndarray | None, quats: np.ndarray | None, version: int) -> None:
         """Install a new translation path (None clears it); progress restarts from the nearest point."""
@@ -656,7 +658,7 @@ class RecedingHorizonPlanner:
             idx = retained[i]
             w = None if snapshot.weights is None else snapshot.weights[idx]
             axes[k] = optimize_view(snapshot.points[idx] - cams[i], w, st.alpha,
-                                    init=result.directions[i]).direction
+                                    init=result.directions[i], kernel=self._view_kernel()).direction
         constraint = problem.constraint
         if constraint is not None:  # the best reachable axis: blind only if it still sees the share asked for
             axes = constraint.project(_scatter(result.directions, blind, axes))[blind]
@@ -676,6 +678,14 @@ class RecedingHorizonPlanner:
             return alt, Rescue.KEPT
         self._rejected = lost
         return result, Rescue.LOST
+
+    def _view_kernel(self) -> ConeKernel:
+        """The cone kernel of the FoV that :func:`~pivotd.pivot.view.optimize_view` would build for itself at every
+        call (its default cells per face), built once (about 10 ms)."""
+        alpha = self.settings.alpha
+        if self._kernel is None or self._kernel.alpha != alpha:
+            self._kernel = cone_kernel(alpha, ViewOptions().cells)
+        return self._kernel
 
     def _joint_pans(self, directions: np.ndarray, quats: np.ndarray, anchor: np.ndarray | None) -> np.ndarray:
         """Joint pans (N,) [rad] for the planned ``directions`` (N, 3) over the whole horizon, from the commanded
