@@ -110,3 +110,21 @@ def _identity_mount():
     from pivotd.gimbal.kinematics import Mount
 
     return Mount()
+
+
+@pytest.mark.parametrize("limits", [DEMO, WIDE], ids=["one_branch", "two_branches"])
+def test_every_waypoint_takes_one_of_its_own_branches_or_the_nearer_limit(limits):
+    rng = np.random.default_rng(11)
+    pans = rng.uniform(-3 * np.pi, 3 * np.pi, 60)  # any representation, some in the sector behind a ±170° gimbal
+    out, clamped = unwrap_pans(pans, 0.3, limits)
+    for p, o, c in zip(pans, out, clamped, strict=True):
+        b = pan_branches(float(p), limits)
+        assert c == (b.size == 0)
+        if c:  # the limit nearer around the circle
+            below, above = np.remainder(limits.pan_min - p, 2 * np.pi), np.remainder(p - limits.pan_max, 2 * np.pi)
+            assert o == (limits.pan_min if below <= above else limits.pan_max)
+        else:
+            assert o in b  # exactly one of the branches pan_branches lists
+    assert (limits is WIDE) or clamped.any()
+    if limits is DEMO:  # one branch each: nothing to choose
+        assert np.array_equal(out[~clamped], [pan_branches(float(p), DEMO)[0] for p in pans[~clamped]])

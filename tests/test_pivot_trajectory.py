@@ -6,7 +6,13 @@ import pytest
 from pivotd.geometry import angle_between, normalize
 from pivotd.pivot.constraints import PanTiltConstraint
 from pivotd.pivot.scenes import competing_clusters_path, hallway
-from pivotd.pivot.trajectory import TrajectoryOptions, optimize_trajectory, path_directions, spatial_order
+from pivotd.pivot.trajectory import (
+    TrajectoryOptions,
+    optimize_trajectory,
+    path_directions,
+    spatial_order,
+    trajectory_problem,
+)
 from pivotd.pivot.visibility import hard_count
 
 
@@ -218,3 +224,17 @@ def test_single_waypoint_without_anchor_has_single_pose_quality():
         anchored = optimize_trajectory(sc.points, t[None], alpha, 0.6, anchor=ref.direction,
                                        options=TrajectoryOptions.paper(distance_weights=False))
         assert anchored.visible[0] >= 0.9 * ref.visible  # with an anchor the smoothness term applies
+
+
+def test_judge_weight_totals_are_the_per_waypoint_norms():
+    sc = hallway(rich_side_points=600, poor_side_points=60, spacing=1.0)
+    rng = np.random.default_rng(4)
+    retained = [np.sort(rng.choice(sc.points.shape[0], int(k), replace=False)) for k in rng.integers(50, 400, 6)]
+    problem = trajectory_problem(sc.points, sc.path[:6], np.radians(30), 0.6, weights=sc.weights, retained=retained)
+    assert np.array_equal(problem.geom.row_totals, problem.norm)  # Σ_j s_ij of each waypoint, float64
+    assert problem.geom.row_totals is problem.geom.row_totals  # computed once
+    C = normalize(np.c_[np.ones(6), rng.normal(0, 0.3, (6, 2))])
+    visible, obj = problem.judge(C)
+    assert list(visible) == [hard_count(C[i], normalize(sc.points[r] - sc.path[i]), np.radians(30))
+                             for i, r in enumerate(retained)]
+    assert obj > 0

@@ -133,3 +133,19 @@ def test_a_rescue_that_lost_is_not_retried_until_the_problem_changes():
     assert pl.solves == 3 and second.rescue == Rescue.NOT_TRIED  # the same blind waypoints: not tried again
     pl.replan(snap, np.array([0.6, 0.0, 0.0]), IDENTITY, first.directions[0])
     assert pl.solves == 5  # a new blind waypoint entered the horizon: tried again
+
+
+def test_the_rescue_builds_its_cone_kernel_once_and_searches_as_without_it():
+    from pivotd.pivot.view import optimize_view
+
+    snap = snapshot()
+    pl = planner(snap, BLANK, 0.25)
+    assert pl.replan(snap, np.zeros(3), IDENTITY, BLANK).rescue == Rescue.KEPT
+    kernel = pl._view_kernel()
+    assert kernel is pl._view_kernel() and kernel.alpha == pl.settings.alpha  # one kernel per FoV, kept
+    rel = snap.points[:1500].astype(float) - np.array([5.0, 0.0, 0.0])
+    alpha = pl.settings.alpha
+    own, shared = optimize_view(rel, None, alpha), optimize_view(rel, None, alpha, kernel=kernel)
+    assert np.array_equal(own.direction, shared.direction) and own.visible == shared.visible > 300
+    pl.settings = replace(pl.settings, fov=math.radians(40))
+    assert pl._view_kernel().alpha == pytest.approx(math.radians(20))  # a new FoV builds its own

@@ -4,7 +4,7 @@ seeds beside the commanded direction; the joint-grid seed keeps the plan executa
 import math
 
 import numpy as np
-from test_planner_rescue import BLANK, IDENTITY, snapshot
+from test_planner_rescue import BLANK, IDENTITY, snapshot, yaw
 
 from pivotd.daemon.planner import PathMode, Plan, PlannerSettings, RecedingHorizonPlanner
 from pivotd.geometry import angle_between
@@ -71,3 +71,22 @@ def test_the_joint_grid_seed_leaves_a_blank_warm_plan_within_the_axis_speeds():
     # the commanded direction is where the plan starts from: its first move fits the pan speed at 1 m/s
     first = angle_between(plan.directions[0], BLANK)
     assert first <= speeds[0] * (0.5 / pl.settings.nominal_speed) + math.radians(5)
+
+
+def test_a_plan_as_executed_slews_at_the_axis_speeds_and_is_computed_once_per_replan():
+    from pivotd.daemon.planner import _Execution
+
+    speeds = (math.radians(120), math.radians(90))
+    pl = planner(speeds)
+    pl.set_path(path(), None, 1)
+    quats = np.tile(IDENTITY, (N, 1))
+    executed = _Execution(pl, np.arange(N) * 0.5, quats, BLANK)  # from the commanded -50°, 60° of pan per step
+    plan = np.repeat(BLANK[None], N, 0)
+    plan[5:] = yaw(100.0)  # a 150° swing at waypoint 5, then a hold
+    out = executed.directions(plan)
+    assert executed.directions(plan.copy()) is out  # the same plan is followed once
+    for k, want in [(0, -50.0), (4, -50.0), (5, 10.0), (6, 70.0), (7, 100.0), (N - 1, 100.0)]:
+        assert angle_between(out[k], yaw(want)) < 1e-9, k
+    other = plan.copy()
+    other[5:] = yaw(-80.0)  # another plan: its own path (30° within one step)
+    assert angle_between(executed.directions(other)[5], yaw(-80.0)) < 1e-9

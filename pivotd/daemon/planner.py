@@ -22,7 +22,7 @@ from enum import Enum
 import numpy as np
 
 from pivotd.config.settings import MAX_MARKER_LANDMARKS, MotionConfig, PivotConfig, PlannerConfig
-from pivotd.geometry import normalize, pan_tilt_to_direction, quat_to_matrix, slerp
+from pivotd.geometry import direction_to_pan_tilt, normalize, pan_tilt_to_direction, quat_to_matrix, slerp
 from pivotd.gimbal.kinematics import (
     JointLimits,
     Mount,
@@ -32,9 +32,11 @@ from pivotd.gimbal.kinematics import (
 from pivotd.gimbal.pan_unwrap import (
     base_pan_tilt,
     joint_pans,
+    unwrap_pans,
 )
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.store import MapSnapshot
+from pivotd.pivot.cone_kernel import ConeKernel, cone_kernel
 from pivotd.pivot.constraints import PanTiltConstraint
 from pivotd.pivot.joint_dp import JointGrid, best_joint_path, cell_counts
 from pivotd.pivot.normalise import attainable_counts
@@ -49,7 +51,7 @@ from pivotd.pivot.trajectory import (
     best_of,
     trajectory_problem,
 )
-from pivotd.pivot.view import optimize_view
+from pivotd.pivot.view import ViewOptions, optimize_view
 from pivotd.pivot.visibility import hard_count, in_cone
 from pivotd.robot_path import Polyline, project_onto_polyline
 
@@ -220,25 +222,37 @@ class _Execution:
         if not self._on:
             return
         self._dpan, self._dtilt = planner._step_limits(s)
+        self._dpan_l, self._dtilt_l = self._dpan.tolist(), self._dtilt.tolist()
         self._start = planner._commanded_joints(anchor, quats[0])
+        self._memo: dict[bytes, np.ndarray] = {}  # executed directions by the plan's bytes
 
     def directions(self, directions: np.ndarray) -> np.ndarray:
-        """The directions (N, 3) of the rate-limited joint path following ``directions`` (N, 3)."""
+        """The directions (N, 3) of the rate-limited joint path following ``directions`` (N, 3) (each plan's
+        computed once per replan)."""
         if not self._on:
             return directions
+        key = np.asarray(directions, float).tobytes()
+        out = self._memo.get(key)
+        if out is None:
+            out = self._memo[key] = self._follow(directions)
+        return out
+
+    def _follow(self, directions: np.ndarray) -> np.ndarray:
         pl = self._planner
         pan0, tilt0 = (None, None) if self._start is None else self._start
-        pans, _ = joint_pans(directions, self._quats, pl.mount, pl.limits, self._pan_start(directions, pan0))
-        _, tilts = base_pan_tilt(directions, self._quats, pl.mount)
+        d = np.einsum("nij,nj->ni", self._R, np.asarray(directions, float).reshape(-1, 3))  # base_pan_tilt's
+        pans, tilts = direction_to_pan_tilt(d)
+        pans, _ = unwrap_pans(pans, self._pan_start(directions, pan0), pl.limits)  # joint_pans
         tilts = np.clip(tilts, pl.limits.tilt_min, pl.limits.tilt_max)
-        p, t = (pans[0], tilts[0]) if pan0 is None else (pan0, tilt0)
-        out_p, out_t = np.empty_like(pans), np.empty_like(tilts)
-        out_p[0], out_t[0] = p, t
-        for k in range(1, pans.shape[0]):
-            p += float(np.clip(pans[k] - p, -self._dpan[k - 1], self._dpan[k - 1]))
-            t += float(np.clip(tilts[k] - t, -self._dtilt[k - 1], self._dtilt[k - 1]))
-            out_p[k], out_t[k] = p, t
-        d_base = pan_tilt_to_direction(out_p, out_t)
+        pan_l, tilt_l = pans.tolist(), tilts.tolist()
+        p, t = (pan_l[0], tilt_l[0]) if pan0 is None else (pan0, tilt0)
+        out_p, out_t = [p], [t]
+        for k, (dp, dt) in enumerate(zip(self._dpan_l, self._dtilt_l, strict=True), start=1):
+            p += min(max(pan_l[k] - p, -dp), dp)
+            t += min(max(tilt_l[k] - t, -dt), dt)
+            out_p.append(p)
+            out_t.append(t)
+        d_base = pan_tilt_to_direction(np.array(out_p), np.array(out_t))
         return np.einsum("nji,nj->ni", self._R, d_base)
 
     def objective(self, problem: TrajectoryProblem, result: TrajectoryResult) -> float:
@@ -298,6 +312,7 @@ class RecedingHorizonPlanner:
         self._moved: tuple[float, np.ndarray] | None = None  # (time [s], body position) of the last replan
         self.speed: float | None = None  # [m/s] the robot's measured speed (smoothed over replans)
         self.joint_solves = 0  # replans that solved the joint-grid seed (another basin than the plan's)
+        self._kernel: ConeKernel | None = None  # the rescue's single-view cone kernel (see _view_kernel)
 
     def set_path(self, positions: np.ndarray | None, quats: np.ndarray | None, version: int) -> None:
         """Install a new translation path (None clears it); progress restarts from the nearest point."""
@@ -643,7 +658,7 @@ class RecedingHorizonPlanner:
             idx = retained[i]
             w = None if snapshot.weights is None else snapshot.weights[idx]
             axes[k] = optimize_view(snapshot.points[idx] - cams[i], w, st.alpha,
-                                    init=result.directions[i]).direction
+                                    init=result.directions[i], kernel=self._view_kernel()).direction
         constraint = problem.constraint
         if constraint is not None:  # the best reachable axis: blind only if it still sees the share asked for
             axes = constraint.project(_scatter(result.directions, blind, axes))[blind]
@@ -663,6 +678,14 @@ class RecedingHorizonPlanner:
             return alt, Rescue.KEPT
         self._rejected = lost
         return result, Rescue.LOST
+
+    def _view_kernel(self) -> ConeKernel:
+        """The cone kernel of the FoV that :func:`~pivotd.pivot.view.optimize_view` would build for itself at every
+        call (its default cells per face), built once (about 10 ms)."""
+        alpha = self.settings.alpha
+        if self._kernel is None or self._kernel.alpha != alpha:
+            self._kernel = cone_kernel(alpha, ViewOptions().cells)
+        return self._kernel
 
     def _joint_pans(self, directions: np.ndarray, quats: np.ndarray, anchor: np.ndarray | None) -> np.ndarray:
         """Joint pans (N,) [rad] for the planned ``directions`` (N, 3) over the whole horizon, from the commanded

@@ -53,15 +53,27 @@ def unwrap_pans(pans: np.ndarray, start: float, limits: JointLimits) -> tuple[np
         for i in range(n):
             ref = out[i] = float(pan_branches(pans[i], limits, ref)[0])
         return out, clamped
+    # every waypoint's branches pan + 2πk, k0 ≤ k ≤ k1 (pan_branches, for all waypoints at once)
+    lo, hi = limits.pan_min, limits.pan_max
+    k0 = np.ceil((lo - pans) / TWO_PI - 1e-12)
+    k1 = np.floor((hi - pans) / TWO_PI + 1e-12)
+    counts = (k1 - k0 + 1).astype(np.int64)
+    none = counts <= 0
+    if none.any():  # unreachable sector: the nearer limit, measured around the circle
+        wrapped_lo = np.remainder(lo - pans, TWO_PI)
+        wrapped_hi = np.remainder(pans - hi, TWO_PI)
+        clamped = none
+    if (counts <= 1).all():  # one value per waypoint: nothing to choose
+        out = pans + TWO_PI * k0
+        if none.any():
+            out[none] = np.where(wrapped_lo <= wrapped_hi, lo, hi)[none]
+        return out, clamped
     layers: list[np.ndarray] = []
     for i in range(n):
-        b = pan_branches(float(pans[i]), limits)
-        if b.size == 0:  # unreachable sector: the nearer limit, measured around the circle
-            wrapped_lo = np.remainder(limits.pan_min - pans[i], TWO_PI)
-            wrapped_hi = np.remainder(pans[i] - limits.pan_max, TWO_PI)
-            b = np.array([limits.pan_min if wrapped_lo <= wrapped_hi else limits.pan_max])
-            clamped[i] = True
-        layers.append(b)
+        if none[i]:
+            layers.append(np.array([lo if wrapped_lo[i] <= wrapped_hi[i] else hi]))
+        else:
+            layers.append(pans[i] + TWO_PI * np.arange(k0[i], k1[i] + 1))
     cost = np.abs(layers[0] - start)
     back: list[np.ndarray] = []
     for i in range(1, n):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -65,6 +66,11 @@ class Geometry:
     def weight_rows(self) -> np.ndarray:
         """Weights broadcast to (K, L)."""
         return np.broadcast_to(self.weights, (self.rows, self.weights.shape[-1]))
+
+    @cached_property
+    def row_totals(self) -> np.ndarray:
+        """Σ_j weights of every row (K,) float64 (computed once: the weights never change)."""
+        return np.sum(self.weight_rows(), axis=1, dtype=np.float64)
 
     def take_rows(self, rows: np.ndarray) -> Geometry:
         """The geometry of a subset of rows."""
@@ -302,6 +308,9 @@ def ascend(
     B, Wa = _active(geom, C, cos_lo, cos_hi, cap)
     C_ref = C.copy()
     cos_drift = np.cos(settings.drift)
+    cos_pairs = np.ones(K)  # cosines of consecutive axes (K − 1,), then of the anchor and the first axis
+    s_scale = (float(quarter_ks) * inv_norm)[:, None]  # the visible gradient's factor k_s/4 / W_k (K, 1)
+    flat_w = np.full(K - 1, lam)  # the pair weights without a knee
     for _ in range(settings.iterations):
         total += 1
         t = np.matmul(B, C.astype(np.float32)[:, :, None])[..., 0]  # cos θ (K, L)
@@ -312,14 +321,17 @@ def ascend(
         g = np.subtract(np.float32(1.0), t, out=t)
         g *= Wa  # ∝ s_j v (1 − v): the k_s/4 factor is applied to the (K, 3) sum
         S = np.matmul(g[:, None, :], B)[:, 0, :].astype(float)
-        S *= (float(quarter_ks) * inv_norm)[:, None]
+        S *= s_scale
         if coupled:  # J = c × (S_vis / W + Σ_neighbours w · c_nb): one cross product for both terms
             # w = λ × the pair value's slope at the current step (λ itself without a knee)
-            if knee > 0:
-                pair_w = lam * pair_slope(np.einsum("ij,ij->i", C[1:], C[:-1]), knee)  # (K − 1,)
-                anchor_w = lam * float(pair_slope(float(anchor @ C[0]), knee)) if anchor is not None else 0.0
+            if knee > 0:  # the slopes of the K − 1 pairs and of the anchor's pair, in one pass
+                cos_pairs[:-1] = np.einsum("ij,ij->i", C[1:], C[:-1])
+                if anchor is not None:
+                    cos_pairs[-1] = anchor @ C[0]
+                slopes = lam * pair_slope(cos_pairs, knee)
+                pair_w, anchor_w = slopes[:-1], float(slopes[-1])
             else:
-                pair_w, anchor_w = np.full(K - 1, lam), lam
+                pair_w, anchor_w = flat_w, lam
             S[1:] += pair_w[:, None] * C[:-1]
             S[:-1] += pair_w[:, None] * C[1:]
             if anchor is not None:
@@ -373,5 +385,5 @@ def evaluate(geom: Geometry, C: np.ndarray, alpha: float, width: float) -> tuple
     x *= np.float32(0.5 * ks_from_width(alpha, width))
     np.tanh(x, out=x)  # v = (1 + tanh) / 2
     W = geom.weight_rows()
-    F = 0.5 * (np.sum(W, axis=1, dtype=np.float64) + np.einsum("ij,ij->i", W, x).astype(np.float64))
+    F = 0.5 * (geom.row_totals + np.einsum("ij,ij->i", W, x).astype(np.float64))
     return counts, F

@@ -12,6 +12,7 @@ from pivotd.geometry import direction_to_pan_tilt, pan_tilt_to_direction
 __all__ = ["PanTiltConstraint"]
 
 _TOL = 1e-9
+_CORNERS = [1, 2, 4, 5]  # the candidates of _nearest_on_edges at the tilt limits (pan_min: 1, 2; pan_max: 4, 5)
 
 
 class PanTiltConstraint:
@@ -43,6 +44,13 @@ class PanTiltConstraint:
         self.pan_max = float(pan_max)
         self.tilt_min = float(max(tilt_min, -np.pi / 2))
         self.tilt_max = float(min(tilt_max, np.pi / 2))
+        self._sin_tilt = (np.sin(self.tilt_min), np.sin(self.tilt_max))  # the tilt limits as sines of the tilt
+        if not self.continuous:  # the boundary meridians: (cos, sin) of each pan limit, and their points at the
+            # tilt limits (base frame, as pan_tilt_to_direction gives them)
+            edges = np.array([self.pan_min, self.pan_max])
+            self._edges = (np.cos(edges), np.sin(edges))
+            self._corners = pan_tilt_to_direction(np.repeat([self.pan_min, self.pan_max], 2),
+                                                  np.tile([self.tilt_min, self.tilt_max], 2))  # (4, 3)
 
     def __len__(self) -> int:
         return int(self.base_from_world.shape[0])
@@ -80,7 +88,7 @@ class PanTiltConstraint:
         n = np.sqrt(np.einsum("ij,ij->i", b, b))
         n[n < 1e-300] = 1.0
         down = -b[:, 2] / n  # sin(tilt): tilt ∈ [−π/2, π/2], so the limits compare as sines
-        inside = (down >= np.sin(self.tilt_min)) & (down <= np.sin(self.tilt_max))
+        inside = (down >= self._sin_tilt[0]) & (down <= self._sin_tilt[1])
         if not self.continuous:
             inside &= self._pan_in_range(np.arctan2(b[:, 1], b[:, 0]))
         out = d / n[:, None]
@@ -89,27 +97,35 @@ class PanTiltConstraint:
             return out
         bf = b[fix] / n[fix, None]
         pan, tilt = direction_to_pan_tilt(bf)
-        best = pan_tilt_to_direction(pan, np.clip(tilt, self.tilt_min, self.tilt_max))
-        if not self.continuous:
+        if self.continuous:
+            best = pan_tilt_to_direction(pan, np.minimum(np.maximum(tilt, self.tilt_min), self.tilt_max))
+        else:  # onto the tilt limit of the meridian where the pan is inside its range, else onto an edge
             off = ~self._pan_in_range(pan)
-            if np.any(off):
-                best[off] = self._nearest_on_edges(bf[off])
+            if off.all():
+                best = self._nearest_on_edges(bf)
+            else:
+                best = pan_tilt_to_direction(pan, np.minimum(np.maximum(tilt, self.tilt_min), self.tilt_max))
+                if off.any():
+                    best[off] = self._nearest_on_edges(bf[off])
         world = np.einsum("nji,nj->ni", self.base_from_world[fix], best)  # base -> world (transpose)
-        out[fix] = world / np.linalg.norm(world, axis=1, keepdims=True)
+        out[fix] = world / np.sqrt(np.add.reduce(world * world, axis=1, keepdims=True))  # np.linalg.norm's sum
         return out
 
     def _nearest_on_edges(self, b: np.ndarray) -> np.ndarray:
         """Nearest point of the two boundary meridians (tilt-limited) to unit base directions b (n, 3)."""
         n = len(b)
-        pans, tilts = [], []
-        for p in (self.pan_min, self.pan_max):
-            g = b[:, 0] * np.cos(p) + b[:, 1] * np.sin(p)
-            t_star = np.arctan2(-b[:, 2], g)  # maximiser of d·dir(p, t) over the full circle
-            for t in (np.clip(t_star, self.tilt_min, self.tilt_max), np.full(n, self.tilt_min),
-                      np.full(n, self.tilt_max)):
-                pans.append(np.full(n, p))
-                tilts.append(t)
-        # one conversion for all six candidates per row: (n, 6, 3)
-        stack = pan_tilt_to_direction(np.stack(pans, axis=1).ravel(), np.stack(tilts, axis=1).ravel()).reshape(n, 6, 3)
+        cp, sp = self._edges
+        # on each meridian (columns: pan_min, pan_max) the maximiser of b·dir(p, t) over the full circle, clipped to
+        # the tilt limits
+        t = np.arctan2(-b[:, 2, None], b[:, 0, None] * cp + b[:, 1, None] * sp)  # (n, 2)
+        np.maximum(t, self.tilt_min, out=t)
+        np.minimum(t, self.tilt_max, out=t)
+        ct = np.cos(t)
+        # six candidates per row (n, 6, 3): those two, and each meridian's two ends at the tilt limits
+        stack = np.empty((n, 6, 3))
+        stack[:, _CORNERS] = self._corners
+        stack[:, ::3, 0] = cp * ct
+        stack[:, ::3, 1] = sp * ct
+        stack[:, ::3, 2] = -np.sin(t)
         best = np.argmax(np.einsum("nkj,nj->nk", stack, b), axis=1)
         return stack[np.arange(n), best]

@@ -323,13 +323,19 @@ def _predecessor(V: np.ndarray, cell: np.ndarray, rp: int, rt: int, wrap: bool) 
     lowest flat index."""
     P, T = V.shape
     i0, j0 = int(cell[0]), int(cell[1])
-    if wrap:
-        di = np.arange(-rp, rp + 1) if 2 * rp + 1 < P else np.arange(P) - i0
-        ii = np.remainder(i0 + di, P)
-        di = np.abs(np.remainder(ii - i0 + P // 2, P) - P // 2) if 2 * rp + 1 >= P else np.abs(di)
-    else:
-        ii = np.arange(max(i0 - rp, 0), min(i0 + rp, P - 1) + 1)
-        di = np.abs(ii - i0)
+    if not wrap:  # the rectangle is a slice of V
+        i_lo, j_lo = max(i0 - rp, 0), max(j0 - rt, 0)
+        block = V[i_lo:min(i0 + rp, P - 1) + 1, j_lo:min(j0 + rt, T - 1) + 1]
+        hits = np.flatnonzero(block == block.max())
+        hit_i, hit_j = np.divmod(hits, block.shape[1])
+        if hits.size > 1:  # ties: the smallest move, then the lowest flat index (row-major: the first hit)
+            move = np.abs(hit_i + (i_lo - i0)) + np.abs(hit_j + (j_lo - j0))
+            k = int(np.argmin(move))
+            hit_i, hit_j = hit_i[k:], hit_j[k:]
+        return i_lo + int(hit_i[0]), j_lo + int(hit_j[0])
+    di = np.arange(-rp, rp + 1) if 2 * rp + 1 < P else np.arange(P) - i0
+    ii = np.remainder(i0 + di, P)
+    di = np.abs(np.remainder(ii - i0 + P // 2, P) - P // 2) if 2 * rp + 1 >= P else np.abs(di)
     jj = np.arange(max(j0 - rt, 0), min(j0 + rt, T - 1) + 1)
     block = V[np.ix_(ii, jj)]
     best = block.max()
