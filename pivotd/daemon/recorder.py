@@ -18,7 +18,6 @@ once and kept in :meth:`Recorder.status`, and later messages are dropped and cou
 from __future__ import annotations
 
 import contextlib
-import enum
 import errno
 import logging
 import os
@@ -28,6 +27,7 @@ from collections import deque
 from pathlib import Path
 from typing import IO, Any
 
+from pivotd.compat import StrEnum
 from pivotd.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -44,7 +44,7 @@ MAX_QUEUED_BYTES = 64 * 1024 * 1024
 CLOSE_TIMEOUT_S = 10.0
 
 
-class RecordingState(enum.StrEnum):
+class RecordingState(StrEnum):
     """The status document's ``recording.state``."""
 
     OFF = "off"  # no --record
