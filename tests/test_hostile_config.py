@@ -7,6 +7,7 @@ import re
 import tracemalloc
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings
@@ -217,3 +218,21 @@ def test_a_vector_reads_exponent_numbers_as_numbers(tmp_path):
 def test_an_integer_too_long_to_read_names_its_line_and_key(tmp_path):
     f = _write(tmp_path, BASE + "planner:\n  horizon: " + "9" * 5000 + "\n")
     assert _error(f).startswith(f"{f}:4: planner.horizon: YAML value cannot be read (ValueError: ")
+
+
+@pytest.mark.parametrize(("name", "write", "problem"), [
+    ("plain.txt", lambda p: p.write_text("0 0 0 1\n1 2 3 1\n"), "needs a header row naming the columns"),
+    ("m.npy", lambda p: np.save(p, np.zeros((2, 3))), "applies to PLY and PCD maps and text maps with a header row"),
+])
+def test_a_weight_property_the_map_cannot_have_names_the_map_and_the_key(tmp_path, name, write, problem):
+    write(tmp_path / name)
+    f = _write(tmp_path, f"map:\n  file: {name}\n  weight_property: w\n")
+    message = _error(f)
+    assert message.startswith(f"{f}:3: map.weight_property: {tmp_path / name}: weight property 'w' "), message
+    assert problem in message
+
+
+def test_a_weight_property_a_header_row_names_is_accepted(tmp_path):
+    (tmp_path / "named.txt").write_text("x y z w\n0 0 0 1\n")
+    cfg = load_config(_write(tmp_path, "map:\n  file: named.txt\n  weight_property: w\n"))
+    assert cfg.map.weight_property == "w"
