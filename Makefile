@@ -1,6 +1,8 @@
 # One-command entry points. Each target creates .venv and installs the project on first use.
+# Another interpreter in its own venv (Python 3.10 to 3.12 are supported; .ci/run does this for 3.10 and 3.12):
+#   make PYTHON=python3.12 VENV=/tmp/venv-3.12 test-fast
 PYTHON ?= python3
-VENV := .venv
+VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 BACKEND ?= pivot

@@ -59,12 +59,16 @@ def test_demo_summary_reports_the_map():
         # the map is loaded as the daemon loads it: its weight property too
         ("map: {file: named.csv, weight_property: score}\n", "named.csv:1: header row has no weight column 'score'"),
         ("map: {file: empty.txt}\n", "empty.txt: map is empty"),
+        ("map: {file: plain.txt, weight_property: w}\n",
+         "broken.yaml:1: map.weight_property: {tmp}/plain.txt: weight property 'w' needs a header row"),
     ],
 )
 def test_broken_configs_exit_2_with_one_line(tmp_path, text, expected):
     (tmp_path / "bad_map.txt").write_text("0 0 0\n1 2\n")
     (tmp_path / "named.csv").write_text("x,y,z,intensity\n0,0,0,1\n")
     (tmp_path / "empty.txt").write_text("# no landmarks yet\n")
+    (tmp_path / "plain.txt").write_text("0 0 0 1\n")
+    expected = expected.replace("{tmp}", str(tmp_path))
     config = tmp_path / "broken.yaml"
     config.write_text(text)
     result = run_check(config)

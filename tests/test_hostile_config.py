@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import math
+import re
 import tracemalloc
 from pathlib import Path
 
+import numpy as np
 import pytest
+import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from test_config_doc import BASE as BASE_DOC
+from test_config_doc import DOCUMENTED, _with
 
 from firmware_proto.device import validate_config
 from firmware_proto.messages import Config as ConfigMessage
@@ -164,3 +169,70 @@ def test_wire_config_is_what_the_daemon_sends(tmp_path):
 
     cfg = load_config(_write(tmp_path, BASE))
     assert build_link_config(cfg).limits == wire_config(cfg.gimbal, cfg.motion)
+
+
+# Every documented numeric key (tests/test_config_doc.py reads them off docs/CONFIG.md) and values no number
+# key may take: an integer beyond the float range (it once ended in "OverflowError: int too large to convert to
+# float"), infinities and nan.
+NUMERIC_KEYS = [k for k, v in DOCUMENTED if isinstance(v, int | float) and not isinstance(v, bool)]
+HUGE = int("9" * 400)
+
+
+def _doc_with(key: str, value: object) -> str:
+    return yaml.safe_dump(_with(dict(BASE_DOC), key, value))
+
+
+def test_the_numeric_keys_are_found():
+    assert len(NUMERIC_KEYS) >= 60 and {"control.rate_hz", "planner.horizon", "topics.max_pose_bytes"} <= set(
+        NUMERIC_KEYS)
+
+
+@pytest.mark.parametrize("key", NUMERIC_KEYS)
+@pytest.mark.parametrize("value", [HUGE, -HUGE, math.inf, -math.inf, math.nan], ids=["huge", "-huge", "inf", "-inf",
+                                                                                  "nan"])
+def test_every_numeric_key_refuses_values_beyond_the_finite_floats_in_one_line(tmp_path, key, value):
+    text = _doc_with(key, value)
+    line = next(i for i, row in enumerate(text.splitlines(), 1) if row.lstrip().startswith(key.split(".")[-1] + ":"))
+    message = _error(_write(tmp_path, text))
+    assert re.search(rf":{line}: {re.escape(key)}: must be (finite|an integer), got ", message), message
+    assert len(message) < 300  # the 400 digits are not repeated
+
+
+def test_a_huge_integer_is_shown_shortened(tmp_path):
+    f = _write(tmp_path, BASE + "control:\n  rate_hz: " + "9" * 400 + "\n")
+    assert _error(f) == f"{f}:4: control.rate_hz: must be finite, got 999…999 (400 digits)"
+
+
+@pytest.mark.parametrize("value", [str(HUGE), ".inf", ".nan", "1e999"])
+def test_a_vector_refuses_values_beyond_the_finite_floats(tmp_path, value):
+    f = _write(tmp_path, BASE + f"gimbal:\n  mount:\n    xyz: [0, {value}, 0]\n")
+    assert re.fullmatch(rf"{re.escape(str(f))}:5: gimbal\.mount\.xyz: must be a list of 3 finite numbers, got "
+                        r"\[0, (999…999 \(400 digits\)|inf|nan|'1e999'), 0\]", _error(f))
+
+
+def test_a_vector_reads_exponent_numbers_as_numbers(tmp_path):
+    cfg = load_config(_write(tmp_path, BASE + "gimbal:\n  mount:\n    xyz: [0, 1e-3, 2E2]\n"))
+    assert tuple(cfg.gimbal.mount.translation) == (0.0, 0.001, 200.0)
+
+
+def test_an_integer_too_long_to_read_names_its_line_and_key(tmp_path):
+    f = _write(tmp_path, BASE + "planner:\n  horizon: " + "9" * 5000 + "\n")
+    assert _error(f).startswith(f"{f}:4: planner.horizon: YAML value cannot be read (ValueError: ")
+
+
+@pytest.mark.parametrize(("name", "write", "problem"), [
+    ("plain.txt", lambda p: p.write_text("0 0 0 1\n1 2 3 1\n"), "needs a header row naming the columns"),
+    ("m.npy", lambda p: np.save(p, np.zeros((2, 3))), "applies to PLY and PCD maps and text maps with a header row"),
+])
+def test_a_weight_property_the_map_cannot_have_names_the_map_and_the_key(tmp_path, name, write, problem):
+    write(tmp_path / name)
+    f = _write(tmp_path, f"map:\n  file: {name}\n  weight_property: w\n")
+    message = _error(f)
+    assert message.startswith(f"{f}:3: map.weight_property: {tmp_path / name}: weight property 'w' "), message
+    assert problem in message
+
+
+def test_a_weight_property_a_header_row_names_is_accepted(tmp_path):
+    (tmp_path / "named.txt").write_text("x y z w\n0 0 0 1\n")
+    cfg = load_config(_write(tmp_path, "map:\n  file: named.txt\n  weight_property: w\n"))
+    assert cfg.map.weight_property == "w"

@@ -29,12 +29,12 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from enum import StrEnum
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from pivotd.compat import StrEnum
 from pivotd.config import Config
 from pivotd.errors import InputError
 from pivotd.geometry import pan_tilt_to_direction

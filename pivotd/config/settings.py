@@ -31,6 +31,7 @@ from pivotd.config.yaml_reader import Section, read_yaml
 from pivotd.errors import ConfigError, InputError
 from pivotd.gimbal.kinematics import JointLimits, Mount
 from pivotd.gimbal.motion import AxisLimits
+from pivotd.maps.formats import weight_property_problem
 from pivotd.maps.occlusion import voxel_problem
 from pivotd.pivot.normalise import Normalisation
 from pivotd.pivot.steps import MAX_STEP_RANGE_DEG
@@ -558,6 +559,9 @@ def _map(s: Section) -> MapConfig:
     ).exists():
         raise s.error("file", f"{file} is a directory without a COLMAP points3D file")
     weight_property = s.string("weight_property", None)
+    if weight_property is not None and file is not None and (
+            problem := weight_property_problem(file, weight_property)) is not None:
+        raise s.error("weight_property", f"{file}: {problem}")
     f = s.section("filters")
     fd = MapFilters()
     min_range = f.number("min_range", fd.min_range, min=0.0)

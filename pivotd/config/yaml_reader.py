@@ -12,6 +12,7 @@ from __future__ import annotations
 import difflib
 import math
 import re
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -90,24 +91,30 @@ class _Converter:
         self.count = 0
         self.open: set[int] = set()  # ids of the nodes being converted (the current path from the root)
 
-    def convert(self, node: yaml.Node) -> Node:
+    def convert(self, node: yaml.Node, path: str = "") -> Node:
+        """``node`` (at dotted key ``path``, "" for the top level) as a :class:`Node`."""
         line = node.start_mark.line + 1
         self.count += 1
         if self.count > MAX_NODES:
             raise _LimitError(line, f"more than {MAX_NODES} values after expanding aliases")
         if not isinstance(node, yaml.MappingNode | yaml.SequenceNode):
-            return Node(self.constructor.construct_object(node, deep=True), line)
+            try:
+                return Node(self.constructor.construct_object(node, deep=True), line)
+            except (ValueError, OverflowError) as exc:  # a timestamp out of range, an integer of >4300 digits
+                where = f"{path}: " if path else ""
+                raise ConfigError(f"{self.file}:{line}: {where}YAML value cannot be read "
+                                  f"({type(exc).__name__}: {exc})") from None
         if id(node) in self.open:
             raise _LimitError(line, "recursive alias (a node that contains itself)")
         self.open.add(id(node))
         try:
             if isinstance(node, yaml.SequenceNode):
-                return Node([self.convert(item) for item in node.value], line)
-            return Node(self._mapping(node), line)
+                return Node([self.convert(item, f"{path}[{i}]") for i, item in enumerate(node.value)], line)
+            return Node(self._mapping(node, path), line)
         finally:
             self.open.discard(id(node))
 
-    def _mapping(self, node: yaml.MappingNode) -> dict[str, Node]:
+    def _mapping(self, node: yaml.MappingNode, path: str) -> dict[str, Node]:
         out: dict[str, Node] = {}
         for key_node, value_node in node.value:
             key_line = key_node.start_mark.line + 1
@@ -117,7 +124,7 @@ class _Converter:
                 raise ConfigError(f"{self.file}:{key_line}: key {shown} is not a string")
             if key in out:
                 raise ConfigError(f"{self.file}:{key_line}: {key}: duplicate key")
-            value = self.convert(value_node)
+            value = self.convert(value_node, f"{path}.{key}" if path else key)
             out[key] = Node(value.value, key_line)  # errors point at the key's line
         return out
 
@@ -220,18 +227,18 @@ class Section:
         if not given:
             return value
         what = "an integer" if integer else "a number"
-        if isinstance(value, str) and _YAML12_FLOAT.fullmatch(value.strip()):
-            value = float(value)  # YAML 1.2 reads 1e3 as a number; PyYAML (YAML 1.1) leaves it a string
-            if integer and value.is_integer():
+        if isinstance(value, str):
+            value = _yaml12_number(value)
+            if integer and isinstance(value, float) and value.is_integer():
                 value = int(value)
         if isinstance(value, bool) or not isinstance(value, int | float) or (integer and not isinstance(value, int)):
-            raise self.error(key, f"must be {what}, got {_kind(value)} {value!r}")
-        if not math.isfinite(value):
-            raise self.error(key, f"must be finite, got {value!r}")
+            raise self.error(key, f"must be {what}, got {_kind(value)} {_shown(value)}")
+        if not _finite(value):
+            raise self.error(key, f"must be finite, got {_shown(value)}")
         if min is not None and (value < min or (min_open and value == min)):
-            raise self.error(key, f"must be {'>' if min_open else '≥'} {min:g}, got {value!r}")
+            raise self.error(key, f"must be {'>' if min_open else '≥'} {min:g}, got {_shown(value)}")
         if max is not None and (value > max or (max_open and value == max)):
-            raise self.error(key, f"must be {'<' if max_open else '≤'} {max:g}, got {value!r}")
+            raise self.error(key, f"must be {'<' if max_open else '≤'} {max:g}, got {_shown(value)}")
         return int(value) if integer else float(value)
 
     def boolean(self, key: str, default: Any = _MISSING) -> Any:
@@ -287,8 +294,8 @@ class Section:
             raise self.error(key, f"must be a list of {length} numbers, got {_render(value)}")
         out = []
         for item in value:
-            v = item.value
-            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            v = _yaml12_number(item.value)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not _finite(v):
                 raise self.error(key, f"must be a list of {length} finite numbers, got {_render(value)}")
             out.append(float(v))
         return tuple(out)
@@ -323,6 +330,25 @@ class Section:
                 raise self.error_at(node.line, self.key_path(key), f"unknown key{hint}")
 
 
+def _yaml12_number(value: Any) -> Any:
+    """``value``, a string such as ``1e3`` as the float YAML 1.2 reads (PyYAML, YAML 1.1, leaves it a string)."""
+    return float(value) if isinstance(value, str) and _YAML12_FLOAT.fullmatch(value.strip()) else value
+
+
+def _finite(value: int | float) -> bool:
+    """Whether ``value`` is a finite number a float can hold: not inf or nan, no integer beyond ±1.8e308."""
+    return math.isfinite(value) if isinstance(value, float) else abs(value) <= sys.float_info.max
+
+
+def _shown(value: Any) -> str:
+    """``repr(value)``, an integer of more than 20 digits shortened to its first and last digits and its length."""
+    text = repr(value)
+    if isinstance(value, int) and len(text.lstrip("-")) > 20:
+        digits = text.lstrip("-")
+        return f"{text[: len(text) - len(digits)]}{digits[:3]}…{digits[-3:]} ({len(digits)} digits)"
+    return text
+
+
 def _kind(value: Any) -> str:
     if isinstance(value, dict):
         return "a mapping"
@@ -338,4 +364,4 @@ def _render(value: Any) -> str:
         return "[" + ", ".join(_render(item.value) for item in value) + "]"
     if isinstance(value, dict):
         return "a mapping"
-    return repr(value)
+    return _shown(value)

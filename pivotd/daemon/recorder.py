@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import contextlib
 import datetime
-import enum
 import errno
 import hashlib
 import itertools
@@ -44,6 +43,7 @@ from collections import deque
 from pathlib import Path
 from typing import IO, Any
 
+from pivotd.compat import StrEnum
 from pivotd.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -72,7 +72,7 @@ MAX_QUEUED_BYTES = 64 * 1024 * 1024
 CLOSE_TIMEOUT_S = 10.0
 
 
-class RecordingState(enum.StrEnum):
+class RecordingState(StrEnum):
     """The status document's ``recording.state``."""
 
     OFF = "off"  # no --record
@@ -102,7 +102,7 @@ class RecordingFiles:
 
     def create(self, when: datetime.datetime, what: str = "--record") -> tuple[Path, IO[bytes]]:
         """A new file for a part started at ``when``, created exclusively (an existing file is never opened)."""
-        base = f"{self.stem}-{when.astimezone(datetime.UTC).strftime(STAMP_FORMAT)}"
+        base = f"{self.stem}-{when.astimezone(datetime.timezone.utc).strftime(STAMP_FORMAT)}"
         try:
             self.dir.mkdir(parents=True, exist_ok=True)
             for n in itertools.count(1):
@@ -224,7 +224,7 @@ class Recorder:
         if files is None:
             self._file = _open(self.path, what)
         else:
-            self.path, self._file = files.create(datetime.datetime.now(datetime.UTC), what)
+            self.path, self._file = files.create(datetime.datetime.now(datetime.timezone.utc), what)
         self._typestore = get_typestore(Stores.ROS2_HUMBLE)
         self._header: list[tuple] = []  # metadata and attachments written at the start of every file
         self._seq: dict[str, int] = {}  # per topic, continued across files
@@ -361,7 +361,7 @@ class Recorder:
         self._finish_file()
         self._closed_bytes += self._stream.written
         done = self.path
-        self.path, file = self._files.create(datetime.datetime.now(datetime.UTC), self._what)
+        self.path, file = self._files.create(datetime.datetime.now(datetime.timezone.utc), self._what)
         self._new_file(file)
         log.info("recording: %s complete; continuing in %s", done, self.path)
         for item in self._header:

@@ -10,9 +10,10 @@ the planner's rate (``planner.replan_hz``) and answers whether a replan is due a
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import StrEnum
 
 import numpy as np
+
+from pivotd.compat import StrEnum
 
 
 class ReplanReason(StrEnum):

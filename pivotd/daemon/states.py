@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import enum
+from pivotd.compat import StrEnum
 
 
-class DaemonState(enum.StrEnum):
+class DaemonState(StrEnum):
     """What the daemon is doing. A control tick decides one of WAITING … PARKING; the daemon adds the rest."""
 
     STARTING = "starting"  # loading the config and the map, opening the bus and the gimbal

@@ -27,11 +27,12 @@ States (:class:`TrackingState`):
 
 from __future__ import annotations
 
-import enum
 import logging
 import math
 from collections import deque
 from dataclasses import dataclass
+
+from pivotd.compat import StrEnum
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +40,7 @@ AXES = ("pan", "tilt")
 REST_RATE = math.radians(1.0)  # [rad/s] an axis measured slower than this stands still
 
 
-class TrackingState(enum.StrEnum):
+class TrackingState(StrEnum):
     """Whether the axes follow their setpoints (see the module docstring)."""
 
     OK = "ok"

@@ -11,9 +11,10 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from firmware_proto.messages import MODE_DISABLED, MODE_ENABLED, MODE_FAULT, MODE_HOLDING
+from pivotd.compat import StrEnum
 
 
-class LinkState(enum.StrEnum):
+class LinkState(StrEnum):
     """Connection state of a gimbal link."""
 
     CONNECTING = "connecting"  # opening the port / handshake in progress

@@ -18,11 +18,11 @@ Pure functions, no I/O.
 
 from __future__ import annotations
 
-import enum
 import math
 from dataclasses import dataclass
 
 from firmware_proto.messages import FAULT_DRIVER, FAULT_ENCODER, FAULT_UNDERVOLTAGE
+from pivotd.compat import StrEnum
 from pivotd.gimbal.kinematics import JointLimits
 
 # --- common.xml values (checked byte for byte against the published definitions in tests/test_mavlink_golden.py)
@@ -58,7 +58,7 @@ for _flag, _ in _FAULT_MAP:
     SEVERE_DEVICE_ERRORS |= _flag
 
 
-class YawFrame(enum.StrEnum):
+class YawFrame(StrEnum):
     """The frame of a GIMBAL_DEVICE_ATTITUDE_STATUS's yaw, from its ``flags`` (:func:`yaw_frame`)."""
 
     VEHICLE = "vehicle"  # relative to the vehicle heading

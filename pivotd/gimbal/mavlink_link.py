@@ -31,7 +31,6 @@ once; it is not a measured state, so the silence rule and the state timeout trea
 from __future__ import annotations
 
 import contextlib
-import enum
 import logging
 import math
 import os
@@ -41,6 +40,7 @@ import time
 from dataclasses import dataclass, replace
 from typing import Any
 
+from pivotd.compat import StrEnum
 from pivotd.errors import ConfigError
 from pivotd.gimbal import mavlink_frames as mf
 from pivotd.gimbal.interface import GimbalMode, GimbalState, LinkState
@@ -103,7 +103,7 @@ def load_mavutil() -> Any:
     return mavutil
 
 
-class AttitudeDrop(enum.StrEnum):
+class AttitudeDrop(StrEnum):
     """Why a GIMBAL_DEVICE_ATTITUDE_STATUS is no measured state (the value is its counter)."""
 
     HEADING_UNKNOWN = "heading_unknown"  # yaw in the earth frame, no vehicle heading to turn it back by

@@ -23,10 +23,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from enum import StrEnum
 
 import numpy as np
 
+from pivotd.compat import StrEnum
 from pivotd.geometry import pan_tilt_to_direction
 from pivotd.localization.camera import camera_rotation, in_view_counts
 from pivotd.localization.fisher import best_view

@@ -19,10 +19,10 @@ floating-point rounding of sums).
 from __future__ import annotations
 
 import math
-from enum import StrEnum
 
 import numpy as np
 
+from pivotd.compat import StrEnum
 from pivotd.pivot._ascent import Geometry
 from pivotd.pivot.cone_kernel import cell_keys
 

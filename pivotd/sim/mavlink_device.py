@@ -20,7 +20,6 @@ vehicle (the joint angles) whatever the frame.
 
 from __future__ import annotations
 
-import enum
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -28,6 +27,7 @@ from typing import Any
 from firmware_proto.device import Axis
 from firmware_proto.messages import MODE_DISABLED, MODE_ENABLED, MODE_FAULT, SetpointV1, State
 from firmware_proto.realtime import CsvMessageLog
+from pivotd.compat import StrEnum
 from pivotd.gimbal import mavlink_frames as mf
 from pivotd.gimbal.kinematics import JointLimits
 from pivotd.gimbal.mavlink_link import load_mavutil
@@ -39,7 +39,7 @@ CAP_FLAGS = (mf.GIMBAL_MANAGER_CAP_FLAGS_HAS_PITCH_AXIS | mf.GIMBAL_MANAGER_CAP_
 SUBSTEP = 0.001  # s
 
 
-class StatusFrame(enum.StrEnum):
+class StatusFrame(StrEnum):
     """The frame GIMBAL_DEVICE_ATTITUDE_STATUS reports yaw in, and what it puts in ``flags`` and ``delta_yaw``."""
 
     VEHICLE = "vehicle"  # YAW_IN_VEHICLE_FRAME, delta_yaw = the heading
