@@ -238,7 +238,6 @@ def test_topics_section_is_the_bus_settings(tmp_path):
     ("section", "pattern"),
     [
         ("topics:\n  posee: /odom\n", r":5: topics\.posee: unknown key; did you mean pose\?"),
-        ("topics:\n  humble: true\n", r":5: topics\.humble: unknown key"),
         ("topics:\n  domain_id: '0'\n", r":5: topics\.domain_id: must be an integer, got str '0'"),
         ("topics:\n  domain_id: 233\n", r":5: topics\.domain_id: must be ≤ 232, got 233"),
         ("topics:\n  max_cloud_points: 10.5\n", r":5: topics\.max_cloud_points: must be an integer"),
@@ -320,3 +319,11 @@ def test_every_removed_key_is_gone_from_the_docs_keys_and_the_shipped_configs():
         assert f"| `{leaf}` |" not in config_doc, f"docs/CONFIG.md still documents {dotted} as a key"
         for yaml_file in CONFIG_DIR.glob("*.yaml"):
             assert f"{leaf}:" not in yaml_file.read_text(), f"{yaml_file} still sets {dotted}"
+
+
+def test_humble_key_form_is_a_topics_key(tmp_path):
+    on = load_config(write(tmp_path, "map: {allow_empty: true}\ntopics: {humble: true}\n", "humble.yaml"))
+    assert on.topics.humble is True
+    assert load_config(write(tmp_path, "map: {allow_empty: true}\n", "jazzy.yaml")).topics.humble is False
+    message = load_error(tmp_path, "map: {allow_empty: true}\ntopics: {humble: 3}\n")
+    assert re.search(r"bad\.yaml:2: topics\.humble: must be true or false", message)
