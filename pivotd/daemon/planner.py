@@ -312,6 +312,8 @@ class RecedingHorizonPlanner:
         self._moved: tuple[float, np.ndarray] | None = None  # (time [s], body position) of the last replan
         self.speed: float | None = None  # [m/s] the robot's measured speed (smoothed over replans)
         self.joint_solves = 0  # replans that solved the joint-grid seed (another basin than the plan's)
+        self._deferred: tuple[int, np.ndarray, np.ndarray] | None = None  # (path version, s (N,), directions (N, 3))
+        # of a joint-grid seed in another basin, to be solved by the next replan
         self._kernel: ConeKernel | None = None  # the rescue's single-view cone kernel (see _view_kernel)
 
     def set_path(self, positions: np.ndarray | None, quats: np.ndarray | None, version: int) -> None:
@@ -475,7 +477,13 @@ class RecedingHorizonPlanner:
             constraint=self._constraint(quats), max_step=st.max_step, options=st.options,
         )
         executed = _Execution(self, s, quats, anchor)
-        result = executed.best(problem, self._solve_each(problem, self._seeds(problem, warm, anchor)))
+        deferred = self._take_deferred(s, mode) if warm is not None else None
+        if deferred is None:
+            result = executed.best(problem, self._solve_each(problem, self._seeds(problem, warm, anchor)))
+        else:  # one solve per replan: the other basin found last replan is solved, the warm plan kept as it is
+            self.joint_solves += 1
+            kept = problem.evaluate(Seed("warm", warm, SeedKind.WARM))
+            result = executed.best(problem, [kept, *self._solve_each(problem, [deferred])])
         # the joint-grid seed where the problem brings something new: a plan without a previous one, or a waypoint
         # that entered the horizon (between those the grid's answer barely moves; the rescue covers blind plans)
         # (not on the replan that queried the map for it: the work of a new waypoint is spread over two replans)
@@ -485,16 +493,18 @@ class RecedingHorizonPlanner:
         if due:
             self._joint_keys = keys
         other_basin = joint is not None and self._other_basin(problem, joint, result, executed)
-        if other_basin:
+        if other_basin and warm is None:
             self.joint_solves += 1
             result = executed.best(problem, [result, *self._solve_each(problem, [joint[0]])])
+        elif other_basin:  # a warm replan has had its solve: the next one solves this seed (_take_deferred)
+            self._deferred = (self._path_version, s.copy(), joint[0].directions.copy())
         if warm is None:
             derived = derived_seeds(problem, result)
             if derived:
                 result = executed.best(problem, [result, *self._solve_each(problem, derived)])
         rescue = Rescue.NOT_TRIED
         # one second solve per warm replan at most: the rescue only where the joint-grid seed found no other basin
-        if warm is not None and st.rescue_fraction is not None and not other_basin:
+        if warm is not None and st.rescue_fraction is not None and not other_basin and deferred is None:
             result, rescue = self._rescue(snapshot, cams, s, retained, result, problem, executed)
         self.last_objective = result.objective
         directions, visible = result.directions, np.asarray(result.visible)
@@ -531,6 +541,21 @@ class RecedingHorizonPlanner:
         out = [] if anchor is None else [Seed("anchor", np.repeat(np.asarray(anchor, float)[None, :], problem.n,
                                                                   axis=0), SeedKind.WARM)]
         return out + cold_seeds(problem)
+
+    def _take_deferred(self, s: np.ndarray, mode: PathMode) -> Seed | None:
+        """The joint-grid seed the last warm replan found in another basin, at this horizon's arc lengths ``s``
+        (N,) [m] (its last direction held beyond its end), once; None when there is none or it was made for another
+        path or mode."""
+        deferred, self._deferred = self._deferred, None
+        if deferred is None or mode is not PathMode.ON_PATH:
+            return None
+        version, s_old, dirs = deferred
+        if version != self._path_version or s_old.shape[0] < 2:
+            return None
+        out = np.empty((s.shape[0], 3))
+        for k in range(3):
+            out[:, k] = np.interp(s, s_old, dirs[:, k])
+        return Seed("joint_grid", normalize(out), SeedKind.WARM)
 
     def _measure_speed(self, now: float, body_position: np.ndarray) -> None:
         """Update :attr:`speed` from the travel since the last replan (an average over about a second)."""

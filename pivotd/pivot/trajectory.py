@@ -194,6 +194,15 @@ class TrajectoryProblem:
             C = self.constraint.project(C)
         return C
 
+    def evaluate(self, seed: Seed) -> TrajectoryResult:
+        """The plan ``seed`` as it is (made unit and reachable, no ascent), judged: a candidate that costs no solve
+        (0 iterations)."""
+        C = self.project(seed.directions)
+        if self.max_step is not None:
+            C = limit_steps(C, self.max_step, anchor=self.anchor, constraint=self.constraint)
+        visible, obj = self.judge(C)
+        return TrajectoryResult(C, optical_frame_from_direction(C), visible, 0, obj, seed.name)
+
     def solve(self, seed: Seed) -> TrajectoryResult:
         """The plan from ``seed``: gradient ascent (:func:`pivotd.pivot._ascent.ascend`) with the budget of the
         seed's kind, the step limit, the step-limited polish of cold seeds, then the judge."""
