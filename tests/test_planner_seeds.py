@@ -65,8 +65,13 @@ def test_the_joint_grid_seed_leaves_a_blank_warm_plan_within_the_axis_speeds():
     # the replan that queries the map for the horizon leaves the joint-grid seed to the next one
     first = pl.replan(snap, np.zeros(3), IDENTITY, BLANK, now=0.0)
     assert first.seed == "warm" and pl.joint_solves == 0
-    plan = pl.replan(snap, np.array([0.05, 0.0, 0.0]), IDENTITY, BLANK, now=0.05)
-    assert plan.seed == "joint_grid" and pl.joint_solves == 1
+    # the next one finds it in another basin after its own (warm) solve; one solve per replan: the one after
+    # solves it, against the warm plan kept as it is
+    second = pl.replan(snap, np.array([0.05, 0.0, 0.0]), IDENTITY, BLANK, now=0.05)
+    assert second.seed == "warm" and pl.joint_solves == 0
+    solves = pl.solves
+    plan = pl.replan(snap, np.array([0.1, 0.0, 0.0]), IDENTITY, BLANK, now=0.1)
+    assert plan.seed == "joint_grid" and pl.joint_solves == 1 and pl.solves == solves + 1
     assert np.median(plan.visible) > 300
     # the commanded direction is where the plan starts from: its first move fits the pan speed at 1 m/s
     first = angle_between(plan.directions[0], BLANK)
