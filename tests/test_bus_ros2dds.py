@@ -221,3 +221,27 @@ def test_bridge_node_publishers_for_added_topics_use_the_bridge_names():
         finally:
             for p in pubs:
                 p.close()
+
+
+# ------------------------------------------------------------------ the config key
+
+MINIMAL = "name: test-node\nmap:\n  allow_empty: true\n"
+
+
+def test_config_key_topics_wire(tmp_path):
+    from pivotd.config import load_config
+
+    ok = tmp_path / "ok.yaml"
+    ok.write_text(MINIMAL + "topics:\n  wire: ros2dds_bridge\n  namespace: /robot1\n  tf: /tf\n")
+    t = load_config(ok).topics
+    assert (t.wire, t.bridged, bridge_key(t.tf), bridge_key(t.pose)) == ("ros2dds_bridge", True, "robot1/tf",
+                                                                          "robot1/odom")
+    default = tmp_path / "default.yaml"
+    default.write_text(MINIMAL)
+    assert load_config(default).topics.wire == "rmw_zenoh"
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(MINIMAL + "topics:\n  wire: dds\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(bad)
+    message = str(info.value)
+    assert message.startswith(f"{bad}:5: topics.wire:") and "ros2dds_bridge" in message and "\n" not in message
