@@ -245,3 +245,8 @@ def test_config_key_topics_wire(tmp_path):
         load_config(bad)
     message = str(info.value)
     assert message.startswith(f"{bad}:5: topics.wire:") and "ros2dds_bridge" in message and "\n" not in message
+
+
+def test_a_shared_topic_outside_the_robots_namespace_with_the_root_namespace():
+    t = BusTopics(pose="/robot1/odom", landmarks="/fleet/map", **BRIDGED)
+    assert (bridge_key(t.pose), bridge_key(t.landmarks)) == ("robot1/odom", "fleet/map")
