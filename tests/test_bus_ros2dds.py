@@ -250,3 +250,25 @@ def test_config_key_topics_wire(tmp_path):
 def test_a_shared_topic_outside_the_robots_namespace_with_the_root_namespace():
     t = BusTopics(pose="/robot1/odom", landmarks="/fleet/map", **BRIDGED)
     assert (bridge_key(t.pose), bridge_key(t.landmarks)) == ("robot1/odom", "fleet/map")
+
+
+def test_pose_from_tf_through_the_bridge_with_tf_static_latched_before_pivotd_starts():
+    t = BusTopics(namespace="/robot1", pose_source="tf", **BRIDGED)
+    poses = queue.Queue()
+    ident = np.array([0.0, 0.0, 0.0, 1.0])
+    with session_pair() as (a, b, _):
+        static = zext.declare_advanced_publisher(b, "robot1/tf_static", cache=zext.CacheConfig(max_samples=1),
+                                                 publisher_detection=True)
+        static.put(m.encode_transforms([(1.0, "base_footprint", "base_link", np.array([0.0, 0.0, 0.5]), ident)]))
+        bus = PivotBus(a, t, on_pose=poses.put, tf_timeout=30.0)
+        tf = b.declare_publisher("robot1/tf")
+        try:
+            assert wait_for(lambda: bus.counters()["/robot1/tf_static"]["accepted"] == 1)
+            assert wait_for(lambda: tf.matching_status.matching)
+            tf.put(m.encode_transforms([(time.time(), "map", "base_footprint", np.array([1.0, 2.0, 0.0]), ident)]))
+            (pose,) = drain(poses, 1)
+            np.testing.assert_allclose(pose.position, [1.0, 2.0, 0.5])
+        finally:
+            bus.close()
+            tf.undeclare()
+            static.undeclare()
