@@ -1,6 +1,7 @@
 """The daemon-facing bus facade: ROS 2 topics in and out over Zenoh, plus the JSON status key.
 
-:class:`PivotBus` declares one rmw_zenoh node with subscriptions for the pose (the pose topic, or with
+:class:`PivotBus` declares one rmw_zenoh node (with ``topics.wire: ros2dds_bridge``: the plain keys of
+zenoh-bridge-ros2dds, :mod:`pivotd.bus.ros2dds`) with subscriptions for the pose (the pose topic, or with
 ``topics.pose_source: tf`` the ``/tf`` and ``/tf_static`` topics the pose is composed from, :mod:`pivotd.bus.tf_pose`),
 path, landmarks and targets, publishers for joint states and the view plan, and a plain Zenoh publisher + queryable for
 status. The map layers also take the latest stored sample at start (:mod:`pivotd.bus.stored`).
@@ -28,6 +29,7 @@ from pivotd.bus.inbox import Decoder, Inbox
 from pivotd.bus.qos import QoS, TopicQoS
 from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.bus.ros import Attachment, RosNode, RosPublisher, msgtype_of_key
+from pivotd.bus.ros2dds import BridgeNode, BridgePublisher
 from pivotd.bus.stored import fetch_stored
 from pivotd.bus.tf_pose import TfPose
 from pivotd.bus.topics import BusTopics, normalize_topic
@@ -74,7 +76,10 @@ another) and should be short. ``on_raw(topic, msgtype,
         self._closed = False
         self._large_seen = threading.Event()
         self.node_name = node_name
-        self.node = RosNode(session, node_name, topics.domain_id, topics.namespace, humble=topics.humble)
+        # the wire fork: rmw_zenoh's keys, attachments and tokens, or zenoh-bridge-ros2dds's plain keys
+        self.node: RosNode | BridgeNode = (
+            BridgeNode(session, topics.namespace) if topics.bridged
+            else RosNode(session, node_name, topics.domain_id, topics.namespace, humble=topics.humble))
         self._entities: list[Any] = []
         self._takers: dict[str, Callable[[bytes, float], None]] = {}
         self._msgtypes: dict[str, str] = {}
@@ -139,11 +144,12 @@ another) and should be short. ``on_raw(topic, msgtype,
         self._takers[name] = take
         self._msgtypes[name] = msgtype
         inbox.add_topic(name, capacity)
+        bridged = self.topics.bridged
 
         def on_sample(sample: zenoh.Sample) -> None:
             rx = time.monotonic()
             self._count(name, "received")
-            got = msgtype_of_key(str(sample.key_expr))
+            got = msgtype if bridged else msgtype_of_key(str(sample.key_expr))  # the bridge's keys name no type
             if got != msgtype:
                 self._drop(name, "wrong_type", f"{name}: message of type {got or '?'} on a {msgtype} topic")
                 return
@@ -256,13 +262,13 @@ another) and should be short. ``on_raw(topic, msgtype,
         frame = self.topics.frame_id or "map"
         self._put(self.view_plan_publisher, m.encode_view_plan(stamp, frame, positions, directions))
 
-    def add_publisher(self, topic: str, msgtype: str, qos: QoS) -> RosPublisher:
+    def add_publisher(self, topic: str, msgtype: str, qos: QoS) -> RosPublisher | BridgePublisher:
         """Declare another ROS publisher of pivotd's node (closed with the bus); publish with :meth:`put`."""
         pub = self.node.publisher(topic, msgtype, qos)
         self._entities.append(pub)
         return pub
 
-    def put(self, pub: RosPublisher, payload: bytes) -> None:
+    def put(self, pub: RosPublisher | BridgePublisher, payload: bytes) -> None:
         """Publish a CDR payload on a publisher of this bus (recorded like the bus's own outputs)."""
         self._put(pub, payload)
 

@@ -20,7 +20,7 @@ import zenoh
 from pivotd.bus import messages as m
 from pivotd.bus.ros import topic_key
 from pivotd.bus.session import open_session
-from pivotd.bus.topics import BusTopics, normalize_topic
+from pivotd.bus.topics import BusTopics, bridge_key, normalize_topic
 
 log = logging.getLogger(__name__)
 
@@ -59,9 +59,9 @@ class BusProbe:
         self._subs: list[Any] = []
         try:
             for key, handler in (
-                (topic_key(t.domain_id, t.joint_states, m.JOINT_STATE, "*"), self._on_joint),
-                (topic_key(t.domain_id, t.pose, t.pose_type, "*"), self._on_pose),
-                (topic_key(t.domain_id, t.view_plan, m.PATH, "*"), self._on_plan),
+                (_key(t, t.joint_states, m.JOINT_STATE), self._on_joint),
+                (_key(t, t.pose, t.pose_type), self._on_pose),
+                (_key(t, t.view_plan, m.PATH), self._on_plan),
                 (t.status_key, self._on_status),
             ):
                 self._subs.append(session.declare_subscriber(key, handler))
@@ -160,3 +160,8 @@ class BusProbe:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _key(topics: BusTopics, topic: str, msgtype: str) -> str:
+    """The data key of ``topic`` on the configured wire (rmw_zenoh: any hash; the bridge: the plain key)."""
+    return bridge_key(topic) if topics.bridged else topic_key(topics.domain_id, topic, msgtype, "*")

@@ -25,6 +25,11 @@ PAYLOAD_LIMITS = ("max_pose_bytes", "max_path_bytes", "max_cloud_bytes", "max_tf
 MIN_PAYLOAD_LIMIT = 256
 #: Largest ``topics.tf_max_frames``.
 MAX_TF_FRAMES = 10_000
+#: How the topics are carried on Zenoh (``topics.wire``): as rmw_zenoh does (domain, type and hash in the key,
+#: attachments, liveliness tokens), or as zenoh-bridge-ros2dds routes a DDS robot's topics (the topic name as the
+#: key, bare CDR; :mod:`pivotd.bus.ros2dds`).
+WIRE_RMW_ZENOH, WIRE_ROS2DDS_BRIDGE = "rmw_zenoh", "ros2dds_bridge"
+WIRES = (WIRE_RMW_ZENOH, WIRE_ROS2DDS_BRIDGE)
 
 
 def status_key_for(name: str) -> str:
@@ -45,6 +50,24 @@ def resolve_topic(topic: str, namespace: str = "/") -> str:
         return normalize_topic(topic)
     ns = normalize_namespace(namespace)
     return normalize_topic(topic if ns == "/" else f"{ns}/{topic.strip()}")
+
+
+def bridge_topic(topic: str, namespace: str = "/") -> str:
+    """The name zenoh-bridge-ros2dds configured with ``namespace`` gives the robot's topic ``topic`` on Zenoh.
+
+    The bridge puts its namespace in front of every topic it routes, absolute names such as ``/tf`` too
+    (``bridge_topic("/tf", "/robot1") == "/robot1/tf"``); a relative name is a name of the robot's root
+    namespace, and a name already under ``namespace`` is taken as routed (so the function is idempotent).
+    """
+    ns = normalize_namespace(namespace)
+    name = resolve_topic(topic, ns)
+    return name if ns == "/" or name.startswith(ns + "/") else ns + name
+
+
+def bridge_key(topic: str) -> str:
+    """Zenoh key of a topic routed by zenoh-bridge-ros2dds: its name (:func:`bridge_topic`) without the leading
+    slash, e.g. ``robot1/odom``; no domain, type or hash."""
+    return normalize_topic(topic)[1:]
 
 
 def normalize_topic(topic: str) -> str:
@@ -73,6 +96,8 @@ class BusTopics:
     taken as being in ``frame_id``; ``humble``: publish with rmw_zenoh's Humble key form (no type hash)
     instead of RIHS01 hashes. ``frame_id`` None accepts any frame.
     ``max_*_bytes``: payload size limits [bytes] of the pose, path, cloud and TF topics, checked before decoding.
+    ``wire``: :data:`WIRE_RMW_ZENOH` or :data:`WIRE_ROS2DDS_BRIDGE`; with the bridge, ``namespace`` is the bridge's
+    ``namespace`` and goes in front of every topic, absolute names too (:func:`bridge_topic`).
     ``pose_source``: ``"topic"`` (the pose topic) or ``"tf"``: the pose of ``base_frame`` in ``map_frame``
     composed from ``tf`` and ``tf_static`` (:mod:`pivotd.bus.tf_tree`, at most ``tf_max_frames`` frames).
     """
@@ -101,8 +126,11 @@ class BusTopics:
     accept_empty_frame: bool = True
     namespace: str = "/"
     humble: bool = False
+    wire: str = WIRE_RMW_ZENOH
 
     def __post_init__(self) -> None:
+        if self.wire not in WIRES:
+            raise ConfigError(f"wire {self.wire!r} must be one of {', '.join(WIRES)}")
         if self.pose_type not in POSE_TYPES:
             raise ConfigError(f"pose_type {self.pose_type!r} must be one of {', '.join(POSE_TYPES)}")
         if self.pose_source not in POSE_SOURCES:
@@ -123,11 +151,17 @@ class BusTopics:
         if not isinstance(self.domain_id, int) or not 0 <= self.domain_id <= 232:
             raise ConfigError(f"domain_id must be an integer in 0..232, got {self.domain_id!r}")
         object.__setattr__(self, "namespace", normalize_namespace(self.namespace))
+        resolve = bridge_topic if self.bridged else resolve_topic
         for name in TOPIC_FIELDS:
-            object.__setattr__(self, name, resolve_topic(getattr(self, name), self.namespace))
+            object.__setattr__(self, name, resolve(getattr(self, name), self.namespace))
         key = self.status_key
         if not key or key.startswith("/") or key.endswith("/") or any(c in key for c in "*$?# "):
             raise ConfigError(f"status_key {key!r} is not a plain Zenoh key such as pivot/pivotd/status")
+
+    @property
+    def bridged(self) -> bool:
+        """Whether the topics are carried as zenoh-bridge-ros2dds routes them (``wire: ros2dds_bridge``)."""
+        return self.wire == WIRE_ROS2DDS_BRIDGE
 
     @property
     def pose_from_tf(self) -> bool:

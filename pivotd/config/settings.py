@@ -24,6 +24,7 @@ from pivotd.bus.topics import (
     PAYLOAD_LIMITS,
     POSE_SOURCES,
     POSE_TYPES,
+    WIRES,
     BusTopics,
     status_key_for,
 )
@@ -528,6 +529,7 @@ def _topics(s: Section) -> BusTopics:
                            pattern_help="a ROS namespace such as /robot1"),
         domain_id=s.number("domain_id", d.domain_id, min=0, max=232, integer=True),
         humble=s.boolean("humble", d.humble),
+        wire=s.string("wire", d.wire, choices=WIRES),
         pose=topic("pose"),
         pose_type=s.string("pose_type", d.pose_type, choices=POSE_TYPES),
         path=topic("path"),
