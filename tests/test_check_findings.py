@@ -6,6 +6,7 @@ with exit 0, or 1 with --strict; --offline skips the live probes (open the devic
 
 from __future__ import annotations
 
+import json
 import os
 import socket
 import subprocess
@@ -14,7 +15,7 @@ from pathlib import Path
 
 import pytest
 from bus_support import open_router
-from support import REPO, child_env, free_tcp_port
+from support import REPO, child_env, free_tcp_port, wait_until
 from test_maps_colmap import write_text_model
 
 from pivotd.cli import main
@@ -181,8 +182,50 @@ def test_files_the_unit_hides_warn_and_fail_under_systemd(capsys, tmp_path, monk
     assert code == 0 and "OK" in out
     assert err == [f"warning: {expected}"]
     assert check(capsys, config, "--strict")[0] == 1
-    monkeypatch.setenv("INVOCATION_ID", "0123456789abcdef0123456789abcdef")  # as systemd sets it for a unit
-    assert only_error(*check(capsys, config, "--offline")) == expected
+    # a shell in a terminal that runs as a user service has $INVOCATION_ID too, but not PID 1 as its parent
+    monkeypatch.setenv("INVOCATION_ID", "0123456789abcdef0123456789abcdef")
+    assert check(capsys, config)[2] == [f"warning: {expected}"]
+
+
+ORPHAN = """
+import json, os, sys, time
+parent = os.getpid()  # the grandchild waits until this process is gone
+if os.fork():
+    os._exit(0)
+deadline = time.monotonic() + 30
+while os.getppid() == parent and time.monotonic() < deadline:
+    time.sleep(0.01)
+result = sys.argv[1]
+if os.getppid() != 1:  # a subreaper adopted it: no process here has PID 1 as its parent
+    code, err = None, ""
+else:
+    import contextlib, io
+    from pivotd.cli import main
+    buf = io.StringIO()
+    with contextlib.redirect_stderr(buf), contextlib.redirect_stdout(io.StringIO()):
+        code = main(["check", "--offline", "--config", sys.argv[2]])
+    err = buf.getvalue()
+with open(result + ".tmp", "w") as fh:
+    json.dump({"code": code, "stderr": err}, fh)
+os.replace(result + ".tmp", result)
+"""
+
+
+@pytest.mark.slow
+def test_files_the_unit_hides_fail_as_a_system_service(tmp_path):
+    """As ExecStartPre: $INVOCATION_ID set and PID 1 the parent (an orphaned grandchild here, adopted by PID 1)."""
+    config = write(tmp_path, f"{MAP}record:\n  path: /home/someone/recordings\n")
+    result = tmp_path / "result.json"
+    subprocess.run([sys.executable, "-c", ORPHAN, str(result), str(config)], check=True, timeout=60,
+                   env=child_env(INVOCATION_ID="0123456789abcdef0123456789abcdef"))
+    assert wait_until(result.exists, timeout=120)
+    outcome = json.loads(result.read_text())
+    if outcome["code"] is None:
+        pytest.skip("orphans are adopted by a subreaper here, not by PID 1")
+    assert outcome["code"] == 2
+    assert outcome["stderr"].splitlines() == [
+        f"pivotd check: error: {config}:3: record.path: /home/someone/recordings is under /home, which "
+        "pivotd.service hides from the daemon (ProtectHome=yes): keep it under /etc/pivotd or /var/lib/pivotd"]
 
 
 # ------------------------------------------------------------------------------------------ implausible values

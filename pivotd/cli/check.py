@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 
 import numpy as np
@@ -23,6 +22,7 @@ from pivotd.cli.check_rules import (
     map_has_directions,
     plausibility_findings,
     static_findings,
+    under_system_unit,
 )
 from pivotd.config import Config, load_config
 from pivotd.errors import ConfigError, InputError
@@ -43,8 +43,7 @@ def run(args: argparse.Namespace) -> int:
     if getattr(args, "port", None) is not None:
         cfg = cfg.with_overrides(port=args.port)
     raw = RawConfig.read(cfg)
-    # systemd sets INVOCATION_ID for every unit's processes: then this is pivotd.service's ExecStartPre
-    static = static_findings(cfg, raw, under_systemd=bool(os.environ.get("INVOCATION_ID")))
+    static = static_findings(cfg, raw, under_systemd=under_system_unit())
     _raise_first_error(cfg, static)
     m = cfg.map  # loaded as the daemon loads it (pivotd.daemon.wiring), so that check fails where it would
     cloud = (load_landmarks(m.file, weight_property=m.weight_property, allow_empty=m.allow_empty)

@@ -114,6 +114,13 @@ def finding(raw: RawConfig, severity: Severity, key: str, message: str) -> Findi
 
 
 # ------------------------------------------------------------------------------------------ static
+def under_system_unit() -> bool:
+    """Whether this process is a system service's (pivotd.service's ExecStartPre): systemd sets ``$INVOCATION_ID``
+    for a unit's processes and the system manager (PID 1) is their parent. The parent tells it apart from a shell
+    in a terminal that runs as a user service and passes its ``$INVOCATION_ID`` on."""
+    return bool(os.environ.get("INVOCATION_ID")) and os.getppid() == 1
+
+
 def static_findings(cfg: Config, raw: RawConfig, under_systemd: bool) -> list[Finding]:
     """Errors that need no map: the backend's package, the serial device, files hidden by the unit's sandbox."""
     out = [f for f in (backend_package(cfg, raw), port_static(cfg, raw)) if f is not None]
@@ -190,7 +197,7 @@ def configured_files(cfg: Config) -> Iterator[tuple[str, Path]]:
 
 def protected_home(cfg: Config, raw: RawConfig, under_systemd: bool) -> list[Finding]:
     """Files under /home, /root or /run/user, which pivotd.service hides (ProtectHome=yes): a warning, and an
-    error when ``check`` runs under systemd (``$INVOCATION_ID`` set), where the daemon cannot see them."""
+    error when ``check`` runs as a system service (:func:`under_system_unit`), where the daemon cannot see them."""
     severity = Severity.ERROR if under_systemd else Severity.WARNING
     out = []
     for key, path in configured_files(cfg):
