@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     if getattr(args, "port", None) is not None:
         cfg = cfg.with_overrides(port=args.port)
     raw = RawConfig.read(cfg)
-    static = static_findings(cfg, raw, under_systemd=under_system_unit())
+    static = static_findings(cfg, raw, under_systemd=under_system_unit(), offline=getattr(args, "offline", False))
     _raise_first_error(cfg, static)
     m = cfg.map  # loaded as the daemon loads it (pivotd.daemon.wiring), so that check fails where it would
     cloud = (load_landmarks(m.file, weight_property=m.weight_property, allow_empty=m.allow_empty)

@@ -121,9 +121,10 @@ def under_system_unit() -> bool:
     return bool(os.environ.get("INVOCATION_ID")) and os.getppid() == 1
 
 
-def static_findings(cfg: Config, raw: RawConfig, under_systemd: bool) -> list[Finding]:
-    """Errors that need no map: the backend's package, the serial device, files hidden by the unit's sandbox."""
-    out = [f for f in (backend_package(cfg, raw), port_static(cfg, raw)) if f is not None]
+def static_findings(cfg: Config, raw: RawConfig, under_systemd: bool, offline: bool = False) -> list[Finding]:
+    """Errors that need no map: the backend's package, the serial device, files hidden by the unit's sandbox
+    (``offline``: a device that is absent now is a warning, see :func:`port_static`)."""
+    out = [f for f in (backend_package(cfg, raw), port_static(cfg, raw, offline)) if f is not None]
     return out + protected_home(cfg, raw, under_systemd)
 
 
@@ -163,8 +164,11 @@ def _tcp_address(port: str) -> tuple[str, int] | None:
     return (host.strip("[]"), int(number)) if sep and host and number.isdigit() else None
 
 
-def port_static(cfg: Config, raw: RawConfig) -> Finding | None:
-    """A device path that does not exist, is a directory, or that this user may not read and write."""
+def port_static(cfg: Config, raw: RawConfig, offline: bool = False) -> Finding | None:
+    """A device path that does not exist, is a directory, or that this user may not read and write.
+
+    A device that does not exist is an error, except ``offline`` (the unit's check before each start): the daemon
+    waits for an adapter plugged in later, holding, so there it is a warning."""
     g = cfg.gimbal
     kind = port_kind(g.backend, g.port)
     if kind is PortKind.TCP and _tcp_address(g.port) is None:
@@ -174,6 +178,9 @@ def port_static(cfg: Config, raw: RawConfig) -> Finding | None:
     path = Path(g.port)
     if not path.exists():
         dangling = " (a dangling symlink: the adapter is unplugged?)" if path.is_symlink() else ""
+        if offline:
+            return finding(raw, Severity.WARNING, "gimbal.port", f"{g.port}: no such device now{dangling}; the "
+                           "daemon waits for it, holding")
         return finding(raw, Severity.ERROR, "gimbal.port", f"{g.port}: no such device{dangling}")
     if path.is_dir():
         return finding(raw, Severity.ERROR, "gimbal.port", f"{g.port}: is a directory, not a serial device")
