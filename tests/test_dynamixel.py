@@ -287,3 +287,110 @@ def test_a_configuration_cut_short_after_a_reboot_is_completed_before_the_fault_
             assert g.counters()["reboots"] == 1  # configured again, not rebooted again
         finally:
             g.stop()
+
+
+def test_a_zero_tick_moves_angle_zero_and_the_limits_with_it():
+    assert ct.angle_to_ticks(0.0, zero=1000) == 1000 and ct.angle_to_ticks(math.pi / 2, zero=1000) == 2024
+    assert ct.angle_to_ticks(math.pi / 2, reversed_axis=True, zero=3000) == 1976
+    assert ct.ticks_to_angle(2024, zero=1000) == pytest.approx(math.pi / 2)
+    assert ct.ticks_to_angle(1976, reversed_axis=True, zero=3000) == pytest.approx(math.pi / 2)
+    assert ct.limits_to_ticks(math.radians(-60), math.radians(90), zero=1000) == (1000 - 682, 1000 + 1024)
+    assert ct.limits_to_ticks(math.radians(-30), math.radians(45), True, 3000) == (3000 - 512, 3000 + 341)
+    # At 2048, ±180° less a tick fits; around tick 1000 only -87.9° … +272.0° does.
+    assert ct.position_limits_problem("pan", math.radians(-179.9), math.radians(179.9)) is None
+    assert ct.position_limits_problem("pan", math.radians(-87), math.radians(150), zero=1000) is None
+    problem = ct.position_limits_problem("pan", math.radians(-90), math.radians(90), zero=1000)
+    assert problem is not None and "ticks [-24, 2024]" in problem and "[-87.9, 272.0]°" in problem, problem
+    # Reversed, the reachable range is mirrored: -272.0° … +87.9°.
+    assert ct.position_limits_problem("tilt", math.radians(-10), math.radians(89), True, 1000) is not None
+    assert ct.position_limits_problem("tilt", math.radians(-200), math.radians(87), True, 1000) is None
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(60)
+def test_with_zero_ticks_commanded_zero_lands_on_them_and_the_limits_follow(tmp_path):
+    limits = JointLimits(math.radians(-60), math.radians(90), math.radians(-30), math.radians(45))
+    with ChainOnPty() as sim:
+        # The pty's own latency_timer, as sysfs would show it for a U2D2 left at the FTDI default.
+        (tmp_path / os.path.basename(sim.path)).mkdir()
+        (tmp_path / os.path.basename(sim.path) / "latency_timer").write_text("16\n")
+        g = DynamixelGimbal(sim.path, settings(limits, tilt_reversed=True, pan_zero_tick=1000, tilt_zero_tick=3000),
+                            baudrate=1_000_000, usb_serial_root=tmp_path)
+        g.start()
+        try:
+            assert g.wait_up(20), g.last_error
+            assert g.latency_warning is not None and "is 16 ms" in g.latency_warning
+            pan, tilt = sim.chain.servos[1], sim.chain.servos[2]
+            assert (pan.get(ct.MIN_POSITION_LIMIT), pan.get(ct.MAX_POSITION_LIMIT)) == (1000 - 682, 1000 + 1024)
+            assert (tilt.get(ct.MIN_POSITION_LIMIT), tilt.get(ct.MAX_POSITION_LIMIT)) == (3000 - 512, 3000 + 341)
+            # The servos start at their centre (tick 2048): pan +92.1° (held at its limit, 90°), tilt +83.5°
+            # (beyond +45°: held at 45°).
+            assert pan.get(ct.GOAL_POSITION) == 2024 and tilt.get(ct.GOAL_POSITION) == 2488
+            for _ in range(100):
+                g.send_setpoint(0.0, 0.0)
+                time.sleep(0.005)
+            assert wait_for(lambda: pan.get(ct.GOAL_POSITION) == 1000 and tilt.get(ct.GOAL_POSITION) == 3000, 20)
+            assert wait_for(lambda: pan.get(ct.PRESENT_POSITION) == 1000 and tilt.get(ct.PRESENT_POSITION) == 3000
+                            and abs(g.state.pan) < 1e-9 and abs(g.state.tilt) < 1e-9, 20), g.state
+            # Beyond the limits: clamped on the host to the limit's tick, which the servo accepts.
+            for _ in range(100):
+                g.send_setpoint(math.radians(120), math.radians(-50))
+                time.sleep(0.005)
+            assert wait_for(lambda: pan.get(ct.GOAL_POSITION) == 2024 and tilt.get(ct.GOAL_POSITION) == 3341, 20)
+            assert wait_for(lambda: abs(g.state.pan - math.radians(90)) < 0.01
+                            and abs(g.state.tilt - math.radians(-30)) < 0.01, 20), g.state
+            assert g.counters()["write_errors"] == 0
+        finally:
+            g.stop()
+
+
+@pytest.mark.slow
+def test_limits_beyond_the_ticks_around_a_zero_tick_make_the_link_incompatible():
+    with ChainOnPty() as sim:
+        g = DynamixelGimbal(sim.path, settings(JointLimits(-1.0, 1.0, math.radians(-60), math.radians(60)),
+                                                tilt_zero_tick=300))
+        g.start()
+        try:
+            assert wait_for(lambda: g.link_state == LinkState.INCOMPATIBLE, 20), g.last_error
+            assert "tilt limits [-60, 60]° are ticks [-382, 982] around zero tick 300" in g.last_error
+            assert not any(s.torque for s in sim.chain.servos.values())
+        finally:
+            g.stop()
+
+
+@pytest.mark.slow
+def test_a_servo_that_does_not_answer_gets_a_hint_naming_port_id_and_baud(tmp_path):
+    with ChainOnPty() as sim:
+        g = DynamixelGimbal(sim.path, settings(JointLimits(-1.0, 1.0, -0.5, 0.5), pan_id=5),
+                            usb_serial_root=tmp_path)  # the default baud; no latency_timer there: no warning
+        g.start()
+        try:
+            assert wait_for(lambda: g.last_error is not None and "id 5" in g.last_error, 20), g.last_error
+            msg = g.last_error
+            assert "\n" not in msg and "ping on servo 5: [TxRxResult] There is no status packet!" in msg, msg
+            assert f"no answer from id 5 on {sim.path} at 57600 baud" in msg, msg
+            assert all(w in msg for w in ("gimbal.dynamixel.pan_id", "gimbal.baud", "12 V", "TTL", "RS-485")), msg
+            assert g.link_state != LinkState.UP and g.latency_warning is None
+        finally:
+            g.stop()
+
+
+def test_the_latency_timer_of_the_adapter_behind_the_port_is_read_through_its_symlink(tmp_path):
+    from pivotd.gimbal.dynamixel_link import latency_timer_problem
+
+    sysfs = tmp_path / "usb-serial"
+    (sysfs / "ttyUSB7").mkdir(parents=True)
+    timer = sysfs / "ttyUSB7" / "latency_timer"
+    dev = tmp_path / "dev"
+    dev.mkdir()
+    (dev / "ttyUSB7").write_text("")
+    by_id = tmp_path / "usb-FTDI_USB__-__Serial_Converter_X-if00-port0"
+    by_id.symlink_to(dev / "ttyUSB7")
+    timer.write_text("16\n")
+    problem = latency_timer_problem(str(by_id), sysfs)
+    assert problem is not None and f"{timer} is 16 ms" in problem and "echo 1 >" in problem, problem
+    timer.write_text("1\n")
+    assert latency_timer_problem(str(by_id), sysfs) is None
+    timer.write_text("garbage\n")
+    assert latency_timer_problem(str(by_id), sysfs) is None
+    assert latency_timer_problem(str(dev / "ttyACM0"), sysfs) is None  # no such adapter: nothing to say
