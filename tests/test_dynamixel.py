@@ -394,3 +394,63 @@ def test_the_latency_timer_of_the_adapter_behind_the_port_is_read_through_its_sy
     timer.write_text("garbage\n")
     assert latency_timer_problem(str(by_id), sysfs) is None
     assert latency_timer_problem(str(dev / "ttyACM0"), sysfs) is None  # no such adapter: nothing to say
+
+
+def gimbal_cli_config(tmp_path, port: str) -> str:
+    path = tmp_path / "servos.yaml"
+    path.write_text(f"""\
+map: {{allow_empty: true}}
+gimbal:
+  backend: dynamixel
+  port: {port}
+  baud: 1000000
+  dynamixel: {{pan_zero_tick: 1024}}
+  limits: {{pan_min_deg: -80, pan_max_deg: 170, tilt_min_deg: -45, tilt_max_deg: 90}}
+""")
+    return str(path)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(60)
+def test_gimbal_ping_and_goto_against_the_servos(tmp_path, capsys):
+    from pivotd.cli import main
+
+    with ChainOnPty() as sim:
+        config = gimbal_cli_config(tmp_path, sim.path)
+        pan, tilt = sim.chain.servos[1], sim.chain.servos[2]
+        # Outside the limits: refused before a byte goes to the servos.
+        assert main(["gimbal", "--config", config, "goto", "175", "0"]) == 2
+        err = capsys.readouterr().err
+        assert "pivotd gimbal: error: goto: pan 175° is outside gimbal.limits pan [-80, 170]°" in err, err
+        assert sim.chain.packets == 0
+        # The servos sit at their centre (tick 2048): pan reads +90° around its zero tick 1024.
+        assert main(["gimbal", "--config", config, "ping"]) == 0
+        out = capsys.readouterr().out
+        assert f"gimbal dynamixel at {sim.path}: up, pan 90.00°, tilt 0.00°" in out, out
+        assert not pan.torque and not tilt.torque  # disabled again at exit
+        assert main(["gimbal", "--config", config, "goto", "30", "-20"]) == 0
+        out = capsys.readouterr().out
+        assert "reached pan 30." in out or "reached pan 29." in out, out
+        with sim.lock:
+            assert abs(pan.get(ct.PRESENT_POSITION) - (1024 + 341)) <= 6  # 30° = 341.3 ticks past 1024, ±0.5°
+            assert abs(tilt.get(ct.PRESENT_POSITION) - (2048 - 228)) <= 6
+            assert pan.get(ct.GOAL_POSITION) == 1024 + 341 and tilt.get(ct.GOAL_POSITION) == 2048 - 228
+            assert not pan.torque and not tilt.torque
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(90)
+def test_gimbal_scan_visits_each_axis_limits_less_the_margin_and_zero(tmp_path, capsys):
+    from pivotd.cli import main
+
+    with ChainOnPty() as sim:
+        config = gimbal_cli_config(tmp_path, sim.path)
+        assert main(["gimbal", "--config", config, "scan", "--margin", "70"]) == 2
+        assert "--margin: 70° leaves nothing of the tilt range (135°" in capsys.readouterr().err
+        assert sim.chain.packets == 0
+        assert main(["gimbal", "--config", config, "scan", "--margin", "60"]) == 0
+        out = capsys.readouterr().out
+        targets = [line.split("(target ")[1] for line in out.splitlines() if line.startswith("reached")]
+        assert targets == ["pan -20.00°, tilt 0.00°)", "pan 110.00°, tilt 0.00°)", "pan 0.00°, tilt 0.00°)",
+                           "pan 0.00°, tilt 15.00°)", "pan 0.00°, tilt 30.00°)", "pan 0.00°, tilt 0.00°)"], out
+        assert sim.chain.servos[1].get(ct.GOAL_POSITION) == 1024 and sim.chain.servos[2].get(ct.GOAL_POSITION) == 2048
