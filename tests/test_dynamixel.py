@@ -454,3 +454,26 @@ def test_gimbal_scan_visits_each_axis_limits_less_the_margin_and_zero(tmp_path, 
         assert targets == ["pan -20.00°, tilt 0.00°)", "pan 110.00°, tilt 0.00°)", "pan 0.00°, tilt 0.00°)",
                            "pan 0.00°, tilt 15.00°)", "pan 0.00°, tilt 30.00°)", "pan 0.00°, tilt 0.00°)"], out
         assert sim.chain.servos[1].get(ct.GOAL_POSITION) == 1024 and sim.chain.servos[2].get(ct.GOAL_POSITION) == 2048
+
+
+def test_the_simulator_logs_joint_angles_around_the_zero_ticks_and_directions_it_is_given(tmp_path):
+    import csv
+    import struct
+
+    from firmware_proto.realtime import CsvMessageLog
+
+    log = CsvMessageLog(tmp_path / "servos.csv")
+    chain = DynamixelChain((1, 2), log=log, zero_ticks=(1000, 3000), reversed_axes=(False, True))
+    goals = struct.pack("<HH", *ct.GOAL_POSITION) + bytes([1]) + (1341).to_bytes(4, "little") + bytes([2]) + (
+        2800).to_bytes(4, "little")
+    chain.feed(dp.encode(dp.BROADCAST_ID, dp.INST_SYNC_WRITE, goals), 0.0)
+    chain.step(0.05)
+    log.close()
+    with open(tmp_path / "servos.csv") as f:
+        rows = list(csv.DictReader(f))
+    setpoint = next(r for r in rows if r["type"] == "SETPOINT")
+    assert float(setpoint["pan"]) == pytest.approx(341 * ct.POSITION_RESOLUTION, abs=1e-6)
+    assert float(setpoint["tilt"]) == pytest.approx(200 * ct.POSITION_RESOLUTION, abs=1e-6)  # reversed
+    state = next(r for r in rows if r["type"] == "STATE")  # the servos rest at their centre, tick 2048
+    assert float(state["pan"]) == pytest.approx((2048 - 1000) * ct.POSITION_RESOLUTION, abs=1e-6)
+    assert float(state["tilt"]) == pytest.approx(-(2048 - 3000) * ct.POSITION_RESOLUTION, abs=1e-6)
