@@ -314,12 +314,13 @@ def test_with_zero_ticks_commanded_zero_lands_on_them_and_the_limits_follow(tmp_
         # The pty's own latency_timer, as sysfs would show it for a U2D2 left at the FTDI default.
         (tmp_path / os.path.basename(sim.path)).mkdir()
         (tmp_path / os.path.basename(sim.path) / "latency_timer").write_text("16\n")
-        g = DynamixelGimbal(sim.path, settings(limits, tilt_reversed=True, pan_zero_tick=1000, tilt_zero_tick=3000),
-                            baudrate=1_000_000, usb_serial_root=tmp_path)
+        g = DynamixelGimbal(sim.path, settings(limits, tilt_reversed=True, pan_zero_tick=1000, tilt_zero_tick=3000,
+                                               control_period_s=0.01), baudrate=1_000_000, usb_serial_root=tmp_path)
         g.start()
         try:
             assert g.wait_up(20), g.last_error
             assert g.latency_warning is not None and "is 16 ms" in g.latency_warning
+            assert g.bus_warning is None  # 1 Mbps: 2.1 ms of a 10 ms period
             pan, tilt = sim.chain.servos[1], sim.chain.servos[2]
             assert (pan.get(ct.MIN_POSITION_LIMIT), pan.get(ct.MAX_POSITION_LIMIT)) == (1000 - 682, 1000 + 1024)
             assert (tilt.get(ct.MIN_POSITION_LIMIT), tilt.get(ct.MAX_POSITION_LIMIT)) == (3000 - 512, 3000 + 341)
@@ -361,7 +362,7 @@ def test_limits_beyond_the_ticks_around_a_zero_tick_make_the_link_incompatible()
 @pytest.mark.slow
 def test_a_servo_that_does_not_answer_gets_a_hint_naming_port_id_and_baud(tmp_path):
     with ChainOnPty() as sim:
-        g = DynamixelGimbal(sim.path, settings(JointLimits(-1.0, 1.0, -0.5, 0.5), pan_id=5),
+        g = DynamixelGimbal(sim.path, settings(JointLimits(-1.0, 1.0, -0.5, 0.5), pan_id=5, control_period_s=0.01),
                             usb_serial_root=tmp_path)  # the default baud; no latency_timer there: no warning
         g.start()
         try:
@@ -371,6 +372,8 @@ def test_a_servo_that_does_not_answer_gets_a_hint_naming_port_id_and_baud(tmp_pa
             assert f"no answer from id 5 on {sim.path} at 57600 baud" in msg, msg
             assert all(w in msg for w in ("gimbal.dynamixel.pan_id", "gimbal.baud", "12 V", "TTL", "RS-485")), msg
             assert g.link_state != LinkState.UP and g.latency_warning is None
+            assert g.bus_warning is not None and "at least 35.8 ms, longer than the control period 10 ms" in (
+                g.bus_warning)
         finally:
             g.stop()
 
@@ -477,3 +480,15 @@ def test_the_simulator_logs_joint_angles_around_the_zero_ticks_and_directions_it
     state = next(r for r in rows if r["type"] == "STATE")  # the servos rest at their centre, tick 2048
     assert float(state["pan"]) == pytest.approx((2048 - 1000) * ct.POSITION_RESOLUTION, abs=1e-6)
     assert float(state["tilt"]) == pytest.approx(-(2048 - 3000) * ct.POSITION_RESOLUTION, abs=1e-6)
+
+
+def test_the_bus_traffic_of_a_control_period_against_the_baud_rate():
+    from pivotd.gimbal.dynamixel_link import bus_rate_problem
+
+    # Sync Write 24 bytes, Sync Read 16, two status packets of 11 + 72: 206 bytes of 10 bit times
+    assert ct.bus_cycle_s(57600) == pytest.approx(2060 / 57600)
+    assert ct.bus_cycle_s(1_000_000) == pytest.approx(2.06e-3)
+    assert bus_rate_problem(1_000_000, 0.01) is None and bus_rate_problem(57600, None) is None
+    assert bus_rate_problem(57600, 0.04) is None  # 25 Hz fits at the factory baud rate
+    problem = bus_rate_problem(115200, 0.01)
+    assert problem is not None and "at 115200 baud" in problem and "17.9 ms" in problem, problem

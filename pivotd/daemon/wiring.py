@@ -193,7 +193,7 @@ def build_dynamixel_settings(cfg: Config) -> DynamixelSettings:
                              pan_id=d.pan_id, tilt_id=d.tilt_id, pan_reversed=d.pan_reversed,
                              tilt_reversed=d.tilt_reversed, pan_zero_tick=d.pan_zero_tick,
                              tilt_zero_tick=d.tilt_zero_tick, watchdog_ms=cfg.gimbal.watchdog_ms,
-                             idle_period_s=2.0 / cfg.control.rate_hz)
+                             control_period_s=cfg.control.dt, idle_period_s=2.0 / cfg.control.rate_hz)
 
 
 def build_gimbal(cfg: Config) -> GimbalInterface:

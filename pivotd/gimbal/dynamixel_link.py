@@ -82,9 +82,22 @@ class DynamixelSettings:
     pan_zero_tick: int = ct.CENTRE_TICKS  # the servo position [ticks] of joint angle 0
     tilt_zero_tick: int = ct.CENTRE_TICKS
     watchdog_ms: int = 250
+    control_period_s: float | None = None  # the daemon's control period: warned about a bus slower than it
     idle_period_s: float = 0.02
     state_timeout_s: float = 0.5
     reconnect_backoff_s: tuple = (0.1, 2.0)
+
+
+def bus_rate_problem(baudrate: int, control_period_s: float | None) -> str | None:
+    """Why one control period's bus traffic (``ct.bus_cycle_s``) does not fit in ``control_period_s`` [s] at
+    ``baudrate``, or None (also when there is no control period to compare with)."""
+    if control_period_s is None:
+        return None
+    cycle = ct.bus_cycle_s(baudrate)
+    if cycle <= control_period_s:
+        return None
+    return (f"at {baudrate} baud one Sync Write + Sync Read takes at least {cycle * 1e3:.1f} ms, longer than the "
+            f"control period {control_period_s * 1e3:g} ms: set the servos' Baud Rate and gimbal.baud to 1000000")
 
 
 class _Axis(NamedTuple):
@@ -148,6 +161,8 @@ class DynamixelGimbal(SupervisedLink):
         self.usb_serial_root = usb_serial_root
         #: the latency-timer warning given at the first opening (latency_timer_problem), or None
         self.latency_warning: str | None = None
+        #: the warning that the baud rate is too slow for the control period (bus_rate_problem), or None
+        self.bus_warning = bus_rate_problem(baudrate, settings.control_period_s)
         self._latency_checked = False
         self._sdk = load_sdk()
         self._ph = self._sdk.PacketHandler(2.0)
@@ -244,6 +259,8 @@ class DynamixelGimbal(SupervisedLink):
             log.debug(self._last_error)
             return None
         self._port = port
+        if self.bus_warning and not self._latency_checked:
+            log.warning("servo bus %s: %s", self.port_name, self.bus_warning)
         if not self._latency_checked:
             self._latency_checked = True
             self.latency_warning = latency_timer_problem(self.port_name, self.usb_serial_root)

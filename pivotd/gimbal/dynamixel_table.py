@@ -75,6 +75,18 @@ def position_limits_problem(axis: str, lo: float, hi: float, reversed_axis: bool
             f"[{math.degrees(ends[0]):.1f}, {math.degrees(ends[1]):.1f}]° (at zero tick 2048: within ±180°)")
 
 
+def bus_cycle_s(baud: int, servos: int = 2, read_length: int = PRESENT_POSITION[0] + PRESENT_POSITION[1]
+                - TORQUE_ENABLE[0]) -> float:
+    """Time on the wire [s] of one control period's traffic at ``baud``: a Sync Write of the Goal Positions and a
+    Sync Read of ``read_length`` bytes with its status packets, 10 bit times a byte; a lower bound (the servos'
+    Return Delay Time, 500 µs each at the factory setting, and the adapter's latency come on top)."""
+    packet = 10  # header 4, id 1, length 2, instruction 1, CRC 2
+    sync_write = packet + 4 + servos * (1 + GOAL_POSITION[1])
+    sync_read = packet + 4 + servos
+    status = servos * (packet + 1 + read_length)  # + the error byte
+    return (sync_write + sync_read + status) * 10 / baud
+
+
 def velocity_units(rad_s: float) -> int:
     """Profile Velocity for a rate limit [rad/s], at least 1 (0 would mean unlimited)."""
     return max(1, math.floor(rad_s / VELOCITY_UNIT))
