@@ -40,7 +40,7 @@ def test_version_from_the_package_metadata(capsys):
 @pytest.mark.parametrize(("typed", "message"), [
     ("chek", "unknown command 'chek' (did you mean check?)"),
     ("stauts", "unknown command 'stauts' (did you mean status?)"),
-    ("frobnicate", "unknown command 'frobnicate' (commands: run, check, plan, bench, status, plot)"),
+    ("frobnicate", "unknown command 'frobnicate' (commands: run, check, plan, bench, status, plot, gimbal)"),
 ])
 def test_unknown_command_is_one_line_and_exit_2(capsys, typed, message):
     assert main([typed, "--config", "x.yaml"]) == 2

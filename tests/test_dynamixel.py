@@ -287,3 +287,208 @@ def test_a_configuration_cut_short_after_a_reboot_is_completed_before_the_fault_
             assert g.counters()["reboots"] == 1  # configured again, not rebooted again
         finally:
             g.stop()
+
+
+def test_a_zero_tick_moves_angle_zero_and_the_limits_with_it():
+    assert ct.angle_to_ticks(0.0, zero=1000) == 1000 and ct.angle_to_ticks(math.pi / 2, zero=1000) == 2024
+    assert ct.angle_to_ticks(math.pi / 2, reversed_axis=True, zero=3000) == 1976
+    assert ct.ticks_to_angle(2024, zero=1000) == pytest.approx(math.pi / 2)
+    assert ct.ticks_to_angle(1976, reversed_axis=True, zero=3000) == pytest.approx(math.pi / 2)
+    assert ct.limits_to_ticks(math.radians(-60), math.radians(90), zero=1000) == (1000 - 682, 1000 + 1024)
+    assert ct.limits_to_ticks(math.radians(-30), math.radians(45), True, 3000) == (3000 - 512, 3000 + 341)
+    # At 2048, ±180° less a tick fits; around tick 1000 only -87.9° … +272.0° does.
+    assert ct.position_limits_problem("pan", math.radians(-179.9), math.radians(179.9)) is None
+    assert ct.position_limits_problem("pan", math.radians(-87), math.radians(150), zero=1000) is None
+    problem = ct.position_limits_problem("pan", math.radians(-90), math.radians(90), zero=1000)
+    assert problem is not None and "ticks [-24, 2024]" in problem and "[-87.9, 272.0]°" in problem, problem
+    # Reversed, the reachable range is mirrored: -272.0° … +87.9°.
+    assert ct.position_limits_problem("tilt", math.radians(-10), math.radians(89), True, 1000) is not None
+    assert ct.position_limits_problem("tilt", math.radians(-200), math.radians(87), True, 1000) is None
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(60)
+def test_with_zero_ticks_commanded_zero_lands_on_them_and_the_limits_follow(tmp_path):
+    limits = JointLimits(math.radians(-60), math.radians(90), math.radians(-30), math.radians(45))
+    with ChainOnPty() as sim:
+        # The pty's own latency_timer, as sysfs would show it for a U2D2 left at the FTDI default.
+        (tmp_path / os.path.basename(sim.path)).mkdir()
+        (tmp_path / os.path.basename(sim.path) / "latency_timer").write_text("16\n")
+        g = DynamixelGimbal(sim.path, settings(limits, tilt_reversed=True, pan_zero_tick=1000, tilt_zero_tick=3000,
+                                               control_period_s=0.01), baudrate=1_000_000, usb_serial_root=tmp_path)
+        g.start()
+        try:
+            assert g.wait_up(20), g.last_error
+            assert g.latency_warning is not None and "is 16 ms" in g.latency_warning
+            assert g.bus_warning is None  # 1 Mbps: 2.1 ms of a 10 ms period
+            pan, tilt = sim.chain.servos[1], sim.chain.servos[2]
+            assert (pan.get(ct.MIN_POSITION_LIMIT), pan.get(ct.MAX_POSITION_LIMIT)) == (1000 - 682, 1000 + 1024)
+            assert (tilt.get(ct.MIN_POSITION_LIMIT), tilt.get(ct.MAX_POSITION_LIMIT)) == (3000 - 512, 3000 + 341)
+            # The servos start at their centre (tick 2048): pan +92.1° (held at its limit, 90°), tilt +83.5°
+            # (beyond +45°: held at 45°).
+            assert pan.get(ct.GOAL_POSITION) == 2024 and tilt.get(ct.GOAL_POSITION) == 2488
+            for _ in range(100):
+                g.send_setpoint(0.0, 0.0)
+                time.sleep(0.005)
+            assert wait_for(lambda: pan.get(ct.GOAL_POSITION) == 1000 and tilt.get(ct.GOAL_POSITION) == 3000, 20)
+            assert wait_for(lambda: pan.get(ct.PRESENT_POSITION) == 1000 and tilt.get(ct.PRESENT_POSITION) == 3000
+                            and abs(g.state.pan) < 1e-9 and abs(g.state.tilt) < 1e-9, 20), g.state
+            # Beyond the limits: clamped on the host to the limit's tick, which the servo accepts.
+            for _ in range(100):
+                g.send_setpoint(math.radians(120), math.radians(-50))
+                time.sleep(0.005)
+            assert wait_for(lambda: pan.get(ct.GOAL_POSITION) == 2024 and tilt.get(ct.GOAL_POSITION) == 3341, 20)
+            assert wait_for(lambda: abs(g.state.pan - math.radians(90)) < 0.01
+                            and abs(g.state.tilt - math.radians(-30)) < 0.01, 20), g.state
+            assert g.counters()["write_errors"] == 0
+        finally:
+            g.stop()
+
+
+@pytest.mark.slow
+def test_limits_beyond_the_ticks_around_a_zero_tick_make_the_link_incompatible():
+    with ChainOnPty() as sim:
+        g = DynamixelGimbal(sim.path, settings(JointLimits(-1.0, 1.0, math.radians(-60), math.radians(60)),
+                                                tilt_zero_tick=300))
+        g.start()
+        try:
+            assert wait_for(lambda: g.link_state == LinkState.INCOMPATIBLE, 20), g.last_error
+            assert "tilt limits [-60, 60]° are ticks [-382, 982] around zero tick 300" in g.last_error
+            assert not any(s.torque for s in sim.chain.servos.values())
+        finally:
+            g.stop()
+
+
+@pytest.mark.slow
+def test_a_servo_that_does_not_answer_gets_a_hint_naming_port_id_and_baud(tmp_path):
+    with ChainOnPty() as sim:
+        g = DynamixelGimbal(sim.path, settings(JointLimits(-1.0, 1.0, -0.5, 0.5), pan_id=5, control_period_s=0.01),
+                            usb_serial_root=tmp_path)  # the default baud; no latency_timer there: no warning
+        g.start()
+        try:
+            assert wait_for(lambda: g.last_error is not None and "id 5" in g.last_error, 20), g.last_error
+            msg = g.last_error
+            assert "\n" not in msg and "ping on servo 5: [TxRxResult] There is no status packet!" in msg, msg
+            assert f"no answer from id 5 on {sim.path} at 57600 baud" in msg, msg
+            assert all(w in msg for w in ("gimbal.dynamixel.pan_id", "gimbal.baud", "12 V", "TTL", "RS-485")), msg
+            assert g.link_state != LinkState.UP and g.latency_warning is None
+            assert g.bus_warning is not None and "at least 35.8 ms, longer than the control period 10 ms" in (
+                g.bus_warning)
+        finally:
+            g.stop()
+
+
+def test_the_latency_timer_of_the_adapter_behind_the_port_is_read_through_its_symlink(tmp_path):
+    from pivotd.gimbal.dynamixel_link import latency_timer_problem
+
+    sysfs = tmp_path / "usb-serial"
+    (sysfs / "ttyUSB7").mkdir(parents=True)
+    timer = sysfs / "ttyUSB7" / "latency_timer"
+    dev = tmp_path / "dev"
+    dev.mkdir()
+    (dev / "ttyUSB7").write_text("")
+    by_id = tmp_path / "usb-FTDI_USB__-__Serial_Converter_X-if00-port0"
+    by_id.symlink_to(dev / "ttyUSB7")
+    timer.write_text("16\n")
+    problem = latency_timer_problem(str(by_id), sysfs)
+    assert problem is not None and f"{timer} is 16 ms" in problem and "echo 1 >" in problem, problem
+    timer.write_text("1\n")
+    assert latency_timer_problem(str(by_id), sysfs) is None
+    timer.write_text("garbage\n")
+    assert latency_timer_problem(str(by_id), sysfs) is None
+    assert latency_timer_problem(str(dev / "ttyACM0"), sysfs) is None  # no such adapter: nothing to say
+
+
+def gimbal_cli_config(tmp_path, port: str) -> str:
+    path = tmp_path / "servos.yaml"
+    path.write_text(f"""\
+map: {{allow_empty: true}}
+gimbal:
+  backend: dynamixel
+  port: {port}
+  baud: 1000000
+  dynamixel: {{pan_zero_tick: 1024}}
+  limits: {{pan_min_deg: -80, pan_max_deg: 170, tilt_min_deg: -45, tilt_max_deg: 90}}
+""")
+    return str(path)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(60)
+def test_gimbal_ping_and_goto_against_the_servos(tmp_path, capsys):
+    from pivotd.cli import main
+
+    with ChainOnPty() as sim:
+        config = gimbal_cli_config(tmp_path, sim.path)
+        pan, tilt = sim.chain.servos[1], sim.chain.servos[2]
+        # Outside the limits: refused before a byte goes to the servos.
+        assert main(["gimbal", "--config", config, "goto", "175", "0"]) == 2
+        err = capsys.readouterr().err
+        assert "pivotd gimbal: error: goto: pan 175° is outside gimbal.limits pan [-80, 170]°" in err, err
+        assert sim.chain.packets == 0
+        # The servos sit at their centre (tick 2048): pan reads +90° around its zero tick 1024.
+        assert main(["gimbal", "--config", config, "ping"]) == 0
+        out = capsys.readouterr().out
+        assert f"gimbal dynamixel at {sim.path}: up, pan 90.00°, tilt 0.00°" in out, out
+        assert not pan.torque and not tilt.torque  # disabled again at exit
+        assert main(["gimbal", "--config", config, "goto", "30", "-20"]) == 0
+        out = capsys.readouterr().out
+        assert "reached pan 30." in out or "reached pan 29." in out, out
+        with sim.lock:
+            assert abs(pan.get(ct.PRESENT_POSITION) - (1024 + 341)) <= 6  # 30° = 341.3 ticks past 1024, ±0.5°
+            assert abs(tilt.get(ct.PRESENT_POSITION) - (2048 - 228)) <= 6
+            assert pan.get(ct.GOAL_POSITION) == 1024 + 341 and tilt.get(ct.GOAL_POSITION) == 2048 - 228
+            assert not pan.torque and not tilt.torque
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(90)
+def test_gimbal_scan_visits_each_axis_limits_less_the_margin_and_zero(tmp_path, capsys):
+    from pivotd.cli import main
+
+    with ChainOnPty() as sim:
+        config = gimbal_cli_config(tmp_path, sim.path)
+        assert main(["gimbal", "--config", config, "scan", "--margin", "70"]) == 2
+        assert "--margin: 70° leaves nothing of the tilt range (135°" in capsys.readouterr().err
+        assert sim.chain.packets == 0
+        assert main(["gimbal", "--config", config, "scan", "--margin", "60"]) == 0
+        out = capsys.readouterr().out
+        targets = [line.split("(target ")[1] for line in out.splitlines() if line.startswith("reached")]
+        assert targets == ["pan -20.00°, tilt 0.00°)", "pan 110.00°, tilt 0.00°)", "pan 0.00°, tilt 0.00°)",
+                           "pan 0.00°, tilt 15.00°)", "pan 0.00°, tilt 30.00°)", "pan 0.00°, tilt 0.00°)"], out
+        assert sim.chain.servos[1].get(ct.GOAL_POSITION) == 1024 and sim.chain.servos[2].get(ct.GOAL_POSITION) == 2048
+
+
+def test_the_simulator_logs_joint_angles_around_the_zero_ticks_and_directions_it_is_given(tmp_path):
+    import csv
+    import struct
+
+    from firmware_proto.realtime import CsvMessageLog
+
+    log = CsvMessageLog(tmp_path / "servos.csv")
+    chain = DynamixelChain((1, 2), log=log, zero_ticks=(1000, 3000), reversed_axes=(False, True))
+    goals = struct.pack("<HH", *ct.GOAL_POSITION) + bytes([1]) + (1341).to_bytes(4, "little") + bytes([2]) + (
+        2800).to_bytes(4, "little")
+    chain.feed(dp.encode(dp.BROADCAST_ID, dp.INST_SYNC_WRITE, goals), 0.0)
+    chain.step(0.05)
+    log.close()
+    with open(tmp_path / "servos.csv") as f:
+        rows = list(csv.DictReader(f))
+    setpoint = next(r for r in rows if r["type"] == "SETPOINT")
+    assert float(setpoint["pan"]) == pytest.approx(341 * ct.POSITION_RESOLUTION, abs=1e-6)
+    assert float(setpoint["tilt"]) == pytest.approx(200 * ct.POSITION_RESOLUTION, abs=1e-6)  # reversed
+    state = next(r for r in rows if r["type"] == "STATE")  # the servos rest at their centre, tick 2048
+    assert float(state["pan"]) == pytest.approx((2048 - 1000) * ct.POSITION_RESOLUTION, abs=1e-6)
+    assert float(state["tilt"]) == pytest.approx(-(2048 - 3000) * ct.POSITION_RESOLUTION, abs=1e-6)
+
+
+def test_the_bus_traffic_of_a_control_period_against_the_baud_rate():
+    from pivotd.gimbal.dynamixel_link import bus_rate_problem
+
+    # Sync Write 24 bytes, Sync Read 16, two status packets of 11 + 72: 206 bytes of 10 bit times
+    assert ct.bus_cycle_s(57600) == pytest.approx(2060 / 57600)
+    assert ct.bus_cycle_s(1_000_000) == pytest.approx(2.06e-3)
+    assert bus_rate_problem(1_000_000, 0.01) is None and bus_rate_problem(57600, None) is None
+    assert bus_rate_problem(57600, 0.04) is None  # 25 Hz fits at the factory baud rate
+    problem = bus_rate_problem(115200, 0.01)
+    assert problem is not None and "at 115200 baud" in problem and "17.9 ms" in problem, problem

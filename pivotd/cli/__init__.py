@@ -1,4 +1,4 @@
-"""pivotd, the PIVOT gimbal controller: run (the default command), check, plan, bench, status, plot.
+"""pivotd, the PIVOT gimbal controller: run (the default command), check, plan, bench, status, plot, gimbal.
 
 Each command lives in its own module exposing ``configure(parser)`` and ``run(args) -> int``;
 this module only dispatches and turns :class:`~pivotd.errors.PivotdError` into exit code 2.
@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("pivotd.bench", "run a benchmark"),
     "status": ("pivotd.cli.status", "show running daemons' status, asked over Zenoh"),
     "plot": ("pivotd.cli.plot", "draw figures from an MCAP recording"),
+    "gimbal": ("pivotd.cli.gimbal", "ping a gimbal, move it to a pose or scan its limits (before tracking)"),
 }
 
 

@@ -30,6 +30,7 @@ from pivotd.bus.topics import (
 )
 from pivotd.config.yaml_reader import Section, read_yaml
 from pivotd.errors import ConfigError, InputError
+from pivotd.gimbal import dynamixel_table
 from pivotd.gimbal.kinematics import JointLimits, Mount
 from pivotd.gimbal.motion import AxisLimits
 from pivotd.maps.formats import weight_property_problem
@@ -44,6 +45,9 @@ ZENOH_MODES = ("peer", "client")
 CONTROL_RATE_RANGE_HZ = (100.0, 200.0)
 #: ``gimbal.backend`` values: pivotd's own serial protocol, MAVLink Gimbal Protocol v2, two DYNAMIXEL servos.
 GIMBAL_BACKENDS = ("pivot", "mavlink", "dynamixel")
+#: ``gimbal.baud`` when it is not set, per backend: the DYNAMIXEL X-series factory setting (Baud Rate = 1,
+#: 57600 bps) so that new servos answer; 1 Mbps, set on the servos first, is what 100 Hz needs (docs/HARDWARE.md)
+DEFAULT_BAUD = {"pivot": 115200, "mavlink": 115200, "dynamixel": dynamixel_table.FACTORY_BAUD}
 #: Backends named in the docs that this version cannot drive yet (refused with a clear message).
 GIMBAL_BACKENDS_UNAVAILABLE: tuple[str, ...] = ()
 #: pymavlink connection strings the mavlink backend accepts (besides a serial device path).
@@ -166,13 +170,16 @@ class MavlinkConfig:
 
 @dataclass(frozen=True)
 class DynamixelConfig:
-    """The two servos of a DYNAMIXEL pan–tilt unit: bus ids, and whether an axis turns the other way (positive
-    pan left / positive tilt down = counter-clockwise seen from the horn unless reversed)."""
+    """The two servos of a DYNAMIXEL pan–tilt unit: bus ids, whether an axis turns the other way (positive
+    pan left / positive tilt down = counter-clockwise seen from the horn unless reversed), and the servo
+    position [ticks, 0–4095] of joint angle 0 on each axis."""
 
     pan_id: int = 1
     tilt_id: int = 2
     pan_reversed: bool = False
     tilt_reversed: bool = False
+    pan_zero_tick: int = dynamixel_table.CENTRE_TICKS
+    tilt_zero_tick: int = dynamixel_table.CENTRE_TICKS
 
 
 @dataclass(frozen=True)
@@ -653,7 +660,7 @@ def _gimbal(s: Section, control: ControlConfig) -> GimbalConfig:
     problem = port_problem(backend, port)
     if problem:
         raise s.error("port", problem)
-    baud = s.number("baud", d.baud, min=1, integer=True)
+    baud = s.number("baud", DEFAULT_BAUD.get(backend, d.baud), min=1, integer=True)
 
     m = s.section("mount")
     xyz = m.vector("xyz", None)
@@ -708,20 +715,39 @@ def _gimbal(s: Section, control: ControlConfig) -> GimbalConfig:
         watchdog_ms=watchdog_ms,
         park_timeout_s=s.number("park_timeout_s", d.park_timeout_s, min=0.0, min_open=True),
         mavlink=_mavlink(s.section("mavlink")),
-        dynamixel=_dynamixel(s.section("dynamixel")),
+        dynamixel=_dynamixel(s.section("dynamixel"), lim if backend == "dynamixel" else None, limits),
     )
     s.finish()
     return out
 
 
-def _dynamixel(s: Section) -> DynamixelConfig:
+def _dynamixel(s: Section, lim: Section | None, limits: JointLimits) -> DynamixelConfig:
+    """The ``gimbal.dynamixel`` section; with ``lim`` (the backend is dynamixel) the joint limits must also fit the
+    servos' 0–4095 ticks around each zero tick (blamed on the zero tick when it is set, else on the limit)."""
     d = DynamixelConfig()
     pan_id = s.number("pan_id", d.pan_id, min=0, max=252, integer=True)
     tilt_id = s.number("tilt_id", d.tilt_id, min=0, max=252, integer=True)
     if tilt_id == pan_id:
         raise s.error("tilt_id", f"must differ from pan_id ({pan_id})")
     out = DynamixelConfig(pan_id, tilt_id, s.boolean("pan_reversed", d.pan_reversed),
-                          s.boolean("tilt_reversed", d.tilt_reversed))
+                          s.boolean("tilt_reversed", d.tilt_reversed),
+                          s.number("pan_zero_tick", d.pan_zero_tick, min=0, max=dynamixel_table.MAX_TICK, integer=True),
+                          s.number("tilt_zero_tick", d.tilt_zero_tick, min=0, max=dynamixel_table.MAX_TICK,
+                                   integer=True))
+    if lim is not None:
+        if limits.continuous_pan:
+            raise lim.error("continuous_pan", "the dynamixel backend drives the servos in Position Control Mode "
+                                              "(within ±180°): no continuous pan")
+        for axis, lo, hi, rev, zero in (("pan", limits.pan_min, limits.pan_max, out.pan_reversed, out.pan_zero_tick),
+                                        ("tilt", limits.tilt_min, limits.tilt_max, out.tilt_reversed,
+                                         out.tilt_zero_tick)):
+            problem = dynamixel_table.position_limits_problem(axis, lo, hi, rev, zero)
+            if problem is None:
+                continue
+            if s.has(f"{axis}_zero_tick"):
+                raise s.error(f"{axis}_zero_tick", problem)
+            end = "min" if dynamixel_table.position_limits_problem(axis, lo, lo, rev, zero) else "max"
+            raise lim.error(f"{axis}_{end}_deg", problem)
     s.finish()
     return out
 

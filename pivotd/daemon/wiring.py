@@ -186,12 +186,14 @@ def build_mavlink_settings(cfg: Config) -> MavlinkSettings:
 
 
 def build_dynamixel_settings(cfg: Config) -> DynamixelSettings:
-    """The dynamixel backend's servo ids and directions, and the limits the servos are configured with."""
+    """The dynamixel backend's servo ids, directions and zero ticks, and the limits the servos are configured
+    with."""
     d = cfg.gimbal.dynamixel
     return DynamixelSettings(limits=cfg.gimbal.limits, pan_motion=cfg.motion.pan, tilt_motion=cfg.motion.tilt,
                              pan_id=d.pan_id, tilt_id=d.tilt_id, pan_reversed=d.pan_reversed,
-                             tilt_reversed=d.tilt_reversed, watchdog_ms=cfg.gimbal.watchdog_ms,
-                             idle_period_s=2.0 / cfg.control.rate_hz)
+                             tilt_reversed=d.tilt_reversed, pan_zero_tick=d.pan_zero_tick,
+                             tilt_zero_tick=d.tilt_zero_tick, watchdog_ms=cfg.gimbal.watchdog_ms,
+                             control_period_s=cfg.control.dt, idle_period_s=2.0 / cfg.control.rate_hz)
 
 
 def build_gimbal(cfg: Config) -> GimbalInterface:

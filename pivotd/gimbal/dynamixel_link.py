@@ -8,8 +8,10 @@ Goal Position to where each servo is (no jump), turns the torque on and arms the
 one Sync Write of both Goal Positions; after them one Sync Read of Torque Enable … Present Position (torque,
 Hardware Error Status, velocity and position from one answer). A hardware error is a fault
 (``clear_fault`` reboots the servo and configures it again); disabling turns the torque off. No state for
-``state_timeout_s`` → link down, reconnect with backoff. Positions are 4096 ticks per turn: the joint limits
-must lie within ±180°.
+``state_timeout_s`` → link down, reconnect with backoff. Positions are 4096 ticks per turn, joint angle 0 at
+each axis' zero tick (``pan_zero_tick``/``tilt_zero_tick``, 2048 by default): the joint limits must lie within
+the ticks 0–4095 around it (±180° at 2048). A ping that gets no status packet names port, id and baud with
+what to check; the adapter's FTDI latency timer is checked once (``latency_timer_problem``).
 """
 
 from __future__ import annotations
@@ -18,12 +20,14 @@ import collections
 import contextlib
 import logging
 import math
+import os
 import queue
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from pathlib import Path
+from typing import Any, NamedTuple
 
 from pivotd.errors import ConfigError
 from pivotd.gimbal import dynamixel_table as ct
@@ -35,6 +39,23 @@ from pivotd.gimbal.supervisor import SupervisedLink
 log = logging.getLogger(__name__)
 
 _GOAL_QUEUE = 64  # setpoints waiting for the bus thread; older ones are dropped beyond this (counted)
+#: where Linux shows a USB serial adapter's FTDI latency timer: ``<root>/ttyUSB0/latency_timer`` [ms]
+USB_SERIAL_DEVICES = Path("/sys/bus/usb-serial/devices")
+
+
+def latency_timer_problem(port: str, usb_serial_root: Path = USB_SERIAL_DEVICES) -> str | None:
+    """Why the USB serial adapter behind ``port`` (a symlink such as /dev/serial/by-id/… is followed) slows every
+    read: its latency timer reads more than 1 ms (the FTDI default is 16 ms). None when it is 1 ms, or when the
+    port has no such file (not a USB serial adapter, or not Linux)."""
+    path = usb_serial_root / os.path.basename(os.path.realpath(port)) / "latency_timer"
+    try:
+        value = int(path.read_text().strip())
+    except (OSError, ValueError):
+        return None
+    if value <= 1:
+        return None
+    return (f"{path} is {value} ms: every servo answer waits up to that long; set it to 1 "
+            f"(echo 1 > {path}, or the udev rule of docs/HARDWARE.md)")
 
 
 def load_sdk() -> Any:
@@ -58,10 +79,66 @@ class DynamixelSettings:
     tilt_id: int = 2
     pan_reversed: bool = False
     tilt_reversed: bool = False
+    pan_zero_tick: int = ct.CENTRE_TICKS  # the servo position [ticks] of joint angle 0
+    tilt_zero_tick: int = ct.CENTRE_TICKS
     watchdog_ms: int = 250
+    control_period_s: float | None = None  # the daemon's control period: warned about a bus slower than it
     idle_period_s: float = 0.02
     state_timeout_s: float = 0.5
     reconnect_backoff_s: tuple = (0.1, 2.0)
+
+
+def bus_rate_problem(baudrate: int, control_period_s: float | None) -> str | None:
+    """Why one control period's bus traffic (``ct.bus_cycle_s``) does not fit in ``control_period_s`` [s] at
+    ``baudrate``, or None (also when there is no control period to compare with)."""
+    if control_period_s is None:
+        return None
+    cycle = ct.bus_cycle_s(baudrate)
+    if cycle <= control_period_s:
+        return None
+    return (f"at {baudrate} baud one Sync Write + Sync Read takes at least {cycle * 1e3:.1f} ms, longer than the "
+            f"control period {control_period_s * 1e3:g} ms: set the servos' Baud Rate and gimbal.baud to 1000000")
+
+
+class _Axis(NamedTuple):
+    """One servo as a joint: bus id, direction, tick of angle 0, joint range [rad], motion limits."""
+
+    name: str
+    dxl_id: int
+    reversed: bool
+    zero: int
+    lo: float
+    hi: float
+    motion: AxisLimits
+
+    @property
+    def ticks(self) -> tuple[int, int]:
+        """(Min, Max Position Limit) [ticks] of the joint range."""
+        return ct.limits_to_ticks(self.lo, self.hi, self.reversed, self.zero)
+
+    def goal_ticks(self, angle: float) -> int:
+        """Goal Position [ticks] for a joint angle [rad], clamped into the Position Limits."""
+        tmin, tmax = self.ticks
+        return min(tmax, max(tmin, ct.angle_to_ticks(angle, self.reversed, self.zero)))
+
+
+def axes(s: DynamixelSettings) -> tuple[_Axis, _Axis]:
+    """The pan and the tilt servo of ``s``."""
+    lim = s.limits
+    return (_Axis("pan", s.pan_id, s.pan_reversed, s.pan_zero_tick, lim.pan_min, lim.pan_max, s.pan_motion),
+            _Axis("tilt", s.tilt_id, s.tilt_reversed, s.tilt_zero_tick, lim.tilt_min, lim.tilt_max, s.tilt_motion))
+
+
+def limits_problem(s: DynamixelSettings) -> str | None:
+    """Why the joint limits of ``s`` cannot be the servos' Position Limits (continuous pan, a range beyond the
+    servo's 0–4095 ticks around its zero tick), or None."""
+    if s.limits.continuous_pan:
+        return "gimbal.limits: no continuous pan for servos in Position Control Mode (within ±180°)"
+    for ax in axes(s):
+        problem = ct.position_limits_problem(ax.name, ax.lo, ax.hi, ax.reversed, ax.zero)
+        if problem:
+            return f"gimbal.limits: {problem}"
+    return None
 
 
 class _BusError(Exception):
@@ -73,13 +150,20 @@ class DynamixelGimbal(SupervisedLink):
 
     _thread_name = "gimbal-dynamixel"
 
-    def __init__(self, port: str, settings: DynamixelSettings, baudrate: int = 57600) -> None:
+    def __init__(self, port: str, settings: DynamixelSettings, baudrate: int = ct.FACTORY_BAUD,
+                 usb_serial_root: Path = USB_SERIAL_DEVICES) -> None:
         super().__init__(port, settings.reconnect_backoff_s,
                          ("setpoints_sent", "sync_writes", "sync_reads", "comm_errors", "reconnects", "link_losses",
                           "reboots", "goals_dropped", "write_errors"))
         self.port_name = port
         self.settings = settings
         self.baudrate = baudrate
+        self.usb_serial_root = usb_serial_root
+        #: the latency-timer warning given at the first opening (latency_timer_problem), or None
+        self.latency_warning: str | None = None
+        #: the warning that the baud rate is too slow for the control period (bus_rate_problem), or None
+        self.bus_warning = bus_rate_problem(baudrate, settings.control_period_s)
+        self._latency_checked = False
         self._sdk = load_sdk()
         self._ph = self._sdk.PacketHandler(2.0)
         self._port: Any = None
@@ -175,13 +259,23 @@ class DynamixelGimbal(SupervisedLink):
             log.debug(self._last_error)
             return None
         self._port = port
+        if self.bus_warning and not self._latency_checked:
+            log.warning("servo bus %s: %s", self.port_name, self.bus_warning)
+        if not self._latency_checked:
+            self._latency_checked = True
+            self.latency_warning = latency_timer_problem(self.port_name, self.usb_serial_root)
+            if self.latency_warning:
+                log.warning("servo bus %s: %s", self.port_name, self.latency_warning)
         return port
 
     def _handshake(self, port: Any) -> LinkState:
         try:
             return self._configure()
         except Exception as exc:
-            self._last_error = f"servos at {self.port_name}: {exc}"
+            error = f"servos at {self.port_name}: {exc}"
+            if error != self._last_error:  # once, not at every retry
+                log.warning("%s", error)
+            self._last_error = error
             return LinkState.DOWN
 
     def _close(self, port: Any) -> None:
@@ -194,7 +288,12 @@ class DynamixelGimbal(SupervisedLink):
         if comm != self._sdk.COMM_SUCCESS:
             self._n["comm_errors"] += 1
             self._port.clearPort()
-            raise _BusError(f"{what} on servo {dxl_id}: {self._ph.getTxRxResult(comm)}")
+            hint = ""
+            if comm == self._sdk.COMM_RX_TIMEOUT:
+                hint = (f" (no answer from id {dxl_id} on {self.port_name} at {self.baudrate} baud: check the servo "
+                        "ids gimbal.dynamixel.pan_id/tilt_id, gimbal.baud against the servos' Baud Rate (factory "
+                        f"{ct.FACTORY_BAUD}), their 12 V supply, and the wiring: TTL 3-pin vs RS-485 4-pin)")
+            raise _BusError(f"{what} on servo {dxl_id}: {self._ph.getTxRxResult(comm)}{hint}")
         if error & 0x7F:
             raise _BusError(f"{what} on servo {dxl_id}: {self._ph.getRxPacketError(error)}")
 
@@ -213,29 +312,29 @@ class DynamixelGimbal(SupervisedLink):
             value -= 1 << (8 * size)
         return value
 
-    def _axes(self) -> tuple[tuple[int, bool, float, float, AxisLimits], ...]:
-        s, lim = self.settings, self.settings.limits
-        return ((s.pan_id, s.pan_reversed, lim.pan_min, lim.pan_max, s.pan_motion),
-                (s.tilt_id, s.tilt_reversed, lim.tilt_min, lim.tilt_max, s.tilt_motion))
+    def _axes(self) -> tuple[_Axis, _Axis]:
+        return axes(self.settings)
+
+    def _ids(self) -> tuple[int, int]:
+        return self.settings.pan_id, self.settings.tilt_id
 
     def _configure(self) -> LinkState:
         """Ping, then the settings of the module docstring; UP, DOWN or INCOMPATIBLE."""
         s = self.settings
-        lim = s.limits
-        if lim.continuous_pan or max(abs(lim.pan_min), abs(lim.pan_max), abs(lim.tilt_min), abs(lim.tilt_max)) > (
-                math.pi - ct.POSITION_RESOLUTION):
-            self._last_error = ("gimbal.limits must lie within ±180° (no continuous pan) for servos in Position "
-                                "Control Mode")
+        problem = limits_problem(s)
+        if problem:
+            self._last_error = problem
             log.error(self._last_error)
             return LinkState.INCOMPATIBLE
         self._configured = False
-        for dxl_id, *_ in self._axes():
+        for dxl_id in self._ids():
             model, comm, error = self._ph.ping(self._port, dxl_id)
             self._check("ping", dxl_id, comm, error)
-        for dxl_id, reversed_axis, lo, hi, motion in self._axes():
+        for ax in self._axes():
+            dxl_id, motion = ax.dxl_id, ax.motion
             self._write(dxl_id, ct.TORQUE_ENABLE, 0)
             self._write(dxl_id, ct.OPERATING_MODE, ct.POSITION_CONTROL_MODE)
-            tmin, tmax = ct.limits_to_ticks(lo, hi, reversed_axis)
+            tmin, tmax = ax.ticks
             self._write(dxl_id, ct.MIN_POSITION_LIMIT, tmin)
             self._write(dxl_id, ct.MAX_POSITION_LIMIT, tmax)
             self._write(dxl_id, ct.BUS_WATCHDOG, 0)  # clears an expired watchdog
@@ -247,7 +346,7 @@ class DynamixelGimbal(SupervisedLink):
         self._read_state()
         if self._want_enabled and not any(self._hw_errors):
             self._write_torque(True)
-        for dxl_id, *_ in self._axes():
+        for dxl_id in self._ids():
             self._write(dxl_id, ct.BUS_WATCHDOG, ct.watchdog_units(s.watchdog_ms))
         self._read_state()
         self._configured = True
@@ -261,7 +360,7 @@ class DynamixelGimbal(SupervisedLink):
         return self._write_torque(on)
 
     def _write_torque(self, on: bool) -> bool:
-        for dxl_id, *_ in self._axes():
+        for dxl_id in self._ids():
             self._write(dxl_id, ct.TORQUE_ENABLE, 1 if on else 0)
         self._read_state()
         return self._torque == (on, on)
@@ -270,7 +369,7 @@ class DynamixelGimbal(SupervisedLink):
         self._read_state()
         if not any(self._hw_errors):
             return self._configured or self._configure() is LinkState.UP
-        for (dxl_id, *_), err in zip(self._axes(), self._hw_errors, strict=True):
+        for dxl_id, err in zip(self._ids(), self._hw_errors, strict=True):
             if err:
                 comm, error = self._ph.reboot(self._port, dxl_id)
                 self._check("reboot", dxl_id, comm, error & 0x7F)
@@ -280,7 +379,7 @@ class DynamixelGimbal(SupervisedLink):
 
     def _sync_read(self, start: int, length: int) -> list[bytes] | None:
         gsr = self._sdk.GroupSyncRead(self._port, self._ph, start, length)
-        for dxl_id, *_ in self._axes():
+        for dxl_id in self._ids():
             gsr.addParam(dxl_id)
         comm = gsr.txRxPacket()
         self._n["sync_reads"] += 1
@@ -289,7 +388,7 @@ class DynamixelGimbal(SupervisedLink):
             self._port.clearPort()  # a late answer must not be taken for the next one
             return None
         out = []
-        for dxl_id, *_ in self._axes():
+        for dxl_id in self._ids():
             if not gsr.isAvailable(dxl_id, start, length):
                 self._n["comm_errors"] += 1
                 return None
@@ -313,10 +412,10 @@ class DynamixelGimbal(SupervisedLink):
         self._torque = (bool(field(data[0], ct.TORQUE_ENABLE)), bool(field(data[1], ct.TORQUE_ENABLE)))
         self._hw_errors = (field(data[0], ct.HARDWARE_ERROR_STATUS), field(data[1], ct.HARDWARE_ERROR_STATUS))
         values = []
-        for raw, (_, reversed_axis, *_rest) in zip(data, self._axes(), strict=True):
+        for raw, ax in zip(data, self._axes(), strict=True):
             vel = field(raw, ct.PRESENT_VELOCITY) * ct.VELOCITY_UNIT
-            pos = ct.ticks_to_angle(field(raw, ct.PRESENT_POSITION), reversed_axis)
-            values.append((pos, -vel if reversed_axis else vel))
+            pos = ct.ticks_to_angle(field(raw, ct.PRESENT_POSITION), ax.reversed, ax.zero)
+            values.append((pos, -vel if ax.reversed else vel))
         errors = self._hw_errors[0] | self._hw_errors[1]
         mode = GimbalMode.FAULT if errors else GimbalMode.ENABLED if all(self._torque) else GimbalMode.DISABLED
         st = GimbalState(values[0][0], values[1][0], values[0][1], values[1][1], mode, ct.hardware_faults(errors),
@@ -328,10 +427,8 @@ class DynamixelGimbal(SupervisedLink):
 
     def _write_goal(self, goal: tuple[float, float]) -> None:
         gsw = self._sdk.GroupSyncWrite(self._port, self._ph, ct.GOAL_POSITION[0], ct.GOAL_POSITION[1])
-        for angle, (dxl_id, reversed_axis, lo, hi, _) in zip(goal, self._axes(), strict=True):
-            tmin, tmax = ct.limits_to_ticks(lo, hi, reversed_axis)
-            ticks = min(tmax, max(tmin, ct.angle_to_ticks(angle, reversed_axis)))
-            gsw.addParam(dxl_id, list(ticks.to_bytes(4, "little", signed=True)))
+        for angle, ax in zip(goal, self._axes(), strict=True):
+            gsw.addParam(ax.dxl_id, list(ax.goal_ticks(angle).to_bytes(4, "little", signed=True)))
         result = gsw.txPacket()
         if result != self._sdk.COMM_SUCCESS:
             self._n["write_errors"] += 1

@@ -1,7 +1,8 @@
 """DYNAMIXEL X-series (e.g. XM430-W350, XL430-W250; Protocol 2.0) control-table subset and unit conversions.
 
-Addresses and sizes are those of the X-series e-Manual; positions are 4096 ticks per turn with 2048 at the
-centre (Position Control Mode: 0–4095, ±180°). Pure data and functions, no I/O.
+Addresses and sizes are those of the X-series e-Manual; positions are 4096 ticks per turn, 0–4095 in Position
+Control Mode. A joint angle of 0 is the axis' zero tick (2048, the servo's centre, unless
+``gimbal.dynamixel.*_zero_tick`` says otherwise). Pure data and functions, no I/O.
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ EEPROM_END = 64  # addresses below are EEPROM: writable only with the torque off
 POSITION_CONTROL_MODE = 3
 TICKS_PER_REV = 4096
 CENTRE_TICKS = 2048
+MAX_TICK = TICKS_PER_REV - 1  # Position Control Mode: Goal Position and the Position Limits lie in 0–4095
+FACTORY_BAUD = 57600  # Baud Rate (8) = 1, the X-series factory setting
 VELOCITY_UNIT = 0.229 * 2 * math.pi / 60  # rad/s per Profile/Present Velocity unit (0.229 rev/min)
 ACCELERATION_UNIT = 214.577 * 2 * math.pi / 3600  # rad/s² per Profile Acceleration unit (214.577 rev/min²)
 WATCHDOG_UNIT_MS = 20  # Bus Watchdog unit; 1–127 arms it, 0 disarms, 255 reads back once it expired
@@ -38,25 +41,50 @@ _HARDWARE_ERRORS = ((1 << 0, FAULT_UNDERVOLTAGE), (1 << 2, FAULT_OVERTEMP), (1 <
                     (1 << 4, FAULT_DRIVER), (1 << 5, FAULT_OVERCURRENT))
 
 
-def angle_to_ticks(angle: float, reversed_axis: bool = False) -> int:
-    """Joint angle [rad] → servo position [ticks] (positive angle = counter-clockwise seen from the horn, unless
-    ``reversed_axis``)."""
+def angle_to_ticks(angle: float, reversed_axis: bool = False, zero: int = CENTRE_TICKS) -> int:
+    """Joint angle [rad] → servo position [ticks]: ``zero`` is the tick of angle 0; positive angle =
+    counter-clockwise seen from the horn, unless ``reversed_axis``."""
     sign = -1.0 if reversed_axis else 1.0
-    return round(CENTRE_TICKS + sign * angle / POSITION_RESOLUTION)
+    return round(zero + sign * angle / POSITION_RESOLUTION)
 
 
-def ticks_to_angle(ticks: int, reversed_axis: bool = False) -> float:
-    """Servo position [ticks] → joint angle [rad]."""
+def ticks_to_angle(ticks: int, reversed_axis: bool = False, zero: int = CENTRE_TICKS) -> float:
+    """Servo position [ticks] → joint angle [rad] (``zero``: the tick of angle 0)."""
     sign = -1.0 if reversed_axis else 1.0
-    return sign * (ticks - CENTRE_TICKS) * POSITION_RESOLUTION
+    return sign * (ticks - zero) * POSITION_RESOLUTION
 
 
-def limits_to_ticks(lo: float, hi: float, reversed_axis: bool = False) -> tuple[int, int]:
+def limits_to_ticks(lo: float, hi: float, reversed_axis: bool = False, zero: int = CENTRE_TICKS) -> tuple[int, int]:
     """Joint range [rad] → (Min, Max Position Limit) [ticks], rounded inwards so that no tick inside them lies
-    outside the range."""
+    outside the range (``zero``: the tick of angle 0)."""
     sign = -1.0 if reversed_axis else 1.0
-    a, b = CENTRE_TICKS + sign * lo / POSITION_RESOLUTION, CENTRE_TICKS + sign * hi / POSITION_RESOLUTION
+    a, b = zero + sign * lo / POSITION_RESOLUTION, zero + sign * hi / POSITION_RESOLUTION
     return math.ceil(min(a, b) - 1e-9), math.floor(max(a, b) + 1e-9)
+
+
+def position_limits_problem(axis: str, lo: float, hi: float, reversed_axis: bool = False,
+                            zero: int = CENTRE_TICKS) -> str | None:
+    """Why the joint range [``lo``, ``hi``] [rad] of ``axis`` cannot be Position Limits around tick ``zero``
+    (they must lie in 0–4095), or None."""
+    tmin, tmax = limits_to_ticks(lo, hi, reversed_axis, zero)
+    if tmin >= 0 and tmax <= MAX_TICK:
+        return None
+    ends = sorted(ticks_to_angle(t, reversed_axis, zero) for t in (0, MAX_TICK))
+    return (f"{axis} limits [{math.degrees(lo):g}, {math.degrees(hi):g}]° are ticks [{tmin}, {tmax}] around zero "
+            f"tick {zero}, outside the servo's 0–{MAX_TICK}: Position Control Mode reaches only "
+            f"[{math.degrees(ends[0]):.1f}, {math.degrees(ends[1]):.1f}]° (at zero tick 2048: within ±180°)")
+
+
+def bus_cycle_s(baud: int, servos: int = 2, read_length: int = PRESENT_POSITION[0] + PRESENT_POSITION[1]
+                - TORQUE_ENABLE[0]) -> float:
+    """Time on the wire [s] of one control period's traffic at ``baud``: a Sync Write of the Goal Positions and a
+    Sync Read of ``read_length`` bytes with its status packets, 10 bit times a byte; a lower bound (the servos'
+    Return Delay Time, 500 µs each at the factory setting, and the adapter's latency come on top)."""
+    packet = 10  # header 4, id 1, length 2, instruction 1, CRC 2
+    sync_write = packet + 4 + servos * (1 + GOAL_POSITION[1])
+    sync_read = packet + 4 + servos
+    status = servos * (packet + 1 + read_length)  # + the error byte
+    return (sync_write + sync_read + status) * 10 / baud
 
 
 def velocity_units(rad_s: float) -> int:

@@ -1,13 +1,15 @@
 """A chain of DYNAMIXEL X-series servos (Protocol 2.0, the control-table subset pivotd uses), for tests.
 
 Pure and steppable: ``feed(data, now)`` answers instruction packets (PING, READ, WRITE, SYNC_WRITE, SYNC_READ,
-REBOOT) with status packets; ``step(now)`` moves the servos. In Position Control Mode with torque on, a servo
-follows Goal Position with the profile's velocity and acceleration, inside Min/Max Position Limit. EEPROM
-(addresses < 64) can only be written with torque off. Bus Watchdog (units of 20 ms): no instruction packet for
-that long → the servo stops and the watchdog reads 255 until 0 is written; goal writes are refused meanwhile.
+REBOOT) with status packets; ``step(now)`` moves the servos (each in its own frame: tick 2048 is its angle 0).
+In Position Control Mode with torque on, a servo follows Goal Position with the profile's velocity and
+acceleration, inside Min/Max Position Limit. EEPROM (addresses < 64) can only be written with torque off. Bus
+Watchdog (units of 20 ms): no instruction packet for that long → the servo stops and the watchdog reads 255
+until 0 is written; goal writes are refused meanwhile.
 A hardware error (``inject_error``) turns the torque off and sets the alert bit in every status packet until
 REBOOT. With two servos as pan and tilt, setpoints (goal positions) and states are logged in pivotd's
-convention to the serial mock's CSV.
+convention to the serial mock's CSV: joint angles around each axis' zero tick, with its direction (what
+``gimbal.dynamixel.*_zero_tick`` / ``*_reversed`` of the host say; the servos' behaviour does not depend on it).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from firmware_proto.realtime import CsvMessageLog
 from pivotd.gimbal.dynamixel_table import (
     ACCELERATION_UNIT,
     BUS_WATCHDOG,
+    CENTRE_TICKS,
     EEPROM_END,
     FIRMWARE_VERSION,
     GOAL_POSITION,
@@ -31,6 +34,7 @@ from pivotd.gimbal.dynamixel_table import (
     MODEL_NUMBER,
     OPERATING_MODE,
     POSITION_CONTROL_MODE,
+    POSITION_RESOLUTION,
     PRESENT_POSITION,
     PRESENT_VELOCITY,
     PROFILE_ACCELERATION,
@@ -135,13 +139,16 @@ class Servo:
 
 @dataclass
 class DynamixelChain:
-    """Servos on one bus; ``pan_id``/``tilt_id`` name the two that are logged as a pan–tilt unit."""
+    """Servos on one bus; ``pan_id``/``tilt_id`` name the two that are logged as a pan–tilt unit, with joint angle 0
+    at ``zero_ticks`` (pan, tilt) and the directions ``reversed_axes`` (pan, tilt)."""
 
     ids: tuple[int, ...] = (1, 2)
     pan_id: int = 1
     tilt_id: int = 2
     state_hz: float = 50.0
     log: CsvMessageLog | None = None
+    zero_ticks: tuple[int, int] = (CENTRE_TICKS, CENTRE_TICKS)
+    reversed_axes: tuple[bool, bool] = (False, False)
 
     def __post_init__(self) -> None:
         self.servos = {i: Servo(i) for i in self.ids}
@@ -250,7 +257,8 @@ class DynamixelChain:
         pt = self._pan_tilt()
         if self.log is None or pt is None:
             return
-        pan, tilt = (ticks_to_angle(s.get(GOAL_POSITION, signed=True)) for s in pt)
+        pan, tilt = (ticks_to_angle(s.get(GOAL_POSITION, signed=True), rev, zero)
+                     for s, rev, zero in zip(pt, self.reversed_axes, self.zero_ticks, strict=True))
         self.log.angles("rx", "SETPOINT", now, pan, tilt, math.nan, math.nan, host_time_us=sent_us & 0xFFFFFFFF)
 
     def _log_state(self, now: float) -> None:
@@ -260,5 +268,12 @@ class DynamixelChain:
         pan, tilt = pt
         errors = pan.get(HARDWARE_ERROR_STATUS) | tilt.get(HARDWARE_ERROR_STATUS)
         mode = MODE_FAULT if errors else MODE_ENABLED if pan.torque and tilt.torque else MODE_DISABLED
-        self.log("tx", State(round(now * 1e6) & 0xFFFFFFFF, pan.axis.pos, tilt.axis.pos, pan.axis.vel, tilt.axis.vel,
-                             0, mode, hardware_faults(errors)), 0, now)
+        (p, pv), (t, tv) = (self._joint(s, rev, zero)
+                            for s, rev, zero in zip(pt, self.reversed_axes, self.zero_ticks, strict=True))
+        self.log("tx", State(round(now * 1e6) & 0xFFFFFFFF, p, t, pv, tv, 0, mode, hardware_faults(errors)), 0, now)
+
+    @staticmethod
+    def _joint(servo: Servo, reversed_axis: bool, zero: int) -> tuple[float, float]:
+        """The servo's position and velocity as joint angle [rad] and rate [rad/s]."""
+        sign = -1.0 if reversed_axis else 1.0
+        return (sign * (servo.axis.pos - (zero - CENTRE_TICKS) * POSITION_RESOLUTION), sign * servo.axis.vel)

@@ -17,6 +17,7 @@ import time
 
 from firmware_proto.mock_server import PtyTransport, add_fault_arguments, parse_simulator_args
 from firmware_proto.realtime import CsvMessageLog
+from pivotd.gimbal.dynamixel_table import CENTRE_TICKS, MAX_TICK
 from pivotd.sim.dynamixel_device import DynamixelChain
 
 log = logging.getLogger("mock_gimbal.dynamixel")
@@ -29,6 +30,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pan-id", type=int, default=1)
     p.add_argument("--tilt-id", type=int, default=2)
     p.add_argument("--state-hz", type=float, default=50.0, help="rate of the logged pan/tilt state [Hz]")
+    for axis in ("pan", "tilt"):
+        p.add_argument(f"--{axis}-zero-tick", type=int, default=CENTRE_TICKS, metavar="TICK",
+                       help=f"log {axis} angles around this tick, as gimbal.dynamixel.{axis}_zero_tick (default "
+                            f"{CENTRE_TICKS})")
+        p.add_argument(f"--{axis}-reversed", action="store_true",
+                       help=f"log {axis} angles the other way, as gimbal.dynamixel.{axis}_reversed")
     add_fault_arguments(p, unit="chunk of bytes", corrupt=False, latency="delay of the servos' answers [ms]",
                         fault_bit="set Hardware Error Status bit BIT on the pan servo (2: overheating)",
                         disconnect="close the pty", reconnect="open a new pty")
@@ -43,7 +50,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.pan_id == args.tilt_id:
         parser.error("--pan-id and --tilt-id must differ")
     msg_log = CsvMessageLog(args.log) if args.log else None
-    chain = DynamixelChain((args.pan_id, args.tilt_id), args.pan_id, args.tilt_id, args.state_hz, msg_log)
+    for tick in (args.pan_zero_tick, args.tilt_zero_tick):
+        if not 0 <= tick <= MAX_TICK:
+            parser.error(f"a zero tick must be 0–{MAX_TICK}, got {tick}")
+    chain = DynamixelChain((args.pan_id, args.tilt_id), args.pan_id, args.tilt_id, args.state_hz, msg_log,
+                           (args.pan_zero_tick, args.tilt_zero_tick), (args.pan_reversed, args.tilt_reversed))
     transport = PtyTransport(args.link)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
