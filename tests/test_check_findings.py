@@ -127,7 +127,7 @@ def test_a_device_that_opens_passes_and_is_summarized(capsys, tmp_path, pty_path
     code, out, err = check(capsys, config)
     assert code == 0 and err == []
     assert f"gimbal: port {pty_path} @ 1000000 baud" in out and "backend dynamixel" in out
-    assert "servos: pan id 3 reversed, tilt id 4 as mounted (0° at the servo centre, 2048 ticks; no offsets)" in out
+    assert "servos: pan id 3 reversed, 0° at tick 2048; tilt id 4 as mounted, 0° at tick 2048; 1000000 baud" in out
     assert "mount: xyz [0.1, 0, 0.3] m, rpy [0, 0, 90]°" in out
 
 

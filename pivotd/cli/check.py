@@ -161,8 +161,8 @@ def backend_lines(cfg: Config) -> list[str]:
     if g.backend == "dynamixel":
         d = g.dynamixel
         turn = {False: "as mounted", True: "reversed"}
-        return [f"servos: pan id {d.pan_id} {turn[d.pan_reversed]}, tilt id {d.tilt_id} {turn[d.tilt_reversed]} "
-                "(0° at the servo centre, 2048 ticks; no offsets)"]
+        return [f"servos: pan id {d.pan_id} {turn[d.pan_reversed]}, 0° at tick {d.pan_zero_tick}; tilt id "
+                f"{d.tilt_id} {turn[d.tilt_reversed]}, 0° at tick {d.tilt_zero_tick}; {g.baud} baud"]
     if g.backend == "mavlink":
         v = g.mavlink
         return [f"mavlink: system/component {v.system_id}/{v.component_id}, gimbal manager "
