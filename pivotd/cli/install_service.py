@@ -20,10 +20,10 @@ _EXEC_START = re.compile(r"^ExecStart=.*$", re.MULTILINE)
 
 def pivotd_executable() -> str:
     """The ``pivotd`` console script of the running installation (next to its interpreter, as pip installs it;
-    the venv's own path, not resolved through symlinks), else ``<python> -m pivotd.cli``."""
+    the venv's own path, not resolved through symlinks), else ``<python> -m pivotd.cli``; quoted for systemd."""
     script = Path(sys.executable).parent / "pivotd"
     if script.is_file():
-        return str(script.absolute())
+        return _quote(str(script.absolute()))
     return f"{_quote(str(Path(sys.executable).absolute()))} -m pivotd.cli"
 
 
