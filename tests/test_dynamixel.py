@@ -13,7 +13,7 @@ import tty
 
 import pytest
 
-from firmware_proto.messages import FAULT_DRIVER, FAULT_OVERCURRENT, FAULT_OVERTEMP
+from pivotd.firmware_proto.messages import FAULT_DRIVER, FAULT_OVERCURRENT, FAULT_OVERTEMP
 from pivotd.gimbal import dynamixel_table as ct
 from pivotd.gimbal.dynamixel_link import DynamixelGimbal, DynamixelSettings, load_sdk
 from pivotd.gimbal.interface import GimbalMode, LinkState

@@ -66,7 +66,7 @@ def venv_bin(wheel, tmp_path_factory) -> Path:
 def test_the_wheel_holds_pivotd_only_with_its_data_and_license(wheel):
     names = zipfile.ZipFile(wheel).namelist()
     version = wheel.name.split("-")[1]
-    assert {n.split("/")[0] for n in names} == {"pivotd", "firmware_proto", f"pivotd-{version}.dist-info"}
+    assert {n.split("/")[0] for n in names} == {"pivotd", f"pivotd-{version}.dist-info"}
     shipped = {n.removeprefix("pivotd/data/") for n in names if n.startswith("pivotd/data/") and
                not n.endswith(".py")}
     tracked = {str(p.relative_to(REPO)) for d in ("config", "systemd") for p in (REPO / d).rglob("*") if p.is_file()}

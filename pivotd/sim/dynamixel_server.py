@@ -15,8 +15,8 @@ import sys
 import threading
 import time
 
-from firmware_proto.mock_server import PtyTransport, add_fault_arguments, parse_simulator_args
-from firmware_proto.realtime import CsvMessageLog
+from pivotd.firmware_proto.mock_server import PtyTransport, add_fault_arguments, parse_simulator_args
+from pivotd.firmware_proto.realtime import CsvMessageLog
 from pivotd.sim.dynamixel_device import DynamixelChain
 
 log = logging.getLogger("mock_gimbal.dynamixel")

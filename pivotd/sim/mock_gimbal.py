@@ -1,6 +1,6 @@
 """The gimbal simulator's entry point (``tools/mock_gimbal``, the ``pivotd-mock-gimbal`` console script):
 ``--protocol pivot`` (default; pivotd's serial protocol on a pty / TCP port / serial port, see
-firmware_proto/mock_server.py), ``--protocol mavlink`` (a MAVLink gimbal manager on UDP, see
+pivotd/firmware_proto/mock_server.py), ``--protocol mavlink`` (a MAVLink gimbal manager on UDP, see
 pivotd/sim/mavlink_server.py) or ``--protocol dynamixel`` (two DYNAMIXEL servos on a pty, see
 pivotd/sim/dynamixel_server.py). ``--protocol X --help`` lists the options of each."""
 
@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     elif protocol == "dynamixel":
         from pivotd.sim.dynamixel_server import main as serve
     else:
-        from firmware_proto.mock_server import main as serve
+        from pivotd.firmware_proto.mock_server import main as serve
     return int(serve(args) or 0)
 
 
