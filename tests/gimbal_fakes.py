@@ -74,16 +74,16 @@ def pose_at(rx_time: float, quat=IDENTITY) -> PoseSample:
 
 
 class ModelGimbal:
-    """A GimbalInterface over the reference device model (firmware_proto.device.DeviceModel), stepped on the fake
+    """A GimbalInterface over the reference device model (pivotd.firmware_proto.device.DeviceModel), stepped on the fake
     clock: the host's frames are encoded and fed to it when sent, and a state is the latest STATE it emitted (no
     transport delay; the device clock is the fake clock). Configured and enabled from ``cfg`` as the link's
     handshake does; ``log_path``: the device's CSV message log, as the soak's (``check_device_log`` reads it)."""
 
     def __init__(self, clock: FakeClock, cfg, log_path=None) -> None:
-        from firmware_proto.device import DeviceModel
-        from firmware_proto.messages import Enable, Hello
-        from firmware_proto.realtime import CsvMessageLog
         from pivotd.config.settings import wire_config
+        from pivotd.firmware_proto.device import DeviceModel
+        from pivotd.firmware_proto.messages import Enable, Hello
+        from pivotd.firmware_proto.realtime import CsvMessageLog
 
         self.clock = clock
         self.msg_log = None if log_path is None else CsvMessageLog(log_path)
@@ -99,7 +99,7 @@ class ModelGimbal:
         self.model.step(clock())
 
     def _on_message(self, direction, msg, seq, now) -> None:
-        from firmware_proto.messages import State
+        from pivotd.firmware_proto.messages import State
 
         if self.msg_log is not None:
             self.msg_log(direction, msg, seq, now)
@@ -108,7 +108,7 @@ class ModelGimbal:
                                            msg.last_setpoint_seq, msg.device_time_us, rx_time=now, measured_at=now))
 
     def _send(self, msg) -> int:
-        from firmware_proto import codec
+        from pivotd.firmware_proto import codec
 
         seq, self._seq = self._seq, (self._seq + 1) & 0xFF
         self.model.feed(codec.encode(msg, seq), self.clock())
@@ -128,7 +128,7 @@ class ModelGimbal:
             self.msg_log.close()
 
     def send_setpoint(self, pan, tilt, pan_rate=0.0, tilt_rate=0.0):
-        from firmware_proto.messages import Setpoint
+        from pivotd.firmware_proto.messages import Setpoint
 
         if self.link_state != LinkState.UP:
             return None
@@ -139,7 +139,7 @@ class ModelGimbal:
                                    state_us, 200))
 
     def send_heartbeat(self) -> None:
-        from firmware_proto.messages import Heartbeat
+        from pivotd.firmware_proto.messages import Heartbeat
 
         self.heartbeats += 1
         self._send(Heartbeat())

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from support import REPO
 
-from firmware_proto.messages import Config
+from pivotd.firmware_proto.messages import Config
 from pivotd.gimbal.link import LinkConfig
 
 MOCK_GIMBAL = REPO / "tools" / "mock_gimbal"

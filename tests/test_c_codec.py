@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from firmware_proto.vectors import c_header, load_vectors
+from pivotd.firmware_proto.vectors import c_header, load_vectors
 
-C_DIR = Path(__file__).resolve().parent.parent / "firmware_proto" / "c"
+C_DIR = Path(__file__).resolve().parent.parent / "pivotd" / "firmware_proto" / "c"
 CC = shutil.which("cc") or shutil.which("gcc")
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(CC is None, reason="no C compiler")]
 
@@ -54,8 +54,8 @@ def test_library_uses_no_heap_and_no_stdio() -> None:
 def test_c_and_python_decoders_agree_on_random_and_mutated_streams(tmp_path: Path) -> None:
     import random
 
-    from firmware_proto import codec
-    from firmware_proto.messages import Ack, Heartbeat, Identity, Setpoint, State
+    from pivotd.firmware_proto import codec
+    from pivotd.firmware_proto.messages import Ack, Heartbeat, Identity, Setpoint, State
 
     exe = tmp_path / "decode_lines"
     subprocess.run([CC, "-Wall", "-Wextra", "-Werror", "-std=c99", "-pedantic", "-O2", f"-I{C_DIR}", "-o", str(exe),

@@ -523,8 +523,8 @@ def test_a_watchdog_bit_latched_while_the_device_follows_keeps_the_stream_contin
     setpoint resumed, or a bit latched without a hold: the fault matrix injects it). It executes the stream, so the
     stream goes on: a restart from its measured state would add its tracking lag as a step, which the soak's check
     counted (14x the jerk limit in one loaded run), and the check judges the pair across the bit as one stream."""
-    from firmware_proto.messages import FAULT_WATCHDOG
     from pivotd.bench.soak import check_device_log
+    from pivotd.firmware_proto.messages import FAULT_WATCHDOG
 
     cfg = load_config(REPO / "config" / "demo.yaml")
     clock = FakeClock()

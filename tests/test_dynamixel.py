@@ -13,7 +13,7 @@ import tty
 
 import pytest
 
-from firmware_proto.messages import FAULT_DRIVER, FAULT_OVERCURRENT, FAULT_OVERTEMP
+from pivotd.firmware_proto.messages import FAULT_DRIVER, FAULT_OVERCURRENT, FAULT_OVERTEMP
 from pivotd.gimbal import dynamixel_table as ct
 from pivotd.gimbal.dynamixel_link import DynamixelGimbal, DynamixelSettings, load_sdk
 from pivotd.gimbal.interface import GimbalMode, LinkState
@@ -463,7 +463,7 @@ def test_the_simulator_logs_joint_angles_around_the_zero_ticks_and_directions_it
     import csv
     import struct
 
-    from firmware_proto.realtime import CsvMessageLog
+    from pivotd.firmware_proto.realtime import CsvMessageLog
 
     log = CsvMessageLog(tmp_path / "servos.csv")
     chain = DynamixelChain((1, 2), log=log, zero_ticks=(1000, 3000), reversed_axes=(False, True))

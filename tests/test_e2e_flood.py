@@ -43,7 +43,7 @@ def test_flooded_daemon_keeps_control_counts_the_drops_and_parks_on_sigterm(tmp_
 def test_watchdog_trips_count_rising_edges_inside_the_window():
     import numpy as np
 
-    from firmware_proto.messages import FAULT_WATCHDOG
+    from pivotd.firmware_proto.messages import FAULT_WATCHDOG
 
     faults = np.array([0, FAULT_WATCHDOG, FAULT_WATCHDOG, 0, FAULT_WATCHDOG, 0, 0])
     assert watchdog_trips(faults) == 2

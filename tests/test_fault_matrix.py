@@ -16,8 +16,15 @@ import pytest
 from proto_support import link_config
 from support import wait_until
 
-from firmware_proto.messages import FAULT_WATCHDOG, FAULTS_SEVERE, MODE_DISABLED, MODE_ENABLED, MODE_FAULT, MODE_HOLDING
 from pivotd.bench.soak import SoakDevice, SoakStack, check_device_log, count_tracebacks, soak
+from pivotd.firmware_proto.messages import (
+    FAULT_WATCHDOG,
+    FAULTS_SEVERE,
+    MODE_DISABLED,
+    MODE_ENABLED,
+    MODE_FAULT,
+    MODE_HOLDING,
+)
 from pivotd.gimbal.link import GimbalLink
 
 RECOVER_S = 60.0  # generous: a shared machine; the measured times are in docs/RELIABILITY.md
@@ -226,8 +233,8 @@ def test_check_device_log_counts_rate_steps_in_a_stream_and_positions_beyond_the
     """The soak's setpoint check can fail: a rate step inside one stream counts, the same step across a break of
     the stream (a lost frame, a stall the device held through) does not, and a position beyond the joint limits
     always counts."""
-    from firmware_proto.realtime import LOG_COLUMNS
     from pivotd.config import load_config
+    from pivotd.firmware_proto.realtime import LOG_COLUMNS
     from pivotd.sim.launch import REPO
 
     cfg = load_config(REPO / "config" / "demo.yaml")
@@ -338,7 +345,7 @@ def test_a_stuck_pan_axis_is_reported_held_and_resumed_within_limits(stack):
 
 
 def _write_log(path: Path, log: list[dict]) -> Path:
-    from firmware_proto.realtime import LOG_COLUMNS
+    from pivotd.firmware_proto.realtime import LOG_COLUMNS
 
     with open(path, "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=LOG_COLUMNS)
@@ -348,7 +355,7 @@ def _write_log(path: Path, log: list[dict]) -> Path:
 
 
 def _log_row(t, direction, kind, seq="", pan=0.0, rate=0.0, mode="", host=None):
-    from firmware_proto.realtime import LOG_COLUMNS
+    from pivotd.firmware_proto.realtime import LOG_COLUMNS
 
     values = dict.fromkeys(LOG_COLUMNS, "")
     values.update(t_s=f"{t:.6f}", dir=direction, type=kind, seq=seq, pan=f"{pan:.6f}", tilt=0.0,
@@ -468,8 +475,8 @@ def test_check_device_log_judges_the_step_after_a_late_setpoint_and_heartbeats_w
     setpoint (sent more than 0.1 s after the previous one) and the heartbeats for breaks of the stream and passed
     the log. Every pair the device executed is judged now; the same restart after the device reported its hold
     is judged from the held state and passes."""
-    from firmware_proto.messages import FAULT_WATCHDOG
     from pivotd.config import load_config
+    from pivotd.firmware_proto.messages import FAULT_WATCHDOG
     from pivotd.sim.launch import REPO
 
     cfg = load_config(REPO / "config" / "demo.yaml")

@@ -15,12 +15,12 @@ from hypothesis import strategies as st
 from test_config_doc import BASE as BASE_DOC
 from test_config_doc import DOCUMENTED, _with
 
-from firmware_proto.device import validate_config
-from firmware_proto.messages import Config as ConfigMessage
 from pivotd.cli import main
 from pivotd.config import load_config
 from pivotd.config.settings import wire_config
 from pivotd.errors import ConfigError
+from pivotd.firmware_proto.device import validate_config
+from pivotd.firmware_proto.messages import Config as ConfigMessage
 
 BASE = "map:\n  allow_empty: true\n"
 

@@ -7,8 +7,8 @@ import time
 import pytest
 from proto_support import MockGimbal, link_config, read_log
 
-from firmware_proto import codec
-from firmware_proto.messages import (
+from pivotd.firmware_proto import codec
+from pivotd.firmware_proto.messages import (
     FAULT_OVERCURRENT,
     FAULT_WATCHDOG,
     MODE_DISABLED,

@@ -6,15 +6,15 @@ from proto_support import link_config, read_log
 from support import wait_until
 
 import pivotd.gimbal.link as link_module
-from firmware_proto import codec
-from firmware_proto.messages import MODE_ENABLED, Hello, Identity
+from pivotd.firmware_proto import codec
+from pivotd.firmware_proto.messages import MODE_ENABLED, Hello, Identity
 from pivotd.gimbal.link import GimbalLink
 
 pytestmark = pytest.mark.slow  # subprocesses / real time
 
 
 def test_importing_the_link_registers_mock_urls() -> None:
-    assert "firmware_proto.urlhandler" in serial.protocol_handler_packages
+    assert "pivotd.firmware_proto.urlhandler" in serial.protocol_handler_packages
     assert link_module.GimbalLink is GimbalLink
 
 

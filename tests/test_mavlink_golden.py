@@ -15,7 +15,7 @@ import struct
 import numpy as np
 import pytest
 
-from firmware_proto.messages import FAULT_DRIVER, FAULT_ENCODER, FAULT_UNDERVOLTAGE
+from pivotd.firmware_proto.messages import FAULT_DRIVER, FAULT_ENCODER, FAULT_UNDERVOLTAGE
 from pivotd.geometry import direction_to_pan_tilt, pan_tilt_to_direction
 from pivotd.gimbal import mavlink_frames as mf
 from pivotd.gimbal.kinematics import JointLimits

@@ -16,9 +16,9 @@ import pytest
 from support import free_tcp_port, wait_until
 from test_e2e_daemon import start_daemon, start_mock_gimbal, start_sim, write_config
 
-from firmware_proto.realtime import CsvMessageLog, FaultInjector
 from pivotd.bus.probe import BusProbe
 from pivotd.config import load_config
+from pivotd.firmware_proto.realtime import CsvMessageLog, FaultInjector
 from pivotd.gimbal.interface import GimbalMode, LinkState
 from pivotd.gimbal.kinematics import JointLimits
 from pivotd.gimbal.mavlink_link import MavlinkGimbal, MavlinkSettings

@@ -13,8 +13,18 @@ import pytest
 import serial
 from proto_support import MOCK_GIMBAL, REPO, MockGimbal, read_log
 
-from firmware_proto import codec
-from firmware_proto.messages import FAULT_ENCODER, MODE_FAULT, Ack, Config, Enable, Hello, Identity, Setpoint, State
+from pivotd.firmware_proto import codec
+from pivotd.firmware_proto.messages import (
+    FAULT_ENCODER,
+    MODE_FAULT,
+    Ack,
+    Config,
+    Enable,
+    Hello,
+    Identity,
+    Setpoint,
+    State,
+)
 
 pytestmark = pytest.mark.slow  # subprocesses / real time
 
@@ -172,13 +182,13 @@ def test_from_first_frame_counts_faults_and_disconnect_from_the_hosts_first_fram
     assert states and states[-1].mode == MODE_FAULT and states[-1].faults == FAULT_ENCODER
 
 
-@pytest.mark.parametrize("module", ["firmware_proto.mock_server", "pivotd.sim.mavlink_server",
+@pytest.mark.parametrize("module", ["pivotd.firmware_proto.mock_server", "pivotd.sim.mavlink_server",
                                     "pivotd.sim.dynamixel_server"])
 def test_every_simulator_takes_the_shared_fault_options(module):
     """The three device simulators declare their fault injection once (add_fault_arguments) and parse it alike."""
     import importlib
 
-    from firmware_proto.mock_server import parse_simulator_args
+    from pivotd.firmware_proto.mock_server import parse_simulator_args
 
     build = importlib.import_module(module).build_parser
     args, injector = parse_simulator_args(build(), ["--drop", "0.1", "--latency-ms", "5", "--seed", "3",

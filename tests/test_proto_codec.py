@@ -6,8 +6,8 @@ import math
 import pytest
 from cobs import cobs
 
-from firmware_proto import codec
-from firmware_proto.messages import (
+from pivotd.firmware_proto import codec
+from pivotd.firmware_proto.messages import (
     MAX_BODY,
     MESSAGE_BY_NAME,
     MESSAGE_TYPES,
@@ -27,7 +27,7 @@ from firmware_proto.messages import (
     setpoint_is_fresh,
     to_micro,
 )
-from firmware_proto.vectors import build_vectors, load_vectors
+from pivotd.firmware_proto.vectors import build_vectors, load_vectors
 
 SAMPLES = [
     Hello(1), Config(-3.0, 3.0, -1.0, 1.0, 2.0, 2.0, 10.0, 10.0, 250), Enable(1), Enable(0),

@@ -6,9 +6,9 @@ from dataclasses import replace
 
 import pytest
 
-from firmware_proto import codec
-from firmware_proto.device import DeviceInfo, DeviceModel
-from firmware_proto.messages import (
+from pivotd.firmware_proto import codec
+from pivotd.firmware_proto.device import DeviceInfo, DeviceModel
+from pivotd.firmware_proto.messages import (
     FAULT_CLAMPED,
     FAULT_CONFIG,
     FAULT_OVERCURRENT,

@@ -7,8 +7,8 @@ from cobs import cobs
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from firmware_proto import codec
-from firmware_proto.messages import MAX_BODY, PROTOCOL_VERSION, Ack, Heartbeat, Setpoint, State
+from pivotd.firmware_proto import codec
+from pivotd.firmware_proto.messages import MAX_BODY, PROTOCOL_VERSION, Ack, Heartbeat, Setpoint, State
 
 pytestmark = pytest.mark.slow  # seconds of CPU in all: `make test`, not `make test-fast`
 

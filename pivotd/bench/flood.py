@@ -44,7 +44,7 @@ def _host_times(sp_t: np.ndarray, reference: float) -> np.ndarray:
 
 def watchdog_trips(faults: np.ndarray, inside: np.ndarray | None = None) -> int:
     """Rising edges of the device's watchdog fault bit in its STATE stream (only at states where ``inside``)."""
-    from firmware_proto.messages import FAULT_WATCHDOG
+    from pivotd.firmware_proto.messages import FAULT_WATCHDOG
 
     bit = (np.asarray(faults, int) & FAULT_WATCHDOG) != 0
     rising = np.concatenate([bit[:1], bit[1:] & ~bit[:-1]])

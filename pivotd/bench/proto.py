@@ -1,8 +1,8 @@
 """``pivotd bench proto``: serial protocol codec throughput, link round trip, and a lossy-link soak.
 
-* decode: frames/s of :class:`firmware_proto.codec.StreamDecoder` on a stream of STATE frames fed in
+* decode: frames/s of :class:`pivotd.firmware_proto.codec.StreamDecoder` on a stream of STATE frames fed in
   4 KiB chunks (one core, median over repeats);
-* encode: frames/s of :func:`firmware_proto.codec.encode` for SETPOINT messages;
+* encode: frames/s of :func:`pivotd.firmware_proto.codec.encode` for SETPOINT messages;
 * link: round trip setpoint → STATE echoing its seq, over a real pty to ``mock_gimbal`` at 50 Hz STATE;
 * ``--faults``: a soak run (default 60 s) with 5 % drops and 5 % bit flips in both directions that
   counts lost ACKed commands and corrupted frames accepted as valid (both must be 0).
@@ -22,8 +22,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from firmware_proto import codec
-from firmware_proto.messages import Setpoint, State
+from pivotd.firmware_proto import codec
+from pivotd.firmware_proto.messages import Setpoint, State
 from pivotd.progress import with_progress
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -72,11 +72,11 @@ def bench_encode(n: int, repeats: int) -> dict[str, float]:
 
 
 class _MockProcess:
-    """``python -m firmware_proto.mock_server ARGS`` on a pty."""
+    """``python -m pivotd.firmware_proto.mock_server ARGS`` on a pty."""
 
     def __init__(self, *args: str) -> None:
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")]))
-        self.proc = subprocess.Popen([sys.executable, "-m", "firmware_proto.mock_server", *args],
+        self.proc = subprocess.Popen([sys.executable, "-m", "pivotd.firmware_proto.mock_server", *args],
                                      stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env)
         self.path = self.proc.stdout.readline().strip()  # type: ignore[union-attr]
 
@@ -93,7 +93,7 @@ class _MockProcess:
 
 
 def _link_config():  # type: ignore[no-untyped-def]
-    from firmware_proto.messages import Config
+    from pivotd.firmware_proto.messages import Config
     from pivotd.gimbal.link import LinkConfig
 
     return LinkConfig(Config(-3.0, 3.0, -1.0, 1.0, 2.0, 2.0, 10.0, 10.0, 250), state_timeout_s=2.0)

@@ -1,7 +1,7 @@
 """``pivotd bench soak --minutes N``: the full stack under random faults and hostile input, judged from outside.
 
 Runs ``pivotd`` (config/demo.yaml) with ``tools/sim_pose`` walking the hallway in a loop, as the demo launches
-them, against the reference device model (firmware_proto) served on a loopback TCP port of this process, so
+them, against the reference device model (pivotd.firmware_proto) served on a loopback TCP port of this process, so
 that faults can be injected at any time: unplug/replug, bursts of bit flips and of lost frames, a device reboot
 (the port stays, the device forgets its configuration), every fault bit, a device stall (its process stopped
 while setpoints queue in its socket), a pan axis held mechanically (no fault bit); and, on the bus, hostile
@@ -84,8 +84,8 @@ class SoakDevice:
     while, reboot it, latch a fault bit, and change the per-frame bit-flip/loss probabilities."""
 
     def __init__(self, log_path: Path, seed: int) -> None:
-        from firmware_proto.mock_server import TcpTransport
-        from firmware_proto.realtime import CsvMessageLog, FaultInjector
+        from pivotd.firmware_proto.mock_server import TcpTransport
+        from pivotd.firmware_proto.realtime import CsvMessageLog, FaultInjector
 
         self.msg_log = CsvMessageLog(log_path)
         self.injector = FaultInjector(seed=seed)
@@ -98,8 +98,8 @@ class SoakDevice:
         self._thread = threading.Thread(target=self._run, name="soak-device", daemon=True)
 
     def _new_device(self):
-        from firmware_proto.device import DeviceModel
-        from firmware_proto.realtime import RealTimeDevice
+        from pivotd.firmware_proto.device import DeviceModel
+        from pivotd.firmware_proto.realtime import RealTimeDevice
 
         return RealTimeDevice(DeviceModel(state_hz=50.0, on_message=self.msg_log), self.injector)
 
@@ -349,8 +349,8 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
     state (counted in ``axis_restarts``). A device that overshot a stale setpoint and was still slowing down is
     not such an axis: its step counts.
     """
-    from firmware_proto.messages import FAULT_WATCHDOG, MODE_ENABLED
     from pivotd.daemon.control import ControlSettings
+    from pivotd.firmware_proto.messages import FAULT_WATCHDOG, MODE_ENABLED
     from pivotd.sim.analysis import WIRE_RESOLUTION
 
     dt = cfg.control.dt

@@ -1,4 +1,5 @@
-"""pivotd, the PIVOT gimbal controller: run (the default command), check, plan, bench, status, plot, gimbal.
+"""pivotd, the PIVOT gimbal controller: run (the default command), check, plan, bench, status, plot, gimbal, init,
+install-service.
 
 Each command lives in its own module exposing ``configure(parser)`` and ``run(args) -> int``;
 this module only dispatches and turns :class:`~pivotd.errors.PivotdError` into exit code 2.
@@ -24,6 +25,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "status": ("pivotd.cli.status", "show running daemons' status, asked over Zenoh"),
     "plot": ("pivotd.cli.plot", "draw figures from an MCAP recording"),
     "gimbal": ("pivotd.cli.gimbal", "ping a gimbal, move it to a pose or scan its limits (before tracking)"),
+    "init": ("pivotd.cli.init", "write a config template (spot, demo ...) to start from"),
+    "install-service": ("pivotd.cli.install_service", "print or write the systemd unit and sysusers file"),
 }
 
 
@@ -34,7 +37,7 @@ class _ArgumentParser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     """The full ``pivotd`` argument parser with every available sub-command."""
-    parser = _ArgumentParser(prog="pivotd", description=__doc__.splitlines()[0])
+    parser = _ArgumentParser(prog="pivotd", description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--version", action="version", version=f"pivotd {version()}")
     subs = parser.add_subparsers(dest="command", parser_class=_ArgumentParser, metavar="COMMAND")
     for name, (module_name, help_text) in COMMANDS.items():

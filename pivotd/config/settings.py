@@ -14,8 +14,6 @@ import re
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
-from firmware_proto.messages import Config as ConfigMessage
-from firmware_proto.messages import config_problems
 from pivotd.bus.qos import DURABILITY_NAMES, MAX_DEPTH, RELIABILITY_NAMES, QoS, TopicQoS
 from pivotd.bus.security_settings import ZenohSecurity
 from pivotd.bus.topics import (
@@ -30,6 +28,8 @@ from pivotd.bus.topics import (
 )
 from pivotd.config.yaml_reader import Section, read_yaml
 from pivotd.errors import ConfigError, InputError
+from pivotd.firmware_proto.messages import Config as ConfigMessage
+from pivotd.firmware_proto.messages import config_problems
 from pivotd.gimbal import dynamixel_table
 from pivotd.gimbal.kinematics import JointLimits, Mount
 from pivotd.gimbal.motion import AxisLimits

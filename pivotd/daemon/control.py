@@ -42,11 +42,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from firmware_proto.messages import FAULT_WATCHDOG
 from pivotd.bus.messages import PoseSample
 from pivotd.daemon.planner import Plan, camera_positions
 from pivotd.daemon.states import DaemonState
 from pivotd.daemon.tracking_error import TrackingErrorSettings, TrackingErrorSupervisor, TrackingState
+from pivotd.firmware_proto.messages import FAULT_WATCHDOG
 from pivotd.gimbal.interface import GimbalInterface, GimbalMode, GimbalState, LinkState
 from pivotd.gimbal.kinematics import JointLimits, Mount, joints_to_world_direction, world_direction_to_joints
 from pivotd.gimbal.motion import MotionGenerator, MotionSample

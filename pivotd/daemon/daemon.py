@@ -23,7 +23,6 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_proto.messages import FAULT_WATCHDOG, MODE_NAMES, fault_names
 from pivotd.bus.markers import PlanVisuals
 from pivotd.bus.messages import CloudMsg, PathMsg, PoseSample
 from pivotd.bus.pivot_bus import PivotBus
@@ -55,6 +54,7 @@ from pivotd.daemon.wiring import (
 )
 from pivotd.daemon.worker import PlannerWorker, ReplanTimeoutError, WorkerError
 from pivotd.errors import PivotdError
+from pivotd.firmware_proto.messages import FAULT_WATCHDOG, MODE_NAMES, fault_names
 from pivotd.gimbal.interface import GimbalInterface, GimbalMode, LinkState
 from pivotd.gimbal.kinematics import joints_to_world_direction
 from pivotd.maps.formats import LandmarkCloud, make_cloud

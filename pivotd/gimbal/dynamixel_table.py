@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from firmware_proto.messages import (
+from pivotd.firmware_proto.messages import (
     FAULT_DRIVER,
     FAULT_ENCODER,
     FAULT_OVERCURRENT,

@@ -10,8 +10,8 @@ import enum
 from dataclasses import dataclass
 from typing import Protocol
 
-from firmware_proto.messages import MODE_DISABLED, MODE_ENABLED, MODE_FAULT, MODE_HOLDING
 from pivotd.compat import StrEnum
+from pivotd.firmware_proto.messages import MODE_DISABLED, MODE_ENABLED, MODE_FAULT, MODE_HOLDING
 
 
 class LinkState(StrEnum):

@@ -31,8 +31,8 @@ from dataclasses import dataclass
 
 import serial
 
-from firmware_proto import codec
-from firmware_proto.messages import (
+from pivotd.firmware_proto import codec
+from pivotd.firmware_proto.messages import (
     NACK_NAMES,
     NACK_NOT_CONFIGURED,
     PROTOCOL_VERSION,
@@ -49,7 +49,7 @@ from firmware_proto.messages import (
     SetpointV1,
     State,
 )
-from firmware_proto.urlhandler import register as _register_mock_url
+from pivotd.firmware_proto.urlhandler import register as _register_mock_url
 from pivotd.gimbal.interface import GimbalState, LinkState
 from pivotd.gimbal.silence import SilenceRule
 from pivotd.gimbal.supervisor import Connection, SilenceClock, SupervisedLink

@@ -21,8 +21,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from firmware_proto.messages import FAULT_DRIVER, FAULT_ENCODER, FAULT_UNDERVOLTAGE
 from pivotd.compat import StrEnum
+from pivotd.firmware_proto.messages import FAULT_DRIVER, FAULT_ENCODER, FAULT_UNDERVOLTAGE
 from pivotd.gimbal.kinematics import JointLimits
 
 # --- common.xml values (checked byte for byte against the published definitions in tests/test_mavlink_golden.py)

@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from firmware_proto.messages import MODE_ENABLED
+from pivotd.firmware_proto.messages import MODE_ENABLED
 from pivotd.localization.camera import camera_rotation, dropout_mask, observe, visible
 from pivotd.localization.estimator import RansacSettings, estimate_pose, pose_error
 from pivotd.localization.policies import Policy

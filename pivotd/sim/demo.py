@@ -121,3 +121,7 @@ def main(argv: list[str] | None = None) -> int:
                        map_file=args.map, timed=args.timed, pose=args.pose)
     ok = summary.daemon_exit == 0 and summary.within_limits and summary.frames > 0
     return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

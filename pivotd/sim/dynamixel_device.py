@@ -18,9 +18,9 @@ import math
 import struct
 from dataclasses import dataclass, field
 
-from firmware_proto.device import Axis
-from firmware_proto.messages import MODE_DISABLED, MODE_ENABLED, MODE_FAULT, State
-from firmware_proto.realtime import CsvMessageLog
+from pivotd.firmware_proto.device import Axis
+from pivotd.firmware_proto.messages import MODE_DISABLED, MODE_ENABLED, MODE_FAULT, State
+from pivotd.firmware_proto.realtime import CsvMessageLog
 from pivotd.gimbal.dynamixel_table import (
     ACCELERATION_UNIT,
     BUS_WATCHDOG,

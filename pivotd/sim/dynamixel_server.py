@@ -15,8 +15,8 @@ import sys
 import threading
 import time
 
-from firmware_proto.mock_server import PtyTransport, add_fault_arguments, parse_simulator_args
-from firmware_proto.realtime import CsvMessageLog
+from pivotd.firmware_proto.mock_server import PtyTransport, add_fault_arguments, parse_simulator_args
+from pivotd.firmware_proto.realtime import CsvMessageLog
 from pivotd.gimbal.dynamixel_table import CENTRE_TICKS, MAX_TICK
 from pivotd.sim.dynamixel_device import DynamixelChain
 

@@ -24,10 +24,10 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from firmware_proto.device import Axis
-from firmware_proto.messages import MODE_DISABLED, MODE_ENABLED, MODE_FAULT, SetpointV1, State
-from firmware_proto.realtime import CsvMessageLog
 from pivotd.compat import StrEnum
+from pivotd.firmware_proto.device import Axis
+from pivotd.firmware_proto.messages import MODE_DISABLED, MODE_ENABLED, MODE_FAULT, SetpointV1, State
+from pivotd.firmware_proto.realtime import CsvMessageLog
 from pivotd.gimbal import mavlink_frames as mf
 from pivotd.gimbal.kinematics import JointLimits
 from pivotd.gimbal.mavlink_link import load_mavutil

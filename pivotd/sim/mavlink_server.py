@@ -23,8 +23,8 @@ import threading
 import time
 from typing import Any
 
-from firmware_proto.mock_server import add_fault_arguments, parse_simulator_args
-from firmware_proto.realtime import CsvMessageLog, FaultInjector
+from pivotd.firmware_proto.mock_server import add_fault_arguments, parse_simulator_args
+from pivotd.firmware_proto.realtime import CsvMessageLog, FaultInjector
 from pivotd.gimbal.kinematics import JointLimits
 from pivotd.gimbal.mavlink_link import load_mavutil
 from pivotd.sim.mavlink_device import MavlinkGimbalModel, StatusFrame

@@ -316,3 +316,7 @@ def main(argv: list[str] | None = None) -> int:
     except PivotdError as exc:
         print(f"sim_pose: error: {exc}", file=sys.stderr)
         return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

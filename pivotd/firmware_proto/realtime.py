@@ -16,8 +16,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from firmware_proto.device import DeviceModel
-from firmware_proto.messages import Message, Setpoint, setpoint_age_us
+from pivotd.firmware_proto.device import DeviceModel
+from pivotd.firmware_proto.messages import Message, Setpoint, setpoint_age_us
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """pyserial URL handlers of the project: ``mock://`` (an in-process simulated gimbal).
 
-Registered by appending ``"firmware_proto.urlhandler"`` to ``serial.protocol_handler_packages``
+Registered by appending ``"pivotd.firmware_proto.urlhandler"`` to ``serial.protocol_handler_packages``
 (done by :func:`register`, called when ``pivotd.gimbal.link`` is imported).
 """
 

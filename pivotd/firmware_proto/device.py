@@ -13,8 +13,8 @@ import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from firmware_proto import codec
-from firmware_proto.messages import (
+from pivotd.firmware_proto import codec
+from pivotd.firmware_proto.messages import (
     ACK_OK,
     CONFIG_LIMIT_ABS_MAX,
     CONFIG_WATCHDOG_MS_MAX,

@@ -21,9 +21,9 @@ import tty
 
 import serial
 
-from firmware_proto.device import DeviceInfo, DeviceModel
-from firmware_proto.messages import PROTOCOL_VERSION
-from firmware_proto.realtime import CsvMessageLog, FaultInjector, RealTimeDevice
+from pivotd.firmware_proto.device import DeviceInfo, DeviceModel
+from pivotd.firmware_proto.messages import PROTOCOL_VERSION
+from pivotd.firmware_proto.realtime import CsvMessageLog, FaultInjector, RealTimeDevice
 
 log = logging.getLogger("mock_gimbal")
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 from cobs import cobs
 
-from firmware_proto.messages import (
+from pivotd.firmware_proto.messages import (
     MAX_BODY,
     MESSAGE_TYPES_BY_VERSION,
     PROTOCOL_VERSION,

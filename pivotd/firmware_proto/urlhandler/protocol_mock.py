@@ -1,7 +1,7 @@
 """pyserial ``mock://`` URL: the reference device model running in-process in real time.
 
 Query options (all optional): ``state_hz`` (default 50), ``drop``, ``corrupt`` (probabilities),
-``latency_ms``, ``seed``, ``log`` (CSV file of every message, see firmware_proto.realtime),
+``latency_ms``, ``seed``, ``log`` (CSV file of every message, see pivotd.firmware_proto.realtime),
 ``fault_at`` (``SECONDS:BIT``, repeatable), ``version`` (protocol version the device speaks).
 Example: ``mock://?state_hz=100&log=/tmp/gimbal.csv``.
 """
@@ -14,9 +14,9 @@ import urllib.parse
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
-from firmware_proto.device import DeviceInfo, DeviceModel
-from firmware_proto.messages import PROTOCOL_VERSION
-from firmware_proto.realtime import CsvMessageLog, FaultInjector, RealTimeDevice
+from pivotd.firmware_proto.device import DeviceInfo, DeviceModel
+from pivotd.firmware_proto.messages import PROTOCOL_VERSION
+from pivotd.firmware_proto.realtime import CsvMessageLog, FaultInjector, RealTimeDevice
 
 _OPTIONS = {"state_hz", "drop", "corrupt", "latency_ms", "seed", "log", "fault_at", "version"}
 
