@@ -248,7 +248,7 @@ another) and should be short. ``on_raw(topic, msgtype,
 
     def publish_joint_state(self, stamp: float, pan: float, tilt: float, pan_rate: float, tilt_rate: float) -> None:
         """Publish the measured gimbal state: angles [rad], rates [rad/s], stamp [s since the epoch]."""
-        payload = m.encode_joint_state(stamp, ["pan", "tilt"], [pan, tilt], [pan_rate, tilt_rate])
+        payload = m.encode_joint_state(stamp, list(self.topics.joint_names), [pan, tilt], [pan_rate, tilt_rate])
         self._put(self.joint_state_publisher, payload)
 
     def publish_view_plan(self, stamp: float, positions: np.ndarray, directions: np.ndarray) -> None:

@@ -25,6 +25,35 @@ PAYLOAD_LIMITS = ("max_pose_bytes", "max_path_bytes", "max_cloud_bytes", "max_tf
 MIN_PAYLOAD_LIMIT = 256
 #: Largest ``topics.tf_max_frames``.
 MAX_TF_FRAMES = 10_000
+#: Largest ROS domain id (ROS 2's documented range 0..232; rmw_zenoh puts it first in every key expression).
+MAX_DOMAIN_ID = 232
+#: Environment variable of the ROS domain id, used when ``topics.domain_id`` is not set.
+DOMAIN_ID_ENV = "ROS_DOMAIN_ID"
+#: Default names of the two joints in the published ``JointState`` (``topics.joint_names``).
+DEFAULT_JOINT_NAMES = ("pan", "tilt")
+
+
+def joint_names_problem(names: object) -> str | None:
+    """Why ``names`` is not a pair of distinct non-empty joint names (pan first, then tilt); None when it is."""
+    if not isinstance(names, tuple | list) or len(names) != 2:
+        return f"must be a list of two joint names (pan, tilt), got {names!r}"
+    if not all(isinstance(n, str) and n.strip() for n in names):
+        return f"joint names must be non-empty strings, got {list(names)!r}"
+    if names[0] == names[1]:
+        return f"the two joint names must differ, both are {names[0]!r}"
+    return None
+
+
+def domain_id_from_env(environ: dict[str, str]) -> int:
+    """The ROS domain id from ``ROS_DOMAIN_ID`` in ``environ``: 0 when unset or empty (as rcl does); raises
+    ConfigError naming the variable when it is not an integer in 0..232."""
+    raw = environ.get(DOMAIN_ID_ENV, "").strip()
+    if not raw:
+        return 0
+    if not (raw.isascii() and raw.isdigit()) or int(raw) > MAX_DOMAIN_ID:
+        raise ConfigError(f"{DOMAIN_ID_ENV}={environ[DOMAIN_ID_ENV]!r} in the environment (used as topics.domain_id "
+                          f"is not set): must be an integer in 0..{MAX_DOMAIN_ID}")
+    return int(raw)
 
 
 def status_key_for(name: str) -> str:
@@ -73,6 +102,8 @@ class BusTopics:
     taken as being in ``frame_id``; ``humble``: publish with rmw_zenoh's Humble key form (no type hash)
     instead of RIHS01 hashes. ``frame_id`` None accepts any frame.
     ``max_*_bytes``: payload size limits [bytes] of the pose, path, cloud and TF topics, checked before decoding.
+    ``joint_names``: the names of the pan and tilt joints in the published ``JointState`` (the URDF's, for
+    ``robot_state_publisher``).
     ``pose_source``: ``"topic"`` (the pose topic) or ``"tf"``: the pose of ``base_frame`` in ``map_frame``
     composed from ``tf`` and ``tf_static`` (:mod:`pivotd.bus.tf_tree`, at most ``tf_max_frames`` frames).
     """
@@ -101,8 +132,13 @@ class BusTopics:
     accept_empty_frame: bool = True
     namespace: str = "/"
     humble: bool = False
+    joint_names: tuple[str, str] = DEFAULT_JOINT_NAMES
 
     def __post_init__(self) -> None:
+        problem = joint_names_problem(self.joint_names)
+        if problem:
+            raise ConfigError(f"joint_names: {problem}")
+        object.__setattr__(self, "joint_names", tuple(self.joint_names))
         if self.pose_type not in POSE_TYPES:
             raise ConfigError(f"pose_type {self.pose_type!r} must be one of {', '.join(POSE_TYPES)}")
         if self.pose_source not in POSE_SOURCES:
@@ -120,8 +156,8 @@ class BusTopics:
         for name in PAYLOAD_LIMITS:
             if getattr(self, name) < MIN_PAYLOAD_LIMIT:
                 raise ConfigError(f"{name} must be >= {MIN_PAYLOAD_LIMIT}, got {getattr(self, name)}")
-        if not isinstance(self.domain_id, int) or not 0 <= self.domain_id <= 232:
-            raise ConfigError(f"domain_id must be an integer in 0..232, got {self.domain_id!r}")
+        if not isinstance(self.domain_id, int) or not 0 <= self.domain_id <= MAX_DOMAIN_ID:
+            raise ConfigError(f"domain_id must be an integer in 0..{MAX_DOMAIN_ID}, got {self.domain_id!r}")
         object.__setattr__(self, "namespace", normalize_namespace(self.namespace))
         for name in TOPIC_FIELDS:
             object.__setattr__(self, name, resolve_topic(getattr(self, name), self.namespace))

@@ -425,8 +425,9 @@ class Daemon:
 
         pan, tilt, pan_rate, tilt_rate = setpoint
         stamp = time.time()
+        names = list(self.cfg.topics.joint_names)
         self._recorder.write(JOINT_COMMAND_TOPIC, JOINT_STATE,
-                             encode_joint_state(stamp, ["pan", "tilt"], [pan, tilt], [pan_rate, tilt_rate]),
+                             encode_joint_state(stamp, names, [pan, tilt], [pan_rate, tilt_rate]),
                              int(stamp * 1e9))
 
     def status(self) -> dict:
