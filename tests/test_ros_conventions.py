@@ -15,6 +15,7 @@ from bus_support import drain, session_pair, wait_for
 from pivotd.bus import messages as m
 from pivotd.bus import ros
 from pivotd.bus.pivot_bus import PivotBus
+from pivotd.bus.qos import QoS
 from pivotd.bus.topics import BusTopics
 from pivotd.config import load_config
 from pivotd.errors import ConfigError
@@ -107,3 +108,127 @@ def test_a_bad_ros_domain_id_is_an_error_naming_the_variable(tmp_path, monkeypat
     message = load_error(path)
     assert message.startswith(f"{path}: ROS_DOMAIN_ID={value!r} in the environment"), message
     assert "must be an integer in 0..232" in message and "topics.domain_id" in message, message
+
+
+# ---------------------------------------------------------------- the map on the landmarks topic
+LATCHED = QoS.named("reliable", "transient_local", 1)
+
+
+def test_the_published_map_reaches_a_late_subscriber_and_is_not_taken_as_input(sessions):
+    """pivotd latches its map; a display started afterwards gets the latest one (points and weights); pivotd's own
+    landmarks subscription ignores it and still takes a mapping node's cloud."""
+    events: queue.Queue = queue.Queue()
+    bus = PivotBus(sessions[0], BusTopics(), on_cloud=lambda layer, c: events.put((layer, c)))
+    viewer = ros.RosNode(sessions[1], "viewer")
+    latched: queue.Queue = queue.Queue()
+    subs = []
+    try:
+        first = np.arange(30.0).reshape(10, 3)
+        points = np.array([[1.0, 2.0, 3.0], [-4.0, 5.5, 0.25], [7.0, -8.0, 9.5]])
+        bus.publish_map(1.0, first, np.ones(10))
+        bus.publish_map(2.0, points, np.array([0.5, 1.0, 2.0]))
+        subs.append(viewer.subscriber("/pivot/landmarks", m.POINT_CLOUD2, latched.put, LATCHED))
+        sample = drain(latched, 1)[0]
+        cloud = m.decode_cloud(sample.payload.to_bytes(), "/pivot/landmarks")
+        np.testing.assert_allclose(cloud.points, points)
+        np.testing.assert_allclose(cloud.weights, [0.5, 1.0, 2.0])
+        assert cloud.stamp == pytest.approx(2.0) and cloud.frame_id == "map"
+        assert ros.Attachment.decode(sample.attachment.to_bytes()).gid == bus.map_publisher.gid
+        # A mapping node's cloud on the same topic is pivotd's input; its own map never was.
+        mapper = viewer.publisher("/pivot/landmarks", m.POINT_CLOUD2, LATCHED)
+        subs.append(mapper)
+        assert wait_for(mapper.matched)
+        mapper.put(m.encode_cloud(3.0, "map", np.full((4, 3), 0.5)))
+        got = drain(events, 1)
+        assert got and got[0][0] == "landmarks" and got[0][1].points.shape == (4, 3)
+        assert events.empty()
+        counts = bus.counters()["/pivot/landmarks"]
+        assert counts["received"] == counts["accepted"] == 1, counts
+    finally:
+        for s in subs:
+            s.close()
+        viewer.close()
+        bus.close()
+
+
+def test_a_big_map_is_strided_to_the_preview_bound_over_the_whole_map(monkeypatch):
+    from pivotd.daemon import worker
+    from pivotd.maps.formats import LandmarkCloud
+    from pivotd.maps.store import BASE_LAYER, MapStore
+
+    monkeypatch.setattr(worker, "MAX_PREVIEW_POINTS", 300)
+    rng = np.random.default_rng(3)
+    pts = rng.uniform([-50, -20, 0], [50, 20, 3], (1000, 3))
+    store = MapStore()
+    store.set_layer(BASE_LAYER, LandmarkCloud(pts.astype(np.float32), np.linspace(1, 2, 1000, dtype=np.float32), None))
+    # a layer from the bus is not part of it
+    store.set_layer("landmarks", LandmarkCloud(np.zeros((5, 3), np.float32), np.ones(5, np.float32), None))
+    info = worker._map_info(store, preview=True)
+    points, weights = info.preview
+    assert points.shape == (250, 3) and weights.shape == (250,)  # every 4th of 1000
+    assert len(np.unique(points, axis=0)) == 250
+    assert {tuple(p) for p in points} <= {tuple(p) for p in pts.astype(np.float32)}
+    # spread over the whole map: every 10 m x 10 m cell of the map's 100 m x 40 m holds some of them
+    cells = {(int((x + 50) // 10), int((y + 20) // 10)) for x, y, _ in points}
+    assert len(cells) == 40
+    small = worker._map_info(MapStore(), preview=True).preview
+    assert small[0].shape == (0, 3)
+    assert worker._map_info(store).preview is None  # only replies that loaded the map carry it
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_the_daemon_latches_its_map_file_for_late_displays_and_again_after_a_reload(tmp_path):
+    """A real pivotd (in-process mock gimbal) with a map file: a display that starts later gets the map on the
+    landmarks topic; after the map file changed and a SIGHUP, a new display gets the new map."""
+    import signal
+
+    from support import free_tcp_port, wait_until
+    from test_e2e_daemon import start_daemon, write_config
+
+    from pivotd.bus.probe import BusProbe
+
+    rng = np.random.default_rng(11)
+    first = rng.uniform([-10, -3, 0], [10, 3, 2.5], (400, 3)).astype(np.float32)
+    second = rng.uniform([-5, -3, 0], [5, 3, 2.5], (150, 3)).astype(np.float32)
+    map_file = tmp_path / "map.npy"
+    np.save(map_file, first)
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    config = write_config(tmp_path, endpoint, "mock://", **{"map.file": str(map_file), "ros.markers": False})
+    cfg = load_config(config)
+
+    def late_display(node: ros.RosNode) -> np.ndarray:
+        got: queue.Queue = queue.Queue()
+        sub = node.subscriber(cfg.topics.landmarks, m.POINT_CLOUD2, got.put, LATCHED)
+        try:
+            samples = drain(got, 1, timeout=30)
+            assert samples, "no map reached the late subscriber"
+            return m.decode_cloud(samples[0].payload.to_bytes(), cfg.topics.landmarks).points
+        finally:
+            sub.close()
+
+    def as_set(points: np.ndarray) -> set:
+        return {tuple(p) for p in np.asarray(points, np.float32)}
+
+    with start_daemon(config) as daemon:
+        probe = node = None
+        try:
+            assert daemon.wait_stderr("map: 400 landmarks published", 90), daemon.output()
+            probe = BusProbe.connect(endpoint, cfg.topics)
+            node = ros.RosNode(probe.session, "rviz")
+            assert as_set(late_display(node)) == as_set(first)
+            np.save(map_file, second)
+            daemon.send_signal(signal.SIGHUP)
+            assert daemon.wait_stderr("map: 150 landmarks published", 90), daemon.output()
+            assert as_set(late_display(node)) == as_set(second)
+            # the daemon did not take its own map back as a landmarks layer
+            assert wait_until(lambda: probe.status.get("reloads") == 1, 30), probe.status
+            st = probe.status
+            assert st["map"]["landmarks"] == 150 and "landmarks" not in st["map"]["layers"], st["map"]
+            assert st["bus"][cfg.topics.landmarks]["received"] == 0, st["bus"]
+        finally:
+            if node is not None:
+                node.close()
+            if probe is not None:
+                probe.close()
+        assert daemon.stop() == 0, daemon.output()

@@ -78,6 +78,8 @@ another) and should be short. ``on_raw(topic, msgtype,
         self._entities: list[Any] = []
         self._takers: dict[str, Callable[[bytes, float], None]] = {}
         self._msgtypes: dict[str, str] = {}
+        self._own_gids: set[str] = set()  # this bus's publishers on its input topics: their samples are not inputs
+        self.map_publisher: RosPublisher | None = None  # declared by the first publish_map()
         # Poses are decoded on their own thread so that a large path or cloud never delays them.
         self._pose_inbox, self._bulk_inbox = Inbox(), Inbox()
         self._decoders: list[Decoder] = []
@@ -141,6 +143,8 @@ another) and should be short. ``on_raw(topic, msgtype,
         inbox.add_topic(name, capacity)
 
         def on_sample(sample: zenoh.Sample) -> None:
+            if self._own_gids and _publisher_id(sample) in self._own_gids:
+                return  # what this bus published itself (the map on the landmarks topic)
             rx = time.monotonic()
             self._count(name, "received")
             got = msgtype_of_key(str(sample.key_expr))
@@ -256,6 +260,21 @@ another) and should be short. ``on_raw(topic, msgtype,
         frame = self.topics.frame_id or "map"
         self._put(self.view_plan_publisher, m.encode_view_plan(stamp, frame, positions, directions))
 
+    def publish_map(self, stamp: float, points: np.ndarray, weights: np.ndarray | None) -> None:
+        """Latch map landmarks (N, 3) [m] in the map frame with their weights (N,) on the landmarks topic: a
+        ``PointCloud2`` (float32 x, y, z, weight) with the landmarks subscription's QoS (transient local by default,
+        so a display started later gets it). This bus ignores it as input (its own publisher's GID), and it is not
+        recorded (``on_raw``): a recording's landmarks-topic cloud is a map received over the bus."""
+        if self._closed:
+            return
+        if self.map_publisher is None:
+            pub = self.node.publisher(self.topics.landmarks, m.POINT_CLOUD2, self.qos.landmarks)
+            self._entities.append(pub)
+            self._own_gids.add(pub.gid.hex())
+            self.map_publisher = pub
+        frame = self.topics.frame_id or "map"
+        self._put(self.map_publisher, m.encode_cloud(stamp, frame, points, weights), record=False)
+
     def add_publisher(self, topic: str, msgtype: str, qos: QoS) -> RosPublisher:
         """Declare another ROS publisher of pivotd's node (closed with the bus); publish with :meth:`put`."""
         pub = self.node.publisher(topic, msgtype, qos)
@@ -266,13 +285,13 @@ another) and should be short. ``on_raw(topic, msgtype,
         """Publish a CDR payload on a publisher of this bus (recorded like the bus's own outputs)."""
         self._put(pub, payload)
 
-    def _put(self, pub: Any, payload: bytes) -> None:
+    def _put(self, pub: Any, payload: bytes, record: bool = True) -> None:
         # Publishing races with close() at shutdown; a closed bus or session drops the message quietly.
         if self._closed:
             return
         try:
             pub.put(payload)
-            if self._on_raw is not None:
+            if record and self._on_raw is not None:
                 self._on_raw(pub.topic, pub.msgtype, payload)
         except zenoh.ZError as exc:
             self._ratelog.warning(f"put:{pub.topic}", f"{pub.topic}: publish failed: {exc}")

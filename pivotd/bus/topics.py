@@ -103,7 +103,7 @@ class BusTopics:
     instead of RIHS01 hashes. ``frame_id`` None accepts any frame.
     ``max_*_bytes``: payload size limits [bytes] of the pose, path, cloud and TF topics, checked before decoding.
     ``joint_names``: the names of the pan and tilt joints in the published ``JointState`` (the URDF's, for
-    ``robot_state_publisher``).
+    ``robot_state_publisher``). ``publish_map``: the daemon latches the map file's landmarks on ``landmarks``.
     ``pose_source``: ``"topic"`` (the pose topic) or ``"tf"``: the pose of ``base_frame`` in ``map_frame``
     composed from ``tf`` and ``tf_static`` (:mod:`pivotd.bus.tf_tree`, at most ``tf_max_frames`` frames).
     """
@@ -133,6 +133,7 @@ class BusTopics:
     namespace: str = "/"
     humble: bool = False
     joint_names: tuple[str, str] = DEFAULT_JOINT_NAMES
+    publish_map: bool = True
 
     def __post_init__(self) -> None:
         problem = joint_names_problem(self.joint_names)

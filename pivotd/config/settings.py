@@ -548,6 +548,7 @@ def _topics(s: Section) -> BusTopics:
         tf_max_frames=s.number("tf_max_frames", d.tf_max_frames, min=1, max=MAX_TF_FRAMES, integer=True),
         max_cloud_points=s.number("max_cloud_points", d.max_cloud_points, min=1, integer=True),
         joint_names=_joint_names(s),
+        publish_map=s.boolean("publish_map", d.publish_map),
         **{k: s.number(k, getattr(d, k), min=MIN_PAYLOAD_LIMIT, integer=True) for k in PAYLOAD_LIMITS},
     )
     s.finish()

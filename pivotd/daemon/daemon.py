@@ -151,6 +151,7 @@ class Daemon:
         self._states = StateLog(self.cfg.topics.pose, self.cfg.topics.path, log)  # state changes, logged once each
         self._threads: list[threading.Thread] = []
         self._recorder = None
+        self._map_published = 0  # the worker's map loads (PlannerWorker.map_previews) already published
 
     @property
     def _last_error(self) -> str:
@@ -666,6 +667,19 @@ class Daemon:
                  self.worker.map_info.landmarks, cfg.gimbal.port, where)
         return True
 
+    def _publish_map(self) -> None:
+        """Latch the map file's landmarks (strided, :data:`~pivotd.daemon.worker.MAX_PREVIEW_POINTS`) on the landmarks
+        topic once per load of the map by the worker (start, reload, restart) with ``topics.publish_map``. An empty
+        map is published only to replace one published before."""
+        worker, bus = self.worker, self.bus
+        if bus is None or not bus.topics.publish_map or worker.map_previews == self._map_published:
+            return
+        self._map_published = worker.map_previews
+        points, weights = worker.map_preview
+        if len(points) or bus.map_publisher is not None:
+            bus.publish_map(time.time(), points, weights)
+            log.info("map: %d landmarks published on %s", len(points), bus.topics.landmarks)
+
     def _wait_supervising(self, seconds: float) -> bool:
         """Wait ``seconds`` while supervising the gimbal (before the bus is up); True as soon as stop is requested."""
         end = time.monotonic() + seconds
@@ -698,6 +712,7 @@ class Daemon:
                     status = self.status()
                     if self.bus is not None:
                         self.bus.publish_status(status)
+                        self._publish_map()
                     line = status_line(status)
                     if line != last_line:
                         self.notifier.status(line)
