@@ -180,7 +180,8 @@ def test_a_big_map_is_strided_to_the_preview_bound_over_the_whole_map(monkeypatc
 @pytest.mark.timeout(240)
 def test_the_daemon_latches_its_map_file_for_late_displays_and_again_after_a_reload(tmp_path):
     """A real pivotd (in-process mock gimbal) with a map file: a display that starts later gets the map on the
-    landmarks topic; after the map file changed and a SIGHUP, a new display gets the new map."""
+    landmarks topic; after the map file changed and a SIGHUP, a new display gets the new map. It publishes
+    /diagnostics too."""
     import signal
 
     from support import free_tcp_port, wait_until
@@ -216,7 +217,18 @@ def test_the_daemon_latches_its_map_file_for_late_displays_and_again_after_a_rel
             assert daemon.wait_stderr("map: 400 landmarks published", 90), daemon.output()
             probe = BusProbe.connect(endpoint, cfg.topics)
             node = ros.RosNode(probe.session, "rviz")
+            diagnostics: queue.Queue = queue.Queue()
+            diag_sub = node.subscriber("/diagnostics", m.DIAGNOSTIC_ARRAY, diagnostics.put)
             assert as_set(late_display(node)) == as_set(first)
+            # /diagnostics from the daemon: one entry per component, named after the node; no pose yet: STALE
+            samples = drain(diagnostics, 1, timeout=30)
+            diag_sub.close()
+            assert samples, daemon.output()
+            msg = ros.typestore().deserialize_cdr(samples[0].payload.to_bytes(), m.DIAGNOSTIC_ARRAY)
+            levels = {st.name: int(st.level) for st in msg.status}
+            assert levels[f"{cfg.name}: pose"] == 3 and levels[f"{cfg.name}: gimbal link"] in (0, 2), levels
+            assert {st.name.partition(": ")[2] for st in msg.status} == {
+                "state", "gimbal link", "pose", "gimbal faults", "planner"}
             np.save(map_file, second)
             daemon.send_signal(signal.SIGHUP)
             assert daemon.wait_stderr("map: 150 landmarks published", 90), daemon.output()
@@ -232,3 +244,60 @@ def test_the_daemon_latches_its_map_file_for_late_displays_and_again_after_a_rel
             if probe is not None:
                 probe.close()
         assert daemon.stop() == 0, daemon.output()
+
+
+# ---------------------------------------------------------------- /diagnostics
+def _status(**changes) -> dict:
+    doc = {"name": "robot7", "state": "tracking", "link": "up", "link_error": None, "pose_age_s": 0.02,
+           "gimbal": {"mode": "active", "faults": 0, "fault_names": []}, "fault_episodes": 0,
+           "last_error": None, "reloads": 2, "needs_restart": [],
+           "planner": {"plans": 40, "solve_ms_p50": 12.5, "solve_ms_p99": 31.0, "visible_now": 120, "timeouts": 0,
+                       "worker_restarts": 0}}
+    doc.update(changes)
+    return doc
+
+
+def _decoded(status: dict) -> dict:
+    """The DiagnosticArray of ``status`` as rosbags decodes it: component -> (level, message, hw id, values)."""
+    from pivotd.bus.diagnostics import diagnostic_entries
+
+    payload = m.encode_diagnostics(123.25, diagnostic_entries(status, 0.5, 0.2, "/dev/ttyACM0"))
+    msg = ros.typestore().deserialize_cdr(payload, m.DIAGNOSTIC_ARRAY)
+    assert msg.header.stamp.sec == 123 and msg.header.stamp.nanosec == 250_000_000
+    out = {}
+    for st in msg.status:
+        node, _, component = st.name.partition(": ")
+        assert node == status["name"]
+        out[component] = (int(st.level), st.message, st.hardware_id, {kv.key: kv.value for kv in st.values})
+    return out
+
+
+def test_diagnostics_of_a_healthy_daemon_are_ok_and_carry_the_fields():
+    from pivotd.bus.diagnostics import COMPONENTS
+
+    d = _decoded(_status())
+    assert list(d) == list(COMPONENTS)
+    assert {c: v[0] for c, v in d.items()} == dict.fromkeys(COMPONENTS, 0)
+    assert d["state"][3]["state"] == "tracking" and d["state"][3]["reloads"] == "2"
+    assert d["gimbal link"][2] == d["gimbal faults"][2] == "/dev/ttyACM0"
+    assert d["pose"][3] == {"pose_age_s": "0.02", "pose_timeout_s": "0.5"}
+    assert d["gimbal faults"][3]["faults"] == "0x0000"
+    planner = d["planner"][3]
+    assert (planner["solve_ms_p50"], planner["solve_ms_p99"], planner["plans"]) == ("12.5", "31.0", "40")
+    assert planner["budget_ms"] == "200.0"
+
+
+def test_diagnostics_levels_follow_the_daemon_state_link_pose_faults_and_solve_time():
+    d = _decoded(_status(state="fault", link="down", link_error="serial port closed", pose_age_s=0.8,
+                         gimbal={"mode": "fault", "faults": 0x11, "fault_names": ["overcurrent", "watchdog"]},
+                         planner={"plans": 5, "solve_ms_p50": 150.0, "solve_ms_p99": 250.0}))
+    assert {c: v[0] for c, v in d.items()} == {"state": 2, "gimbal link": 2, "pose": 1, "gimbal faults": 2,
+                                              "planner": 1}
+    assert d["gimbal link"][1] == "down: serial port closed"
+    assert d["pose"][1] == "pose stale (0.80 s > 0.5 s): holding"
+    assert d["gimbal faults"][1] == "faults: overcurrent,watchdog" and d["gimbal faults"][3]["faults"] == "0x0011"
+    assert "250 ms above the 200 ms budget" in d["planner"][1]
+    # nothing known yet: STALE
+    d = _decoded(_status(state="waiting", link="stopped", pose_age_s=None, gimbal=None, planner={"plans": 0}))
+    assert {c: v[0] for c, v in d.items()} == {"state": 1, "gimbal link": 3, "pose": 3, "gimbal faults": 3,
+                                              "planner": 3}

@@ -280,6 +280,8 @@ class RosConfig:
     tf_topic: str = "tf"
     camera_frame: str = "pivot_camera"
     qos: TopicQoS = field(default_factory=TopicQoS)
+    diagnostics: bool = True
+    diagnostics_topic: str = "/diagnostics"
 
 
 @dataclass(frozen=True)
@@ -885,6 +887,9 @@ def _ros(s: Section) -> RosConfig:
         tf_topic=s.string("tf_topic", d.tf_topic, pattern=_TOPIC_RE, pattern_help=help_topic),
         camera_frame=s.string("camera_frame", d.camera_frame, pattern=_FRAME_RE, pattern_help="a TF frame name"),
         qos=TopicQoS(**per_topic),
+        diagnostics=s.boolean("diagnostics", d.diagnostics),
+        diagnostics_topic=s.string("diagnostics_topic", d.diagnostics_topic, pattern=_TOPIC_RE,
+                                   pattern_help=help_topic),
     )
     s.finish()
     return out

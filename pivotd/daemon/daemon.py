@@ -24,12 +24,15 @@ from pathlib import Path
 import numpy as np
 
 from firmware_proto.messages import FAULT_WATCHDOG, MODE_NAMES, fault_names
+from pivotd.bus.diagnostics import diagnostic_entries
 from pivotd.bus.markers import PlanVisuals
-from pivotd.bus.messages import CloudMsg, PathMsg, PoseSample
+from pivotd.bus.messages import DIAGNOSTIC_ARRAY, CloudMsg, PathMsg, PoseSample, encode_diagnostics
 from pivotd.bus.pivot_bus import PivotBus
+from pivotd.bus.qos import QoS
 from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.bus.security import input_key_exprs
 from pivotd.bus.session import build_config, open_session_waiting
+from pivotd.bus.topics import resolve_topic
 from pivotd.config import Config, load_config
 from pivotd.daemon import logqueue
 from pivotd.daemon.control import ControlLoop
@@ -65,6 +68,7 @@ log = logging.getLogger("pivotd.daemon")
 SWITCH_INTERVAL_S = 0.0005
 HOST_STALL_S = 0.25  # [s] a supervision pass this much later than its period: the process stalled
 HOST_STALL_WINDOW_S = 2.0  # [s] a watchdog hold reported this soon after a stall of the process is the stall's
+DIAGNOSTICS_PERIOD_S = 1.0  # [s] /diagnostics at about 1 Hz (from the status document, published at 1-5 Hz)
 PARK_LINK_GRACE_S = 1.0  # [s] parking waits this long for a link lost meanwhile to come back, then stops
 
 
@@ -152,6 +156,8 @@ class Daemon:
         self._threads: list[threading.Thread] = []
         self._recorder = None
         self._map_published = 0  # the worker's map loads (PlannerWorker.map_previews) already published
+        self._diagnostics_pub = None  # /diagnostics (cfg.ros.diagnostics)
+        self._diagnostics_at = -np.inf  # [s monotonic] when diagnostics were last published
 
     @property
     def _last_error(self) -> str:
@@ -663,6 +669,9 @@ class Daemon:
                             on_raw=self._recorder.write if self._recorder is not None else None, qos=cfg.ros.qos,
                             tf_timeout=cfg.control.pose_timeout_s)
         self.visuals = build_plan_visuals(self.bus, cfg)
+        if cfg.ros.diagnostics:
+            self._diagnostics_pub = self.bus.add_publisher(
+                resolve_topic(cfg.ros.diagnostics_topic, cfg.topics.namespace), DIAGNOSTIC_ARRAY, QoS(depth=10))
         log.info("pivotd %s %r ready: %d landmarks, gimbal %s, zenoh %s", version(), cfg.name,
                  self.worker.map_info.landmarks, cfg.gimbal.port, where)
         return True
@@ -679,6 +688,16 @@ class Daemon:
         if len(points) or bus.map_publisher is not None:
             bus.publish_map(time.time(), points, weights)
             log.info("map: %d landmarks published on %s", len(points), bus.topics.landmarks)
+
+    def _publish_diagnostics(self, status: dict) -> None:
+        """``status`` as a DiagnosticArray on ``ros.diagnostics_topic``, at most every :data:`DIAGNOSTICS_PERIOD_S`."""
+        now = time.monotonic()
+        if self._diagnostics_pub is None or now - self._diagnostics_at < DIAGNOSTICS_PERIOD_S:
+            return
+        self._diagnostics_at = now
+        entries = diagnostic_entries(status, self.cfg.control.pose_timeout_s, self.cfg.planner.replan_budget,
+                                     self.cfg.gimbal.port)
+        self.bus.put(self._diagnostics_pub, encode_diagnostics(time.time(), entries))
 
     def _wait_supervising(self, seconds: float) -> bool:
         """Wait ``seconds`` while supervising the gimbal (before the bus is up); True as soon as stop is requested."""
@@ -713,6 +732,7 @@ class Daemon:
                     if self.bus is not None:
                         self.bus.publish_status(status)
                         self._publish_map()
+                        self._publish_diagnostics(status)
                     line = status_line(status)
                     if line != last_line:
                         self.notifier.status(line)
