@@ -110,6 +110,27 @@ def test_a_bad_ros_domain_id_is_an_error_naming_the_variable(tmp_path, monkeypat
     assert "must be an integer in 0..232" in message and "topics.domain_id" in message, message
 
 
+@pytest.mark.slow
+def test_pivotd_check_takes_the_domain_from_the_environment_and_refuses_a_bad_one(tmp_path):
+    import subprocess
+
+    from support import PYTHON, REPO, child_env
+
+    path = write(tmp_path, MINIMAL)
+
+    def check(value: str) -> subprocess.CompletedProcess:
+        return subprocess.run([PYTHON, "-m", "pivotd.cli", "check", "--config", str(path)], capture_output=True,
+                              text=True, env=child_env(ROS_DOMAIN_ID=value), cwd=REPO, timeout=60)
+
+    ok = check("7")
+    assert ok.returncode == 0 and "topics (domain 7):" in ok.stdout, ok.stderr
+    bad = check("300")
+    assert bad.returncode == 2, bad.stdout
+    assert bad.stderr.strip().splitlines() == [
+        f"pivotd check: error: {path}: ROS_DOMAIN_ID='300' in the environment (used as topics.domain_id is not set): "
+        "must be an integer in 0..232"]
+
+
 # ---------------------------------------------------------------- the map on the landmarks topic
 LATCHED = QoS.named("reliable", "transient_local", 1)
 
