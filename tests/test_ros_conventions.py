@@ -6,6 +6,7 @@ from __future__ import annotations
 import queue
 import re
 import textwrap
+import time
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +42,13 @@ def load_error(path: Path) -> str:
 def sessions():
     with session_pair() as (a, b, _):
         yield a, b
+
+
+@pytest.fixture
+def remote_node(sessions):
+    node = ros.RosNode(sessions[1], "remote", node_id=int(time.monotonic_ns() % 1000))
+    yield node
+    node.close()
 
 
 # ---------------------------------------------------------------- joint names
@@ -322,3 +330,84 @@ def test_diagnostics_levels_follow_the_daemon_state_link_pose_faults_and_solve_t
     d = _decoded(_status(state="waiting", link="stopped", pose_age_s=None, gimbal=None, planner={"plans": 0}))
     assert {c: v[0] for c, v in d.items()} == {"state": 1, "gimbal link": 3, "pose": 3, "gimbal faults": 3,
                                               "planner": 3}
+
+
+# ---------------------------------------------------------------- use_sim_time
+def test_use_sim_time_is_a_topics_key(tmp_path):
+    assert load_config(write(tmp_path, MINIMAL)).topics.use_sim_time is False
+    assert load_config(write(tmp_path, MINIMAL + "topics:\n  use_sim_time: true\n")).topics.use_sim_time is True
+    path = write(tmp_path, MINIMAL + "topics:\n  use_sim_time: yes please\n")
+    assert re.match(rf"{re.escape(str(path))}:5: topics\.use_sim_time: must be true or false", load_error(path))
+
+
+def test_with_use_sim_time_the_bus_time_is_the_last_clock_received(sessions, remote_node):
+    bus = PivotBus(sessions[0], BusTopics(use_sim_time=True))
+    try:
+        assert bus.now() is None  # no /clock yet: a ROS node's time is 0, pivotd stamps nothing
+        clock = remote_node.publisher("/clock", m.CLOCK, QoS.named("reliable", "volatile", 1))
+        assert wait_for(clock.matched)
+        clock.put(m.encode_clock(100.5))
+        assert wait_for(lambda: bus.now() == 100.5), bus.counters()
+        bad = bytearray(m.encode_clock(7.0))
+        bad[8:12] = (2_000_000_000).to_bytes(4, "little")  # nanosec beyond a second
+        clock.put(bytes(bad))
+        assert wait_for(lambda: bus.counters()["/clock"].get("dropped_malformed") == 1), bus.counters()
+        clock.put(m.encode_clock(99.0))  # a simulation reset goes back: followed, as ROS nodes do
+        assert wait_for(lambda: bus.now() == 99.0)
+        assert bus.counters()["/clock"]["accepted"] == 2
+        clock.close()
+    finally:
+        bus.close()
+    wall = PivotBus(sessions[0], BusTopics())
+    try:
+        before = time.time()
+        assert before <= wall.now() <= time.time() and "/clock" not in wall.counters()
+    finally:
+        wall.close()
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_the_daemon_stamps_joint_states_with_the_simulation_clock(tmp_path):
+    from support import free_tcp_port
+    from test_e2e_daemon import start_daemon, write_config
+
+    from pivotd.bus.session import open_session
+
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    config = write_config(tmp_path, endpoint, "mock://", **{"topics.use_sim_time": True, "ros.markers": False})
+    cfg = load_config(config)
+    with start_daemon(config) as daemon:
+        session = node = None
+        try:
+            assert daemon.wait_stderr("ready", 90), daemon.output()
+            session = open_session(connect=[endpoint])
+            node = ros.RosNode(session, "gazebo")
+            stamps: queue.Queue = queue.Queue()
+            sub = node.subscriber(cfg.topics.joint_states, m.JOINT_STATE, lambda s: stamps.put(
+                m.stamp_to_seconds(ros.typestore().deserialize_cdr(s.payload.to_bytes(), m.JOINT_STATE).header.stamp)))
+            clock = node.publisher("/clock", m.CLOCK, QoS.named("reliable", "volatile", 1))
+            seen = []
+            for sim_t in (1234.5, 1300.25):
+                def stamped(t=sim_t) -> bool:
+                    clock.put(m.encode_clock(t))  # a simulator publishes its clock all the time
+                    seen.extend(drain(stamps, stamps.qsize(), 0.05))
+                    return t in seen
+                assert wait_for(stamped, 60, 0.05), (seen[-5:], daemon.output())
+            # every joint state carried a simulation time, none the wall clock
+            assert set(seen) <= {1234.5, 1300.25}, sorted(set(seen))[:5]
+            sub.close()
+            clock.close()
+        finally:
+            if node is not None:
+                node.close()
+            if session is not None:
+                session.close()
+        assert daemon.stop() == 0, daemon.output()
+
+
+def test_with_use_sim_time_clock_is_an_input_key_of_the_access_control():
+    from pivotd.bus.security import input_key_exprs
+
+    assert "0/clock/**" not in input_key_exprs(BusTopics())
+    assert "4/clock/**" in input_key_exprs(BusTopics(use_sim_time=True, domain_id=4))

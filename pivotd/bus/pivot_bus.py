@@ -30,7 +30,7 @@ from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.bus.ros import Attachment, RosNode, RosPublisher, msgtype_of_key
 from pivotd.bus.stored import fetch_stored
 from pivotd.bus.tf_pose import TfPose
-from pivotd.bus.topics import BusTopics, normalize_topic
+from pivotd.bus.topics import CLOCK_TOPIC, BusTopics, normalize_topic
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +41,10 @@ INBOX_CAPACITY = 1
 #: A payload at least this large [bytes] was reassembled by Zenoh in many small buffers; once it is dropped or
 #: decoded, :meth:`PivotBus.large_payload_seen` says so, and the daemon gives the freed heap back to the OS.
 LARGE_PAYLOAD_BYTES = 1 << 20
+#: Largest ``/clock`` payload [bytes] (a Clock is 12 bytes of CDR).
+MAX_CLOCK_BYTES = 256
+#: QoS of the ``/clock`` subscription: rclcpp's ``ClockQoS`` (best effort, keep last 1).
+CLOCK_QOS = QoS.named("best_effort", "volatile", 1)
 #: Payloads ``/tf`` and ``/tf_static`` may each hold while waiting to be decoded: unlike the other inputs, one TF
 #: topic carries many frame pairs from many publishers, so a message does not supersede the one before it.
 TF_INBOX_CAPACITY = 64
@@ -80,6 +84,7 @@ another) and should be short. ``on_raw(topic, msgtype,
         self._msgtypes: dict[str, str] = {}
         self._own_gids: set[str] = set()  # this bus's publishers on its input topics: their samples are not inputs
         self.map_publisher: RosPublisher | None = None  # declared by the first publish_map()
+        self._sim_time: float | None = None  # [s] the last /clock received (topics.use_sim_time)
         # Poses are decoded on their own thread so that a large path or cloud never delays them.
         self._pose_inbox, self._bulk_inbox = Inbox(), Inbox()
         self._decoders: list[Decoder] = []
@@ -109,6 +114,10 @@ another) and should be short. ``on_raw(topic, msgtype,
                 sub = self.node.subscriber(topic, m.POINT_CLOUD2, handler, getattr(qos, layer), any_type=True)
                 self._entities.append(sub)
                 fetch_stored(session, sub.key, handler, lambda t=sub.topic: self._received(t))
+            if topics.use_sim_time:
+                self._entities.append(self.node.subscriber(CLOCK_TOPIC, m.CLOCK, self._handler(
+                    CLOCK_TOPIC, m.CLOCK, self._take_clock, self._pose_inbox, MAX_CLOCK_BYTES), CLOCK_QOS,
+                    any_type=True))
             self._decoders = [Decoder(self._pose_inbox, self._decode, f"{node_name}-pose-decoder"),
                               Decoder(self._bulk_inbox, self._decode, f"{node_name}-bulk-decoder")]
             # Public for observers (liveliness, matching); publish through the methods below.
@@ -120,7 +129,8 @@ another) and should be short. ``on_raw(topic, msgtype,
         except Exception:
             self.close()
             raise
-        for topic in (*self.pose_topics, topics.path, topics.landmarks, topics.targets):
+        clock = (CLOCK_TOPIC,) if topics.use_sim_time else ()
+        for topic in (*self.pose_topics, topics.path, topics.landmarks, topics.targets, *clock):
             self._counters.setdefault(normalize_topic(topic), {"received": 0, "accepted": 0})
 
     # ------------------------------------------------------------------ inputs
@@ -211,6 +221,18 @@ another) and should be short. ``on_raw(topic, msgtype,
             self.tf_pose.take(name, payload, rx, static, source)
 
         return take
+
+    def _take_clock(self, payload: bytes, rx: float) -> None:
+        t = m.decode_clock(payload, CLOCK_TOPIC)
+        if self._sim_time is None:
+            log.info("%s: simulation time %.3f s received; stamps follow it", CLOCK_TOPIC, t)
+        self._sim_time = t
+
+    def now(self) -> float | None:
+        """The time [s] to stamp published messages with: the wall clock (UNIX epoch), or with
+        ``topics.use_sim_time`` the last ``/clock`` received (None before the first, as a ROS node's time is
+        0 until then)."""
+        return self._sim_time if self.topics.use_sim_time else time.time()
 
     def _take_path(self, payload: bytes, rx: float) -> None:
         t = self.topics

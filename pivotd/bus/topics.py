@@ -29,6 +29,8 @@ MAX_TF_FRAMES = 10_000
 MAX_DOMAIN_ID = 232
 #: Environment variable of the ROS domain id, used when ``topics.domain_id`` is not set.
 DOMAIN_ID_ENV = "ROS_DOMAIN_ID"
+#: The ROS simulation clock topic (absolute, as every ROS node subscribes it with ``use_sim_time``).
+CLOCK_TOPIC = "/clock"
 #: Default names of the two joints in the published ``JointState`` (``topics.joint_names``).
 DEFAULT_JOINT_NAMES = ("pan", "tilt")
 
@@ -104,6 +106,7 @@ class BusTopics:
     ``max_*_bytes``: payload size limits [bytes] of the pose, path, cloud and TF topics, checked before decoding.
     ``joint_names``: the names of the pan and tilt joints in the published ``JointState`` (the URDF's, for
     ``robot_state_publisher``). ``publish_map``: the daemon latches the map file's landmarks on ``landmarks``.
+    ``use_sim_time``: the stamps pivotd makes follow ``/clock`` (:data:`CLOCK_TOPIC`) instead of the wall clock.
     ``pose_source``: ``"topic"`` (the pose topic) or ``"tf"``: the pose of ``base_frame`` in ``map_frame``
     composed from ``tf`` and ``tf_static`` (:mod:`pivotd.bus.tf_tree`, at most ``tf_max_frames`` frames).
     """
@@ -134,6 +137,7 @@ class BusTopics:
     humble: bool = False
     joint_names: tuple[str, str] = DEFAULT_JOINT_NAMES
     publish_map: bool = True
+    use_sim_time: bool = False
 
     def __post_init__(self) -> None:
         problem = joint_names_problem(self.joint_names)

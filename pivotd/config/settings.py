@@ -551,6 +551,7 @@ def _topics(s: Section) -> BusTopics:
         max_cloud_points=s.number("max_cloud_points", d.max_cloud_points, min=1, integer=True),
         joint_names=_joint_names(s),
         publish_map=s.boolean("publish_map", d.publish_map),
+        use_sim_time=s.boolean("use_sim_time", d.use_sim_time),
         **{k: s.number(k, getattr(d, k), min=MIN_PAYLOAD_LIMIT, integer=True) for k in PAYLOAD_LIMITS},
     )
     s.finish()

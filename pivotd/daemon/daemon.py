@@ -374,8 +374,9 @@ class Daemon:
                     last_wd = now
                 if k % js_every == 0 and self.bus is not None:
                     st = self.link.state
-                    if st is not None and self.link.link_state == LinkState.UP:
-                        self.bus.publish_joint_state(time.time(), st.pan, st.tilt, st.pan_rate, st.tilt_rate)
+                    stamp = self.bus.now()  # None: simulation time and no /clock yet
+                    if st is not None and self.link.link_state == LinkState.UP and stamp is not None:
+                        self.bus.publish_joint_state(stamp, st.pan, st.tilt, st.pan_rate, st.tilt_rate)
             except Exception as exc:
                 self._rl.warning("control:outputs", f"control: watchdog or joint_states failed: {exc!r}")
 
@@ -686,7 +687,7 @@ class Daemon:
         self._map_published = worker.map_previews
         points, weights = worker.map_preview
         if len(points) or bus.map_publisher is not None:
-            bus.publish_map(time.time(), points, weights)
+            bus.publish_map(bus.now() or 0.0, points, weights)
             log.info("map: %d landmarks published on %s", len(points), bus.topics.landmarks)
 
     def _publish_diagnostics(self, status: dict) -> None:
@@ -697,7 +698,7 @@ class Daemon:
         self._diagnostics_at = now
         entries = diagnostic_entries(status, self.cfg.control.pose_timeout_s, self.cfg.planner.replan_budget,
                                      self.cfg.gimbal.port)
-        self.bus.put(self._diagnostics_pub, encode_diagnostics(time.time(), entries))
+        self.bus.put(self._diagnostics_pub, encode_diagnostics(self.bus.now() or 0.0, entries))
 
     def _wait_supervising(self, seconds: float) -> bool:
         """Wait ``seconds`` while supervising the gimbal (before the bus is up); True as soon as stop is requested."""
