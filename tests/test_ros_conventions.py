@@ -132,6 +132,7 @@ def test_pivotd_check_takes_the_domain_from_the_environment_and_refuses_a_bad_on
 
     ok = check("7")
     assert ok.returncode == 0 and "topics (domain 7):" in ok.stdout, ok.stderr
+    assert "joint states /pivot/joint_states (pan, tilt), " in ok.stdout, ok.stdout
     bad = check("300")
     assert bad.returncode == 2, bad.stdout
     assert bad.stderr.strip().splitlines() == [
