@@ -24,3 +24,9 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 @pytest.fixture
 def fif_dir() -> Path:
     return FIF
+
+
+@pytest.fixture(autouse=True)
+def _no_ros_domain_from_the_shell(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A config without ``topics.domain_id`` takes ``ROS_DOMAIN_ID`` from the environment: keep the shell's out."""
+    monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)

@@ -35,6 +35,8 @@ from pivotd.geometry import MAX_COORDINATE, matrix_to_quat, optical_frame_from_d
 PATH = "nav_msgs/msg/Path"
 POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"
 JOINT_STATE = "sensor_msgs/msg/JointState"
+DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
+CLOCK = "rosgraph_msgs/msg/Clock"
 
 _FLOAT32, _FLOAT64 = 7, 8  # sensor_msgs/PointField datatypes
 _MAX_STAMP_NS = (2**31 - 1) * 1_000_000_000 + 999_999_999
@@ -420,6 +422,27 @@ def encode_joint_state(stamp: float, names: list[str], positions: list[float], v
                           position=np.asarray(positions, dtype=np.float64),
                           velocity=np.asarray(velocities, dtype=np.float64), effort=np.zeros(0))
     return serialize(msg, JOINT_STATE)
+
+
+def decode_clock(payload: bytes, topic: str) -> float:
+    """rosgraph_msgs/msg/Clock CDR -> the simulation time [s]; ``malformed`` when nanoseconds reach a second."""
+    clock = deserialize(payload, CLOCK, topic).clock  # type: ignore[attr-defined]
+    if not 0 <= clock.nanosec < 1_000_000_000:
+        raise MessageError(topic, "malformed", f"clock nanosec {clock.nanosec} is not below 10^9")
+    return stamp_to_seconds(clock)
+
+
+def encode_clock(t: float) -> bytes:
+    """rosgraph_msgs/msg/Clock CDR of the simulation time ``t`` [s] (as a simulator publishes it)."""
+    return serialize(_t(CLOCK)(clock=seconds_to_stamp(t)), CLOCK)
+
+
+def encode_diagnostics(stamp: float, entries: list) -> bytes:
+    """diagnostic_msgs/msg/DiagnosticArray CDR of :class:`~pivotd.bus.diagnostics.DiagnosticEntry` items."""
+    status_t, kv_t = _t("diagnostic_msgs/msg/DiagnosticStatus"), _t("diagnostic_msgs/msg/KeyValue")
+    statuses = [status_t(level=int(e.level), name=e.name, message=e.message, hardware_id=e.hardware_id,
+                         values=[kv_t(key=k, value=v) for k, v in e.values]) for e in entries]
+    return serialize(_t(DIAGNOSTIC_ARRAY)(header=_header(stamp, ""), status=statuses), DIAGNOSTIC_ARRAY)
 
 
 def encode_pose_stamped(stamp: float, frame_id: str, position: np.ndarray, quat: np.ndarray) -> bytes:

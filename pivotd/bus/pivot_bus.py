@@ -32,7 +32,7 @@ from pivotd.bus.ros import Attachment, RosNode, RosPublisher, msgtype_of_key
 from pivotd.bus.ros2dds import BridgeNode, BridgePublisher
 from pivotd.bus.stored import fetch_stored
 from pivotd.bus.tf_pose import TfPose
-from pivotd.bus.topics import BusTopics, normalize_topic
+from pivotd.bus.topics import CLOCK_TOPIC, BusTopics, normalize_topic
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +43,10 @@ INBOX_CAPACITY = 1
 #: A payload at least this large [bytes] was reassembled by Zenoh in many small buffers; once it is dropped or
 #: decoded, :meth:`PivotBus.large_payload_seen` says so, and the daemon gives the freed heap back to the OS.
 LARGE_PAYLOAD_BYTES = 1 << 20
+#: Largest ``/clock`` payload [bytes] (a Clock is 12 bytes of CDR).
+MAX_CLOCK_BYTES = 256
+#: QoS of the ``/clock`` subscription: rclcpp's ``ClockQoS`` (best effort, keep last 1).
+CLOCK_QOS = QoS.named("best_effort", "volatile", 1)
 #: Payloads ``/tf`` and ``/tf_static`` may each hold while waiting to be decoded: unlike the other inputs, one TF
 #: topic carries many frame pairs from many publishers, so a message does not supersede the one before it.
 TF_INBOX_CAPACITY = 64
@@ -83,6 +87,9 @@ another) and should be short. ``on_raw(topic, msgtype,
         self._entities: list[Any] = []
         self._takers: dict[str, Callable[[bytes, float], None]] = {}
         self._msgtypes: dict[str, str] = {}
+        self._own_gids: set[str] = set()  # this bus's publishers on its input topics: their samples are not inputs
+        self.map_publisher: RosPublisher | None = None  # declared by the first publish_map()
+        self._sim_time: float | None = None  # [s] the last /clock received (topics.use_sim_time)
         # Poses are decoded on their own thread so that a large path or cloud never delays them.
         self._pose_inbox, self._bulk_inbox = Inbox(), Inbox()
         self._decoders: list[Decoder] = []
@@ -112,6 +119,10 @@ another) and should be short. ``on_raw(topic, msgtype,
                 sub = self.node.subscriber(topic, m.POINT_CLOUD2, handler, getattr(qos, layer), any_type=True)
                 self._entities.append(sub)
                 fetch_stored(session, sub.key, handler, lambda t=sub.topic: self._received(t))
+            if topics.use_sim_time:
+                self._entities.append(self.node.subscriber(CLOCK_TOPIC, m.CLOCK, self._handler(
+                    CLOCK_TOPIC, m.CLOCK, self._take_clock, self._pose_inbox, MAX_CLOCK_BYTES), CLOCK_QOS,
+                    any_type=True))
             self._decoders = [Decoder(self._pose_inbox, self._decode, f"{node_name}-pose-decoder"),
                               Decoder(self._bulk_inbox, self._decode, f"{node_name}-bulk-decoder")]
             # Public for observers (liveliness, matching); publish through the methods below.
@@ -123,7 +134,8 @@ another) and should be short. ``on_raw(topic, msgtype,
         except Exception:
             self.close()
             raise
-        for topic in (*self.pose_topics, topics.path, topics.landmarks, topics.targets):
+        clock = (CLOCK_TOPIC,) if topics.use_sim_time else ()
+        for topic in (*self.pose_topics, topics.path, topics.landmarks, topics.targets, *clock):
             self._counters.setdefault(normalize_topic(topic), {"received": 0, "accepted": 0})
 
     # ------------------------------------------------------------------ inputs
@@ -147,6 +159,8 @@ another) and should be short. ``on_raw(topic, msgtype,
         bridged = self.topics.bridged
 
         def on_sample(sample: zenoh.Sample) -> None:
+            if self._own_gids and _publisher_id(sample) in self._own_gids:
+                return  # what this bus published itself (the map on the landmarks topic)
             rx = time.monotonic()
             self._count(name, "received")
             got = msgtype if bridged else msgtype_of_key(str(sample.key_expr))  # the bridge's keys name no type
@@ -214,6 +228,18 @@ another) and should be short. ``on_raw(topic, msgtype,
 
         return take
 
+    def _take_clock(self, payload: bytes, rx: float) -> None:
+        t = m.decode_clock(payload, CLOCK_TOPIC)
+        if self._sim_time is None:
+            log.info("%s: simulation time %.3f s received; stamps follow it", CLOCK_TOPIC, t)
+        self._sim_time = t
+
+    def now(self) -> float | None:
+        """The time [s] to stamp published messages with: the wall clock (UNIX epoch), or with
+        ``topics.use_sim_time`` the last ``/clock`` received (None before the first, as a ROS node's time is
+        0 until then)."""
+        return self._sim_time if self.topics.use_sim_time else time.time()
+
     def _take_path(self, payload: bytes, rx: float) -> None:
         t = self.topics
         path = m.decode_path(payload, normalize_topic(t.path), t.frame_id, t.accept_empty_frame)
@@ -254,13 +280,28 @@ another) and should be short. ``on_raw(topic, msgtype,
 
     def publish_joint_state(self, stamp: float, pan: float, tilt: float, pan_rate: float, tilt_rate: float) -> None:
         """Publish the measured gimbal state: angles [rad], rates [rad/s], stamp [s since the epoch]."""
-        payload = m.encode_joint_state(stamp, ["pan", "tilt"], [pan, tilt], [pan_rate, tilt_rate])
+        payload = m.encode_joint_state(stamp, list(self.topics.joint_names), [pan, tilt], [pan_rate, tilt_rate])
         self._put(self.joint_state_publisher, payload)
 
     def publish_view_plan(self, stamp: float, positions: np.ndarray, directions: np.ndarray) -> None:
         """Publish the view plan: camera positions (N, 3) [m] and unit view directions (N, 3) in the map frame."""
         frame = self.topics.frame_id or "map"
         self._put(self.view_plan_publisher, m.encode_view_plan(stamp, frame, positions, directions))
+
+    def publish_map(self, stamp: float, points: np.ndarray, weights: np.ndarray | None) -> None:
+        """Latch map landmarks (N, 3) [m] in the map frame with their weights (N,) on the landmarks topic: a
+        ``PointCloud2`` (float32 x, y, z, weight) with the landmarks subscription's QoS (transient local by default,
+        so a display started later gets it). This bus ignores it as input (its own publisher's GID), and it is not
+        recorded (``on_raw``): a recording's landmarks-topic cloud is a map received over the bus."""
+        if self._closed or self.topics.bridged:  # behind the bridge its own samples could not be told apart
+            return
+        if self.map_publisher is None:
+            pub = self.node.publisher(self.topics.landmarks, m.POINT_CLOUD2, self.qos.landmarks)
+            self._entities.append(pub)
+            self._own_gids.add(pub.gid.hex())
+            self.map_publisher = pub
+        frame = self.topics.frame_id or "map"
+        self._put(self.map_publisher, m.encode_cloud(stamp, frame, points, weights), record=False)
 
     def add_publisher(self, topic: str, msgtype: str, qos: QoS) -> RosPublisher | BridgePublisher:
         """Declare another ROS publisher of pivotd's node (closed with the bus); publish with :meth:`put`."""
@@ -272,13 +313,13 @@ another) and should be short. ``on_raw(topic, msgtype,
         """Publish a CDR payload on a publisher of this bus (recorded like the bus's own outputs)."""
         self._put(pub, payload)
 
-    def _put(self, pub: Any, payload: bytes) -> None:
+    def _put(self, pub: Any, payload: bytes, record: bool = True) -> None:
         # Publishing races with close() at shutdown; a closed bus or session drops the message quietly.
         if self._closed:
             return
         try:
             pub.put(payload)
-            if self._on_raw is not None:
+            if record and self._on_raw is not None:
                 self._on_raw(pub.topic, pub.msgtype, payload)
         except zenoh.ZError as exc:
             self._ratelog.warning(f"put:{pub.topic}", f"{pub.topic}: publish failed: {exc}")

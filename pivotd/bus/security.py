@@ -19,7 +19,7 @@ from collections.abc import Iterable
 import zenoh
 
 from pivotd.bus.security_settings import ZenohSecurity
-from pivotd.bus.topics import BusTopics, bridge_key
+from pivotd.bus.topics import CLOCK_TOPIC, BusTopics, bridge_key
 
 #: Zenoh message types of access-control rules (Zenoh 1.x).
 ACL_MESSAGES = ("put", "delete", "declare_subscriber", "query", "reply", "declare_queryable", "liveliness_token",
@@ -32,7 +32,8 @@ def input_key_exprs(topics: BusTopics) -> list[str]:
     """Key expressions covering every rmw_zenoh data key of pivotd's input topics (any type, any hash), or with
     ``topics.wire: ros2dds_bridge`` their zenoh-bridge-ros2dds keys."""
     names = (topics.pose, topics.path, topics.landmarks, topics.targets,
-             *((topics.tf, topics.tf_static) if topics.pose_from_tf else ()))
+             *((topics.tf, topics.tf_static) if topics.pose_from_tf else ()),
+             *((CLOCK_TOPIC,) if topics.use_sim_time else ()))
     if topics.bridged:
         return sorted({bridge_key(name) for name in names})
     return sorted({f"{topics.domain_id}/{name.strip('/')}/**" for name in names})

@@ -30,6 +30,37 @@ MAX_TF_FRAMES = 10_000
 #: key, bare CDR; :mod:`pivotd.bus.ros2dds`).
 WIRE_RMW_ZENOH, WIRE_ROS2DDS_BRIDGE = "rmw_zenoh", "ros2dds_bridge"
 WIRES = (WIRE_RMW_ZENOH, WIRE_ROS2DDS_BRIDGE)
+#: Largest ROS domain id (ROS 2's documented range 0..232; rmw_zenoh puts it first in every key expression).
+MAX_DOMAIN_ID = 232
+#: Environment variable of the ROS domain id, used when ``topics.domain_id`` is not set.
+DOMAIN_ID_ENV = "ROS_DOMAIN_ID"
+#: The ROS simulation clock topic (absolute, as every ROS node subscribes it with ``use_sim_time``).
+CLOCK_TOPIC = "/clock"
+#: Default names of the two joints in the published ``JointState`` (``topics.joint_names``).
+DEFAULT_JOINT_NAMES = ("pan", "tilt")
+
+
+def joint_names_problem(names: object) -> str | None:
+    """Why ``names`` is not a pair of distinct non-empty joint names (pan first, then tilt); None when it is."""
+    if not isinstance(names, tuple | list) or len(names) != 2:
+        return f"must be a list of two joint names (pan, tilt), got {names!r}"
+    if not all(isinstance(n, str) and n.strip() for n in names):
+        return f"joint names must be non-empty strings, got {list(names)!r}"
+    if names[0] == names[1]:
+        return f"the two joint names must differ, both are {names[0]!r}"
+    return None
+
+
+def domain_id_from_env(environ: dict[str, str]) -> int:
+    """The ROS domain id from ``ROS_DOMAIN_ID`` in ``environ``: 0 when unset or empty (as rcl does); raises
+    ConfigError naming the variable when it is not an integer in 0..232."""
+    raw = environ.get(DOMAIN_ID_ENV, "").strip()
+    if not raw:
+        return 0
+    if not (raw.isascii() and raw.isdigit()) or int(raw) > MAX_DOMAIN_ID:
+        raise ConfigError(f"{DOMAIN_ID_ENV}={environ[DOMAIN_ID_ENV]!r} in the environment (used as topics.domain_id "
+                          f"is not set): must be an integer in 0..{MAX_DOMAIN_ID}")
+    return int(raw)
 
 
 def status_key_for(name: str) -> str:
@@ -98,6 +129,9 @@ class BusTopics:
     ``max_*_bytes``: payload size limits [bytes] of the pose, path, cloud and TF topics, checked before decoding.
     ``wire``: :data:`WIRE_RMW_ZENOH` or :data:`WIRE_ROS2DDS_BRIDGE`; with the bridge, ``namespace`` is the bridge's
     ``namespace`` and goes in front of every topic, absolute names too (:func:`bridge_topic`).
+    ``joint_names``: the names of the pan and tilt joints in the published ``JointState`` (the URDF's, for
+    ``robot_state_publisher``). ``publish_map``: the daemon latches the map file's landmarks on ``landmarks``.
+    ``use_sim_time``: the stamps pivotd makes follow ``/clock`` (:data:`CLOCK_TOPIC`) instead of the wall clock.
     ``pose_source``: ``"topic"`` (the pose topic) or ``"tf"``: the pose of ``base_frame`` in ``map_frame``
     composed from ``tf`` and ``tf_static`` (:mod:`pivotd.bus.tf_tree`, at most ``tf_max_frames`` frames).
     """
@@ -127,10 +161,17 @@ class BusTopics:
     namespace: str = "/"
     humble: bool = False
     wire: str = WIRE_RMW_ZENOH
+    joint_names: tuple[str, str] = DEFAULT_JOINT_NAMES
+    publish_map: bool = True
+    use_sim_time: bool = False
 
     def __post_init__(self) -> None:
         if self.wire not in WIRES:
             raise ConfigError(f"wire {self.wire!r} must be one of {', '.join(WIRES)}")
+        problem = joint_names_problem(self.joint_names)
+        if problem:
+            raise ConfigError(f"joint_names: {problem}")
+        object.__setattr__(self, "joint_names", tuple(self.joint_names))
         if self.pose_type not in POSE_TYPES:
             raise ConfigError(f"pose_type {self.pose_type!r} must be one of {', '.join(POSE_TYPES)}")
         if self.pose_source not in POSE_SOURCES:
@@ -148,8 +189,8 @@ class BusTopics:
         for name in PAYLOAD_LIMITS:
             if getattr(self, name) < MIN_PAYLOAD_LIMIT:
                 raise ConfigError(f"{name} must be >= {MIN_PAYLOAD_LIMIT}, got {getattr(self, name)}")
-        if not isinstance(self.domain_id, int) or not 0 <= self.domain_id <= 232:
-            raise ConfigError(f"domain_id must be an integer in 0..232, got {self.domain_id!r}")
+        if not isinstance(self.domain_id, int) or not 0 <= self.domain_id <= MAX_DOMAIN_ID:
+            raise ConfigError(f"domain_id must be an integer in 0..{MAX_DOMAIN_ID}, got {self.domain_id!r}")
         object.__setattr__(self, "namespace", normalize_namespace(self.namespace))
         resolve = bridge_topic if self.bridged else resolve_topic
         for name in TOPIC_FIELDS:

@@ -126,7 +126,8 @@ def summary_lines(cfg: Config, cloud: LandmarkCloud | None, raw: RawConfig | Non
         + (f"from TF {t.map_frame} -> {t.base_frame} on {t.tf}, {t.tf_static}" if t.pose_from_tf else
            f"{t.pose} [{t.pose_type}]")
         + f", path {t.path}, landmarks {t.landmarks}, "
-        f"targets {t.targets}, joint states {t.joint_states}, view plan {t.view_plan}, frame {t.frame_id}",
+        f"targets {t.targets}, joint states {t.joint_states} ({', '.join(t.joint_names)}), view plan {t.view_plan}, "
+        f"frame {t.frame_id}" + (", stamps from /clock" if t.use_sim_time else ""),
         map_line,
         f"filters: range {f.min_range:g}..{f.max_range:g} m"
         + (f", view angle ≤ {f.max_view_angle_deg:g}°" if f.max_view_angle is not None else ""),

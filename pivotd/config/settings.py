@@ -10,6 +10,7 @@ display. Relative file paths resolve against the directory of the config file. E
 from __future__ import annotations
 
 import math
+import os
 import re
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -17,6 +18,8 @@ from pathlib import Path
 from pivotd.bus.qos import DURABILITY_NAMES, MAX_DEPTH, RELIABILITY_NAMES, QoS, TopicQoS
 from pivotd.bus.security_settings import ZenohSecurity
 from pivotd.bus.topics import (
+    DEFAULT_JOINT_NAMES,
+    MAX_DOMAIN_ID,
     MAX_TF_FRAMES,
     MIN_PAYLOAD_LIMIT,
     PAYLOAD_LIMITS,
@@ -24,6 +27,8 @@ from pivotd.bus.topics import (
     POSE_TYPES,
     WIRES,
     BusTopics,
+    domain_id_from_env,
+    joint_names_problem,
     status_key_for,
 )
 from pivotd.config.yaml_reader import Section, read_yaml
@@ -283,6 +288,8 @@ class RosConfig:
     tf_topic: str = "tf"
     camera_frame: str = "pivot_camera"
     qos: TopicQoS = field(default_factory=TopicQoS)
+    diagnostics: bool = True
+    diagnostics_topic: str = "/diagnostics"
 
 
 @dataclass(frozen=True)
@@ -534,7 +541,7 @@ def _topics(s: Section) -> BusTopics:
     out = BusTopics(
         namespace=s.string("namespace", d.namespace, pattern=_NAMESPACE_RE,
                            pattern_help="a ROS namespace such as /robot1"),
-        domain_id=s.number("domain_id", d.domain_id, min=0, max=232, integer=True),
+        domain_id=_domain_id(s),
         humble=s.boolean("humble", d.humble),
         wire=s.string("wire", d.wire, choices=WIRES),
         pose=topic("pose"),
@@ -552,10 +559,33 @@ def _topics(s: Section) -> BusTopics:
         tf_static=topic("tf_static"),
         tf_max_frames=s.number("tf_max_frames", d.tf_max_frames, min=1, max=MAX_TF_FRAMES, integer=True),
         max_cloud_points=s.number("max_cloud_points", d.max_cloud_points, min=1, integer=True),
+        joint_names=_joint_names(s),
+        publish_map=s.boolean("publish_map", d.publish_map),
+        use_sim_time=s.boolean("use_sim_time", d.use_sim_time),
         **{k: s.number(k, getattr(d, k), min=MIN_PAYLOAD_LIMIT, integer=True) for k in PAYLOAD_LIMITS},
     )
     s.finish()
     return out
+
+
+def _domain_id(s: Section) -> int:
+    """``topics.domain_id``; unset: ``ROS_DOMAIN_ID`` from the environment, else 0 (as ROS nodes do)."""
+    if s.has("domain_id"):
+        return s.number("domain_id", 0, min=0, max=MAX_DOMAIN_ID, integer=True)
+    s.number("domain_id", None)  # a null value counts as unset
+    try:
+        return domain_id_from_env(os.environ)
+    except ConfigError as exc:
+        raise ConfigError(f"{s.file}: {exc}") from None
+
+
+def _joint_names(s: Section) -> tuple[str, str]:
+    names = s.string_list("joint_names", DEFAULT_JOINT_NAMES,
+                          check=lambda n: None if n.strip() else "must be a non-empty joint name")
+    problem = joint_names_problem(names)
+    if problem:
+        raise s.error("joint_names", problem)
+    return names
 
 
 def _map(s: Section) -> MapConfig:
@@ -887,6 +917,9 @@ def _ros(s: Section) -> RosConfig:
         tf_topic=s.string("tf_topic", d.tf_topic, pattern=_TOPIC_RE, pattern_help=help_topic),
         camera_frame=s.string("camera_frame", d.camera_frame, pattern=_FRAME_RE, pattern_help="a TF frame name"),
         qos=TopicQoS(**per_topic),
+        diagnostics=s.boolean("diagnostics", d.diagnostics),
+        diagnostics_topic=s.string("diagnostics_topic", d.diagnostics_topic, pattern=_TOPIC_RE,
+                                   pattern_help=help_topic),
     )
     s.finish()
     return out

@@ -23,12 +23,15 @@ from pathlib import Path
 
 import numpy as np
 
+from pivotd.bus.diagnostics import diagnostic_entries
 from pivotd.bus.markers import PlanVisuals
-from pivotd.bus.messages import CloudMsg, PathMsg, PoseSample
+from pivotd.bus.messages import DIAGNOSTIC_ARRAY, CloudMsg, PathMsg, PoseSample, encode_diagnostics
 from pivotd.bus.pivot_bus import PivotBus
+from pivotd.bus.qos import QoS
 from pivotd.bus.ratelimit import RateLimitedLog
 from pivotd.bus.security import input_key_exprs
 from pivotd.bus.session import build_config, open_session_waiting
+from pivotd.bus.topics import resolve_topic
 from pivotd.config import Config, load_config
 from pivotd.daemon import logqueue
 from pivotd.daemon.control import ControlLoop
@@ -65,6 +68,7 @@ log = logging.getLogger("pivotd.daemon")
 SWITCH_INTERVAL_S = 0.0005
 HOST_STALL_S = 0.25  # [s] a supervision pass this much later than its period: the process stalled
 HOST_STALL_WINDOW_S = 2.0  # [s] a watchdog hold reported this soon after a stall of the process is the stall's
+DIAGNOSTICS_PERIOD_S = 1.0  # [s] /diagnostics at about 1 Hz (from the status document, published at 1-5 Hz)
 PARK_LINK_GRACE_S = 1.0  # [s] parking waits this long for a link lost meanwhile to come back, then stops
 
 
@@ -151,6 +155,9 @@ class Daemon:
         self._states = StateLog(self.cfg.topics.pose, self.cfg.topics.path, log)  # state changes, logged once each
         self._threads: list[threading.Thread] = []
         self._recorder = None
+        self._map_published = 0  # the worker's map loads (PlannerWorker.map_previews) already published
+        self._diagnostics_pub = None  # /diagnostics (cfg.ros.diagnostics)
+        self._diagnostics_at = -np.inf  # [s monotonic] when diagnostics were last published
 
     @property
     def _last_error(self) -> str:
@@ -367,8 +374,9 @@ class Daemon:
                     last_wd = now
                 if k % js_every == 0 and self.bus is not None:
                     st = self.link.state
-                    if st is not None and self.link.link_state == LinkState.UP:
-                        self.bus.publish_joint_state(time.time(), st.pan, st.tilt, st.pan_rate, st.tilt_rate)
+                    stamp = self.bus.now()  # None: simulation time and no /clock yet
+                    if st is not None and self.link.link_state == LinkState.UP and stamp is not None:
+                        self.bus.publish_joint_state(stamp, st.pan, st.tilt, st.pan_rate, st.tilt_rate)
             except Exception as exc:
                 self._rl.warning("control:outputs", f"control: watchdog or joint_states failed: {exc!r}")
 
@@ -425,8 +433,9 @@ class Daemon:
 
         pan, tilt, pan_rate, tilt_rate = setpoint
         stamp = time.time()
+        names = list(self.cfg.topics.joint_names)
         self._recorder.write(JOINT_COMMAND_TOPIC, JOINT_STATE,
-                             encode_joint_state(stamp, ["pan", "tilt"], [pan, tilt], [pan_rate, tilt_rate]),
+                             encode_joint_state(stamp, names, [pan, tilt], [pan_rate, tilt_rate]),
                              int(stamp * 1e9))
 
     def status(self) -> dict:
@@ -661,9 +670,35 @@ class Daemon:
                             on_raw=self._recorder.write if self._recorder is not None else None, qos=cfg.ros.qos,
                             tf_timeout=cfg.control.pose_timeout_s)
         self.visuals = build_plan_visuals(self.bus, cfg)
+        if cfg.ros.diagnostics:
+            self._diagnostics_pub = self.bus.add_publisher(
+                resolve_topic(cfg.ros.diagnostics_topic, cfg.topics.namespace), DIAGNOSTIC_ARRAY, QoS(depth=10))
         log.info("pivotd %s %r ready: %d landmarks, gimbal %s, zenoh %s", version(), cfg.name,
                  self.worker.map_info.landmarks, cfg.gimbal.port, where)
         return True
+
+    def _publish_map(self) -> None:
+        """Latch the map file's landmarks (strided, :data:`~pivotd.daemon.worker.MAX_PREVIEW_POINTS`) on the landmarks
+        topic once per load of the map by the worker (start, reload, restart) with ``topics.publish_map``. An empty
+        map is published only to replace one published before."""
+        worker, bus = self.worker, self.bus
+        if bus is None or not bus.topics.publish_map or worker.map_previews == self._map_published:
+            return
+        self._map_published = worker.map_previews
+        points, weights = worker.map_preview
+        if len(points) or bus.map_publisher is not None:
+            bus.publish_map(bus.now() or 0.0, points, weights)
+            log.info("map: %d landmarks published on %s", len(points), bus.topics.landmarks)
+
+    def _publish_diagnostics(self, status: dict) -> None:
+        """``status`` as a DiagnosticArray on ``ros.diagnostics_topic``, at most every :data:`DIAGNOSTICS_PERIOD_S`."""
+        now = time.monotonic()
+        if self._diagnostics_pub is None or now - self._diagnostics_at < DIAGNOSTICS_PERIOD_S:
+            return
+        self._diagnostics_at = now
+        entries = diagnostic_entries(status, self.cfg.control.pose_timeout_s, self.cfg.planner.replan_budget,
+                                     self.cfg.gimbal.port)
+        self.bus.put(self._diagnostics_pub, encode_diagnostics(self.bus.now() or 0.0, entries))
 
     def _wait_supervising(self, seconds: float) -> bool:
         """Wait ``seconds`` while supervising the gimbal (before the bus is up); True as soon as stop is requested."""
@@ -697,6 +732,8 @@ class Daemon:
                     status = self.status()
                     if self.bus is not None:
                         self.bus.publish_status(status)
+                        self._publish_map()
+                        self._publish_diagnostics(status)
                     line = status_line(status)
                     if line != last_line:
                         self.notifier.status(line)

@@ -32,7 +32,7 @@ import os
 import signal
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -43,6 +43,7 @@ from pivotd.daemon.wiring import map_files_identity
 from pivotd.errors import PivotdError
 from pivotd.maps.fingerprint import MapIdentity
 from pivotd.maps.formats import LandmarkCloud
+from pivotd.maps.store import BASE_LAYER
 
 log = logging.getLogger(__name__)
 
@@ -50,16 +51,23 @@ START_TIMEOUT_S = 60.0
 WORKER_NICE = 10  # niceness added to the planner process
 HEARTBEAT_S = 0.1  # [s] period of the worker's "busy" messages while it computes a request
 SILENT_AFTER_S = 2.0  # [s] a replan whose worker sent nothing for this long is given up (the worker is hung)
+#: Most landmarks of the map file's layer in :attr:`MapInfo.preview` (what the daemon republishes on the landmarks
+#: topic, ``topics.publish_map``): a larger map is strided, every k-th landmark of the store's order, which is
+#: sorted by grid cell, so the sample spans the whole map.
+MAX_PREVIEW_POINTS = 100_000
 
 
 @dataclass(frozen=True)
 class MapInfo:
     """landmarks: total count; version: the map's version (the worker's store; :class:`PlannerWorker` reports one
-    that increases at every change across reloads and restarts); layers: name -> count."""
+    that increases at every change across reloads and restarts); layers: name -> count; preview: (points (K, 3)
+    float32 [m], weights (K,) float32) of the map file's layer, at most :data:`MAX_PREVIEW_POINTS` (strided), in
+    the replies that (re)loaded the map file, else None."""
 
     landmarks: int
     version: int
     layers: dict[str, int]
+    preview: tuple[np.ndarray, np.ndarray] | None = field(default=None, compare=False, repr=False)
 
 
 class WorkerError(PivotdError):
@@ -82,9 +90,20 @@ class RequestError(PivotdError):
     """The planner worker is alive but refused a request (bad map, bad config, optimizer error); one line."""
 
 
-def _map_info(store) -> MapInfo:
+def _map_info(store, preview: bool = False) -> MapInfo:
     snap = store.snapshot()
-    return MapInfo(len(snap), snap.version, {name: info.count for name, info in snap.layers.items()})
+    return MapInfo(len(snap), snap.version, {name: info.count for name, info in snap.layers.items()},
+                   _base_preview(snap) if preview else None)
+
+
+def _base_preview(snap) -> tuple[np.ndarray, np.ndarray]:
+    """The map file's layer of ``snap``, strided to at most :data:`MAX_PREVIEW_POINTS` landmarks (copies)."""
+    info = snap.layers.get(BASE_LAYER)
+    if info is None or info.count == 0:
+        return np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
+    step = -(-info.count // MAX_PREVIEW_POINTS)
+    return (np.ascontiguousarray(snap.points[info.rows][::step]),
+            np.ascontiguousarray(snap.weights[info.rows][::step]))
 
 
 class _ParentPipe:
@@ -157,7 +176,7 @@ def _worker_main(conn, cfg: Config, log_level: int) -> None:  # pragma: no cover
         log.exception("planner worker start-up failed")
         conn.send(("error", 0, f"start-up failed: {exc!r}"))
         return
-    conn.send(("ready", 0, _map_info(store)))
+    conn.send(("ready", 0, _map_info(store, preview=True)))
     threading.Thread(target=conn.heartbeat_forever, name="pivotd-planner-heartbeat", daemon=True).start()
     rl = RateLimitedLog(log)  # a failing replan fails again at every request: one traceback per 5 s
     layers: dict[str, tuple[LandmarkCloud, float]] = {}
@@ -192,7 +211,7 @@ def _worker_main(conn, cfg: Config, log_level: int) -> None:  # pragma: no cover
                 new_planner = build_planner(new_cfg)
                 new_planner.set_path(*path_args)
                 store, planner = new_store, new_planner
-                conn.send(("map", req_id, _map_info(store)))
+                conn.send(("map", req_id, _map_info(store, preview=reload_map)))
             elif kind == "stop":
                 return
             else:
@@ -216,6 +235,9 @@ class PlannerWorker:
         self.map_info = MapInfo(0, 0, {})
         self._map_changes = 0  # maps the worker loaded or changed: the map version the daemon reports
         self.map_identity: MapIdentity = ()  # the map files as they were when the worker last read them
+        # The map file's landmarks as last (re)loaded, strided (MapInfo.preview), and how many loads so far.
+        self.map_preview: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 3), np.float32), np.zeros(0, np.float32))
+        self.map_previews = 0
         self._proc = None
         self._conn = None
         self._next_id = 0
@@ -366,6 +388,9 @@ class PlannerWorker:
         store the worker builds, at start, restart or reload, counts from 1 again); a reload that kept the map
         keeps its version."""
         self._map_changes += int(changed)
+        if info.preview is not None:
+            self.map_preview = info.preview
+            self.map_previews += 1
         self.map_info = MapInfo(info.landmarks, self._map_changes, info.layers)
         return self.map_info
 
