@@ -95,3 +95,29 @@ def test_a_plan_as_executed_slews_at_the_axis_speeds_and_is_computed_once_per_re
     other = plan.copy()
     other[5:] = yaw(-80.0)  # another plan: its own path (30° within one step)
     assert angle_between(executed.directions(other)[5], yaw(-80.0)) < 1e-9
+
+
+def test_a_plan_past_the_end_of_the_pan_range_is_also_judged_held_there():
+    from pivotd.daemon.planner import _Execution
+
+    pl = planner((math.radians(120), math.radians(90)))
+    pl.set_path(path(), None, 1)
+    quats = np.tile(IDENTITY, (N, 1))
+    start = yaw(-160.0)
+    executed = _Execution(pl, np.arange(N) * 0.5, quats, start)
+    # a view that moves on past −170°: −165°, then −190° (+170°) and −200° (+160°), which the joints would reach
+    # the long way round; held, it stays at −170°
+    plan = np.repeat(yaw(-165.0)[None], N, 0)
+    plan[5:10] = yaw(-190.0)
+    plan[10:] = yaw(-200.0)
+    held = executed.held_at_limits(plan)
+    assert held is not None
+    for k, want in [(0, -165.0), (4, -165.0), (5, -170.0), (9, -170.0), (N - 1, -170.0)]:
+        assert angle_between(held[k], yaw(want)) < 1e-9, k
+    # as executed, the held plan stays at the limit; the plan itself slews away from it towards +160°
+    assert angle_between(executed.directions(held)[N - 1], yaw(-170.0)) < 1e-9
+    assert angle_between(executed.directions(plan)[N - 1], yaw(160.0)) < 1e-9
+    # a plan inside the range, or one crossing the front (0°) within it, is left alone
+    inside = np.repeat(yaw(-100.0)[None], N, 0)
+    inside[8:] = yaw(40.0)
+    assert executed.held_at_limits(inside) is None

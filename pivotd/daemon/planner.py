@@ -255,6 +255,24 @@ class _Execution:
         d_base = pan_tilt_to_direction(np.array(out_p), np.array(out_t))
         return np.einsum("nji,nj->ni", self._R, d_base)
 
+    def held_at_limits(self, directions: np.ndarray) -> np.ndarray | None:
+        """``directions`` (N, 3) with their pans followed continuously from the commanded pan (each step the
+        shorter way round) and held at the end of a bounded range they run past, where the joints would otherwise
+        slew the long way round to the other end; None when that changes nothing (no such step, continuous pan,
+        or no commanded pan)."""
+        pl = self._planner
+        if not self._on or self._start is None or pl.limits.continuous_pan:
+            return None
+        d = np.einsum("nij,nj->ni", self._R, np.asarray(directions, float).reshape(-1, 3))
+        pans, tilts = direction_to_pan_tilt(d)
+        steps = np.remainder(np.diff(np.concatenate([[self._start[0]], pans])) + np.pi, 2 * np.pi) - np.pi
+        held = np.clip(self._start[0] + np.cumsum(steps), pl.limits.pan_min, pl.limits.pan_max)
+        joint, _ = unwrap_pans(pans, self._start[0], pl.limits)
+        if np.allclose(held, joint, atol=1e-9, rtol=0.0):
+            return None
+        d_base = pan_tilt_to_direction(held, np.clip(tilts, pl.limits.tilt_min, pl.limits.tilt_max))
+        return np.einsum("nji,nj->ni", self._R, d_base)
+
     def objective(self, problem: TrajectoryProblem, result: TrajectoryResult) -> float:
         """The objective of ``result`` as executed (its own without axis speeds)."""
         if not self._on:
@@ -506,6 +524,11 @@ class RecedingHorizonPlanner:
         # one second solve per warm replan at most: the rescue only where the joint-grid seed found no other basin
         if warm is not None and st.rescue_fraction is not None and not other_basin and deferred is None:
             result, rescue = self._rescue(snapshot, cams, s, retained, result, problem, executed)
+        # a plan that runs past the end of a bounded pan range, held there rather than slewed the long way round,
+        # when that sees more as executed (no solve: the plan as it is)
+        held = executed.held_at_limits(result.directions)
+        if held is not None:
+            result = executed.best(problem, [result, problem.evaluate(Seed(result.seed, held, SeedKind.WARM))])
         self.last_objective = result.objective
         directions, visible = result.directions, np.asarray(result.visible)
         pans = self._joint_pans(directions, quats, anchor)
