@@ -87,9 +87,12 @@ def test_install_service_prints_the_unit_running_this_pivotd_and_the_sysusers_fi
     script = Path(sys.executable).parent / "pivotd"  # the venv's console script, not resolved through symlinks
     expected = str(script) if script.is_file() else f"{sys.executable} -m pivotd.cli"
     assert exec_start == [f'ExecStart={expected} run --config "{config}"']
+    # the check before each start runs the same pivotd on the same config
+    assert [line for line in unit.splitlines() if line.startswith("ExecStartPre=")] == \
+        [f'ExecStartPre={expected} check --offline --config "{config}"']
     shipped = (REPO / "systemd" / "pivotd.service").read_text().splitlines()
-    assert [line for line in unit.splitlines() if not line.startswith("ExecStart=")] == \
-        [line for line in shipped if not line.startswith("ExecStart=")]
+    assert [line for line in unit.splitlines() if not line.startswith(("ExecStart=", "ExecStartPre="))] == \
+        [line for line in shipped if not line.startswith(("ExecStart=", "ExecStartPre="))]
     assert files["/usr/lib/sysusers.d/pivotd.conf"] == (REPO / "systemd" / "pivotd.sysusers").read_text()
 
 

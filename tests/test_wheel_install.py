@@ -103,6 +103,7 @@ def test_installed_commands_work_outside_the_checkout(wheel, venv_bin, tmp_path)
     res = _run([str(venv_bin / "pivotd"), "install-service", "--config", str(config)], work)
     assert res.returncode == 0, res.stderr
     assert f'\nExecStart="{venv_bin / "pivotd"}" run --config {config}\n' in res.stdout
+    assert f'\nExecStartPre="{venv_bin / "pivotd"}" check --offline --config {config}\n' in res.stdout
     assert "\nu pivotd - " in res.stdout
 
     for script, usage in (("pivotd-mock-gimbal", "usage: mock_gimbal"), ("pivotd-sim-pose", "usage: sim_pose")):

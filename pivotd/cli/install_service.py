@@ -16,6 +16,7 @@ DEFAULT_CONFIG = Path("/etc/pivotd/pivotd.yaml")
 UNIT_PATH = Path("etc/systemd/system/pivotd.service")  # relative to --prefix
 SYSUSERS_PATH = Path("usr/lib/sysusers.d/pivotd.conf")
 _EXEC_START = re.compile(r"^ExecStart=.*$", re.MULTILINE)
+_EXEC_START_PRE = re.compile(r"^ExecStartPre=.*$", re.MULTILINE)
 
 
 def pivotd_executable() -> str:
@@ -35,13 +36,17 @@ def _quote(word: str) -> str:
 
 
 def unit_text(executable: str, config: Path) -> str:
-    """The shipped unit with ``ExecStart=<executable> run --config <config>`` (config made absolute)."""
+    """The shipped unit with ``ExecStart=<executable> run --config <config>`` and its check before each start,
+    ``ExecStartPre=<executable> check --offline --config <config>`` (config made absolute)."""
     unit = read_text(DataDir.SYSTEMD, "pivotd.service")
-    exec_start = f"ExecStart={executable} run --config {_quote(str(config.absolute()))}"
-    new, count = _EXEC_START.subn(lambda _: exec_start, unit)
-    if count != 1:
-        raise PivotdError(f"the shipped pivotd.service has {count} ExecStart= lines, expected 1")
-    return new
+    config_arg = _quote(str(config.absolute()))
+    for pattern, line in ((_EXEC_START, f"ExecStart={executable} run --config {config_arg}"),
+                          (_EXEC_START_PRE, f"ExecStartPre={executable} check --offline --config {config_arg}")):
+        unit, count = pattern.subn(lambda _, line=line: line, unit)
+        if count != 1:
+            key = line.split("=", 1)[0]
+            raise PivotdError(f"the shipped pivotd.service has {count} {key}= lines, expected 1")
+    return unit
 
 
 def configure(p: argparse.ArgumentParser) -> None:
