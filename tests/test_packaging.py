@@ -81,7 +81,7 @@ def test_install_service_prints_the_unit_running_this_pivotd_and_the_sysusers_fi
     config = tmp_path / "my config.yaml"
     assert main(["install-service", "--config", str(config)]) == 0
     files = _sections(capsys.readouterr().out)
-    assert list(files) == ["/etc/systemd/system/pivotd.service", "/usr/lib/sysusers.d/pivotd.conf"]
+    assert list(files) == ["/etc/systemd/system/pivotd.service", "/etc/sysusers.d/pivotd.conf"]
     unit = files["/etc/systemd/system/pivotd.service"]
     exec_start = [line for line in unit.splitlines() if line.startswith("ExecStart=")]
     script = Path(sys.executable).parent / "pivotd"  # the venv's console script, not resolved through symlinks
@@ -93,7 +93,7 @@ def test_install_service_prints_the_unit_running_this_pivotd_and_the_sysusers_fi
     shipped = (REPO / "systemd" / "pivotd.service").read_text().splitlines()
     assert [line for line in unit.splitlines() if not line.startswith(("ExecStart=", "ExecStartPre="))] == \
         [line for line in shipped if not line.startswith(("ExecStart=", "ExecStartPre="))]
-    assert files["/usr/lib/sysusers.d/pivotd.conf"] == (REPO / "systemd" / "pivotd.sysusers").read_text()
+    assert files["/etc/sysusers.d/pivotd.conf"] == (REPO / "systemd" / "pivotd.sysusers").read_text()
 
 
 def test_install_service_writes_both_files_under_the_prefix(tmp_path, capsys):
@@ -101,10 +101,10 @@ def test_install_service_writes_both_files_under_the_prefix(tmp_path, capsys):
     unit = (tmp_path / "etc/systemd/system/pivotd.service").read_text()
     assert "\nExecStart=" in unit and unit.count("ExecStart=") == 1
     assert " run --config /etc/pivotd/robot.yaml\n" in unit
-    assert (tmp_path / "usr/lib/sysusers.d/pivotd.conf").read_text() == \
+    assert (tmp_path / "etc/sysusers.d/pivotd.conf").read_text() == \
         (REPO / "systemd" / "pivotd.sysusers").read_text()
     assert capsys.readouterr().out.splitlines() == [f"wrote {tmp_path}/etc/systemd/system/pivotd.service",
-                                                    f"wrote {tmp_path}/usr/lib/sysusers.d/pivotd.conf"]
+                                                    f"wrote {tmp_path}/etc/sysusers.d/pivotd.conf"]
 
 
 @pytest.mark.parametrize(("module", "usage"), [("pivotd.sim.sim_pose", "usage: sim_pose"),

@@ -14,7 +14,7 @@ from pivotd.errors import InputError, PivotdError
 
 DEFAULT_CONFIG = Path("/etc/pivotd/pivotd.yaml")
 UNIT_PATH = Path("etc/systemd/system/pivotd.service")  # relative to --prefix
-SYSUSERS_PATH = Path("usr/lib/sysusers.d/pivotd.conf")
+SYSUSERS_PATH = Path("etc/sysusers.d/pivotd.conf")
 _EXEC_START = re.compile(r"^ExecStart=.*$", re.MULTILINE)
 _EXEC_START_PRE = re.compile(r"^ExecStartPre=.*$", re.MULTILINE)
 
