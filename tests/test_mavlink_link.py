@@ -13,7 +13,7 @@ import time
 from typing import Any
 
 import pytest
-from support import free_tcp_port, wait_until
+from support import PYTHON, REPO, ManagedProcess, free_tcp_port, wait_until
 from test_e2e_daemon import start_daemon, start_mock_gimbal, start_sim, write_config
 
 from pivotd.bus.probe import BusProbe
@@ -363,6 +363,39 @@ def test_the_daemon_publishes_the_pan_of_an_earth_frame_gimbal_relative_to_the_v
             moved = [math.degrees(float(r["pan"])) for r in device_states(dev_log)]
             assert max(moved) - min(moved) > 5.0, (min(moved), max(moved))  # it tracked, not just stood
             assert probe.status["link_counters"]["heading_unknown"] == 0
+        finally:
+            probe.close()
+        assert daemon.stop(signal.SIGTERM, timeout=20) == 0, daemon.output()
+
+
+@pytest.mark.timeout(180)
+def test_the_daemon_gives_an_earth_frame_gimbal_without_delta_yaw_the_heading_of_its_poses(tmp_path):
+    """``--yaw-frame earth-no-delta --heading-deg 90``: the device reports yaw from North and NaN for delta_yaw. The
+    robot drives east (+x of the ENU map frame: heading 90 deg), so the heading the daemon passes on from its poses
+    turns the status back into the vehicle frame: the link comes up and the pan it publishes is the device's."""
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    mock, url, dev_log = start_mock_gimbal(tmp_path, "--yaw-frame", "earth-no-delta", "--heading-deg", "90",
+                                           backend="mavlink")
+    config = write_config(tmp_path, endpoint, url, "mavlink")
+    cfg = load_config(config)
+    route = tmp_path / "east.csv"
+    route.write_text("x,y,z\n" + "".join(f"{0.25 * k:.2f},0.0,0.0\n" for k in range(41)))
+    sim = ManagedProcess([PYTHON, str(REPO / "tools" / "sim_pose"), "--route", f"csv:{route}", "--connect", endpoint,
+                          "--rate", "50", "--quiet", "--wait-subscribers", "15", "--speed", "0.5", "--loop"],
+                         "sim_pose")
+    with mock, start_daemon(config) as daemon, sim:
+        assert daemon.wait_stderr("ready", 30), daemon.output()
+        probe = BusProbe.connect(endpoint, cfg.topics)
+        try:
+            assert wait_until(lambda: probe.status.get("state") == "tracking", 60), (probe.status, daemon.output())
+
+            def steady() -> bool:
+                docs = [d for d in list(probe.statuses)[-2:] if d.get("gimbal")]
+                rows = device_states(dev_log)[-5:]
+                return len(docs) == 2 and len(rows) == 5 and abs(
+                    docs[-1]["gimbal"]["pan_deg"] - math.degrees(float(rows[-1]["pan"]))) < 0.5
+
+            assert wait_until(steady, 60), (probe.status, daemon.output())
         finally:
             probe.close()
         assert daemon.stop(signal.SIGTERM, timeout=20) == 0, daemon.output()

@@ -60,6 +60,8 @@ from pivotd.errors import PivotdError
 from pivotd.firmware_proto.messages import FAULT_WATCHDOG, MODE_NAMES, fault_names
 from pivotd.gimbal.interface import GimbalInterface, GimbalMode, LinkState
 from pivotd.gimbal.kinematics import joints_to_world_direction
+from pivotd.gimbal.mavlink_frames import heading_from_body_quat
+from pivotd.gimbal.mavlink_link import MavlinkGimbal
 from pivotd.maps.formats import LandmarkCloud, make_cloud
 from pivotd.version import version
 
@@ -179,6 +181,9 @@ class Daemon:
         verdict = self._pose_gate.check(pose, self.cfg.pose_gate, self.cfg.control.pose_timeout_s)
         if verdict is PoseVerdict.ACCEPTED:
             self.pose = pose
+            link = self.link
+            if isinstance(link, MavlinkGimbal):  # for a gimbal reporting yaw in the earth frame without delta_yaw
+                link.set_vehicle_heading(heading_from_body_quat(pose.quat), at=pose.rx_time)
             if self._recorder is not None and self.cfg.topics.pose_from_tf:  # the bus recorded only the TF messages
                 self._record_tf_pose(pose)
             self._states.pose(pose)
