@@ -81,6 +81,8 @@ def test_stop_returns_while_the_stream_is_stuck():
     threading.Thread(target=lambda: (lq.stop(timeout=0.5), finished.set()), daemon=True).start()
     assert finished.wait(30)
     os.close(r)  # the listener's write fails (EPIPE): it goes on quietly
+    # it now drains the queue at once; let it end before its fd is closed (a later test's pipe may get the number)
+    assert wait_until(lambda: (lq.stop(timeout=1.0), not lq._thread.is_alive())[1], 30)
     os.close(w)
 
 
