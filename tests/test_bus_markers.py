@@ -129,7 +129,7 @@ def test_marker_array_geometry_matches_the_plan(scene_plan):
     inside = (angle <= FOV / 2) & (dist >= 0.3) & (dist <= 10.0)
     assert int(plan.visible[0]) == int(inside.sum()) > 200  # the plan's hard count is the brute-force count
     assert shown.shape[0] == 200
-    assert shown_angle.max() <= np.sort(angle[inside])[199] + 1e-9
+    assert shown_angle.max() <= np.sort(angle[inside])[199] + 1e-6  # float32 bearings: ties within 1e-7 rad
     nearest = np.linalg.norm(shown[:, None, :] - sc.points[inside][None, :, :], axis=2).min(axis=1)
     assert nearest.max() < 1e-5  # map landmarks (stored as float32), not made-up points
 

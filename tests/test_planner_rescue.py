@@ -15,6 +15,7 @@ from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.formats import LandmarkCloud
 from pivotd.maps.store import MapStore
 from pivotd.pivot.rescue import blind_waypoints, rescue_init
+from pivotd.pivot.trajectory import TrajectoryOptions
 
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 N = 41  # waypoints of the path (0.5 m apart along +x) and of the horizon
@@ -125,7 +126,8 @@ def test_config_rescue_settings(tmp_path):
 def test_a_rescue_that_lost_is_not_retried_until_the_problem_changes():
     snap = snapshot()
     pl = planner(snap, BLANK, 0.25)
-    pl.settings = replace(pl.settings, horizon=10)  # too short to pay for the turn
+    # too short to pay for the turn under the paper's smoothness (1 − cos per step, no knee: a turn costs more)
+    pl.settings = replace(pl.settings, horizon=10, options=TrajectoryOptions.paper())
     first = pl.replan(snap, np.zeros(3), IDENTITY, BLANK)
     assert pl.solves == 2 and pl.rescues == 0 and first.visible.max() <= 1  # tried, lost on the objective
     assert first.rescue == Rescue.LOST

@@ -57,6 +57,16 @@ from pivotd.robot_path import Polyline, project_onto_polyline
 
 _PIVOT, _PLANNER, _MOTION = PivotConfig(), PlannerConfig(), MotionConfig()
 
+
+def trajectory_options_from(pivot: PivotConfig, planner: PlannerConfig) -> TrajectoryOptions:
+    """The optimizer's options from the ``pivot`` and ``planner`` config sections: every field a config key sets
+    (those have no default in :class:`TrajectoryOptions`); the others keep the optimizer's own tuning, which no key
+    sets. Warm-started replans iterate at most min(``pivot.iterations``, the optimizer's warm budget)."""
+    return TrajectoryOptions(width_deg=math.degrees(pivot.transition_width), max_iterations=pivot.iterations,
+                             warm_iterations=min(pivot.iterations, TrajectoryOptions.warm_iterations),
+                             distance_weights=pivot.distance_weights, normalise=planner.normalise,
+                             smooth_knee_deg=math.degrees(pivot.smooth_knee))
+
 #: Most landmarks a plan reports as inside its first cone (:attr:`Plan.in_view`, shown as live markers).
 MAX_IN_VIEW = MAX_MARKER_LANDMARKS
 
@@ -144,7 +154,7 @@ class PlannerSettings:
     horizon: int = _PLANNER.horizon
     max_landmarks_per_waypoint: int | None = _PLANNER.max_landmarks_per_waypoint
     retained_filter: RetainedFilter = field(default_factory=RetainedFilter)
-    options: TrajectoryOptions | None = None  # None: the paper's settings (TrajectoryOptions.paper())
+    options: TrajectoryOptions = field(default_factory=lambda: trajectory_options_from(_PIVOT, _PLANNER))
     back_window: float = 1.0  # [m] no key: the stretch of the path searched behind the last progress ...
     ahead_window: float = 5.0  # [m] ... and ahead of it
     max_step: float | None = _PLANNER.max_step
@@ -607,7 +617,7 @@ class RecedingHorizonPlanner:
             self._grid = JointGrid.inside(lim.pan_min, lim.pan_max, lim.tilt_min, lim.tilt_max, st.joint_grid_step,
                                           continuous_pan=lim.continuous_pan)
         grid = self._grid
-        cap = max(1, (st.options or TrajectoryOptions.paper()).seed_cap)
+        cap = max(1, st.options.seed_cap)
         R = base_from_world(quats, self.mount)
         keys = _grid_keys(s)
         scores = np.empty((s.shape[0], *grid.shape))

@@ -17,7 +17,7 @@ import numpy as np
 from pivotd.config import Config
 from pivotd.config.settings import wire_config
 from pivotd.daemon.control import ControlLoop, ControlSettings
-from pivotd.daemon.planner import PlannerSettings, RecedingHorizonPlanner
+from pivotd.daemon.planner import PlannerSettings, RecedingHorizonPlanner, trajectory_options_from
 from pivotd.daemon.replan_trigger import ReplanTrigger
 from pivotd.daemon.tracking_error import TrackingErrorSettings
 from pivotd.errors import ConfigError
@@ -102,15 +102,10 @@ RESCUE_REACH = 2
 
 
 def trajectory_options(cfg: Config) -> TrajectoryOptions:
-    """The optimizer's options from the ``pivot`` and ``planner`` sections: every field a config key sets (those have
-    no default in :class:`TrajectoryOptions`, and the daemon never plans with :meth:`TrajectoryOptions.paper`); the
-    others keep the optimizer's own tuning, which no config key sets. Warm-started replans iterate at most
-    min(``pivot.iterations``, the optimizer's warm budget)."""
-    p, pl = cfg.pivot, cfg.planner
-    return TrajectoryOptions(width_deg=math.degrees(p.transition_width), max_iterations=p.iterations,
-                             warm_iterations=min(p.iterations, TrajectoryOptions.warm_iterations),
-                             distance_weights=p.distance_weights, normalise=pl.normalise,
-                             smooth_knee_deg=math.degrees(p.smooth_knee))
+    """The optimizer's options from the ``pivot`` and ``planner`` sections
+    (:func:`~pivotd.daemon.planner.trajectory_options_from`); the daemon never plans with
+    :meth:`TrajectoryOptions.paper`."""
+    return trajectory_options_from(cfg.pivot, cfg.planner)
 
 
 def planner_settings(cfg: Config) -> PlannerSettings:
