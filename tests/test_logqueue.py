@@ -62,7 +62,10 @@ def test_logging_into_a_stream_nobody_reads_never_blocks_drops_and_counts_and_re
             return f"{lq.dropped} log records dropped".encode() in got
 
         assert wait_until(drained, 30), bytes(got[-500:])
-        assert b"record 0\n" in got and b"record 199" not in got  # a full queue drops the newest records
+        # the oldest went out, and every record is either written or counted as dropped (which ones a full queue
+        # drops depends on when the listener gets the CPU; none is lost silently)
+        written = {int(m) for m in re.findall(rb"record (\d+)\n", bytes(got))}
+        assert 0 in written and len(written) + lq.dropped == 200, (sorted(written), lq.dropped)
     finally:
         logger.removeHandler(lq.handler)
         lq.stop(timeout=2.0)
