@@ -7,8 +7,11 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import subprocess
+from pathlib import Path
 
+import pytest
 from support import REPO
 
 TOOL = REPO / "tools" / "check_source_build"
@@ -45,6 +48,30 @@ def test_a_missing_interpreter_is_a_usage_error_before_any_venv_is_made():
     assert result.returncode == 2
     assert "no interpreter '/nonexistent/python3.10'" in result.stderr
     assert "== source build" not in result.stdout
+
+
+def python_older_than_the_project() -> str | None:
+    """A Python 3.9 that runs (python3.9 on PATH, else pyenv's), or None."""
+    pyenv = Path(os.environ.get("PYENV_ROOT", Path.home() / ".pyenv"))
+    for candidate in [shutil.which("python3.9"), *map(str, sorted(pyenv.glob("versions/3.9.*/bin/python3.9")))]:
+        runs = candidate and subprocess.run([candidate, "-c", "import venv"], capture_output=True, check=False)
+        if runs and runs.returncode == 0:
+            return candidate
+    return None
+
+
+@pytest.mark.slow
+def test_a_failed_install_fails_the_run_with_pips_error():
+    """What makes the CI leg fail: pip refusing the checkout (requires-python >= 3.10) is exit 1, never 0."""
+    python = python_older_than_the_project()
+    if python is None:
+        pytest.skip("no Python 3.9 here to make pip refuse the checkout")
+    result = subprocess.run([str(TOOL), "--python", python], capture_output=True, text=True, timeout=600, cwd=REPO,
+                            check=False)
+    assert result.returncode == 1
+    assert "requires a different Python" in result.stderr
+    assert "source build: FAILED: pip install --no-binary ruckig" in result.stderr
+    assert "== source build: passed" not in result.stdout
 
 
 def test_the_tests_it_runs_exist_and_import_the_motion_generator():
