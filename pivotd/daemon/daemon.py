@@ -588,6 +588,8 @@ class Daemon:
         self.state = DaemonState.PARKING
         target = park_joints(self.cfg)
         control.override_target = target
+        if self._timeline is not None:
+            self._timeline.parking()  # the control ticks may not get to say so: a park at the park pose is done
         deadline = time.monotonic() + self.cfg.gimbal.park_timeout_s
         down_since: float | None = None
         tol = np.radians(0.5)

@@ -2,7 +2,7 @@
 
 On :data:`~pivotd.daemon.recorder.STATE_TOPIC` (``std_msgs/msg/String``, JSON text) one message per change of the
 daemon's state (``kind: state``, the :class:`~pivotd.daemon.states.DaemonState` a control tick decided, or the
-daemon at start and stop), of the gimbal link (``kind: link``), of the gimbal's fault bits (``kind:
+daemon at start, park and stop), of the gimbal link (``kind: link``), of the gimbal's fault bits (``kind:
 faults``, set or cleared, with their names) and of the threads that died (``kind: threads_dead``). Each carries
 ``value``, ``previous`` (None for the first), ``wall_time`` [s since the epoch] and ``monotonic`` [s, the daemon's
 clock]. On :data:`~pivotd.daemon.recorder.STATUS_TOPIC` the status document (``pivotd status --json``) at most
@@ -20,11 +20,14 @@ from typing import Any, Protocol
 from pivotd.bus import messages as m
 from pivotd.bus.ros import typestore
 from pivotd.daemon.recorder import STATE_TOPIC, STATUS_TOPIC
+from pivotd.daemon.states import DaemonState
 
 #: the ROS type of both channels (the JSON text in ``data``)
 STRING = "std_msgs/msg/String"
 #: the status document is recorded at most this often [s]
 STATUS_PERIOD_S = 1.0
+#: states a control tick does not decide while the park target is set: once parking, one is a tick begun before
+_NOT_WHILE_PARKING = frozenset({DaemonState.WAITING, DaemonState.HOLDING, DaemonState.TRACKING})
 
 
 class _Writer(Protocol):
@@ -52,11 +55,19 @@ class StateTimeline:
         self._lock = threading.Lock()
         self._last: dict[str, Any] = {}
         self._status_at = -float("inf")
+        self._parking = False
 
     def state(self, state: str) -> None:
         """The daemon's state is ``state`` now (recorded when it changed)."""
         if self._last.get("state") != state:  # cheap check per control tick; the edge itself under the lock
+            if self._parking and state in _NOT_WHILE_PARKING:
+                return
             self._edge("state", str(state))
+
+    def parking(self) -> None:
+        """The daemon parks (the park target is set): PARKING now, and no tick decided before it afterwards."""
+        self._parking = True
+        self._edge("state", str(DaemonState.PARKING))
 
     def status(self, doc: dict[str, Any]) -> None:
         """The status document just published: link, fault and dead-thread edges; the document itself at most
