@@ -741,12 +741,12 @@ class Daemon:
                 try:
                     # Publish first: a fault that supervision clears right away is still reported once.
                     status = self.status()
-                    if self._timeline is not None:
-                        self._timeline.status(status)
                     if self.bus is not None:
                         self.bus.publish_status(status)
                         self._publish_map()
                         self._publish_diagnostics(status)
+                    if self._timeline is not None:
+                        self._timeline.status(status)
                     line = status_line(status)
                     if line != last_line:
                         self.notifier.status(line)
