@@ -9,6 +9,7 @@ quiet while odometry goes on, as it does for a silent pose topic.
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 
@@ -26,6 +27,7 @@ from pivotd.config import load_config
 from pivotd.geometry import matrix_to_quat, quat_to_matrix, yaw_to_matrix
 from pivotd.pivot.scenes import hallway
 from pivotd.sim.routes import Route
+from pivotd.viz.figures import build_figure, joint_limits_deg, save_figure
 from pivotd.viz.recording import read_recording
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
@@ -129,3 +131,37 @@ def test_daemon_tracks_on_the_pose_from_tf_and_holds_when_the_localizer_goes_qui
         i = int(np.argmin(d))
         assert d[i] < 1e-6, (p, truth_p[i])
         assert abs(float(np.dot(truth_q[i], q))) == pytest.approx(1.0, abs=1e-9)
+    check_state_timeline(run, tmp_path)
+
+
+def is_subsequence(wanted: list[str], seen: list[str]) -> bool:
+    it = iter(seen)
+    return all(any(s == w for s in it) for w in wanted)
+
+
+def check_state_timeline(run, tmp_path) -> None:
+    """The recording's state timeline: the states the run went through, in order, each change once, with both
+    clocks; the status at 1 Hz; ``pivotd plot`` draws exactly these steps and the config's joint limits."""
+    events = run.states("state")
+    states = [e.value for e in events]
+    assert states[:2] == ["starting", "waiting"] and states[-2:] == ["parking", "stopped"], states
+    assert is_subsequence(["waiting", "tracking", "holding", "tracking", "parking", "stopped"], states), states
+    assert all(a != b for a, b in itertools.pairwise(states)), states
+    assert [e.previous for e in events] == [None, *states[:-1]]
+    assert "up" in [e.value for e in run.states("link")] and all(e.value == 0 for e in run.states("faults"))
+    for a, b in itertools.pairwise(events):  # wall and monotonic time advance together (no clock step in a test)
+        assert b.monotonic >= a.monotonic and abs((b.wall_time - a.wall_time) - (b.monotonic - a.monotonic)) < 0.5
+    assert run.statuses and all({"state", "link", "recording"} <= set(doc) for _, doc in run.statuses)
+    assert {doc["state"] for _, doc in run.statuses} <= set(states)
+    assert [t for t, _ in run.statuses] == sorted(t for t, _ in run.statuses)
+    fig = build_figure(run, "joints")
+    joints, timeline = fig.axes
+    names = [t.get_text() for t in timeline.get_yticklabels()]
+    assert [names[int(v)] for v in timeline.get_lines()[0].get_ydata()] == [*states, states[-1]]
+    np.testing.assert_allclose(timeline.get_lines()[0].get_xdata()[:-1], [e.t for e in events])
+    limits = {line.get_label().split()[0]: line.get_ydata()[0] for line in joints.get_lines()
+              if " limits " in line.get_label()}
+    assert limits == {axis: lo for axis, (lo, _) in joint_limits_deg(run).items()}
+    assert joint_limits_deg(run)["pan"] == pytest.approx((np.degrees(run.cfg.gimbal.limits.pan_min),
+                                                          np.degrees(run.cfg.gimbal.limits.pan_max)))
+    save_figure(fig, tmp_path / "joints.png", dpi=20)

@@ -4,6 +4,8 @@ the views are checked against a brute-force count, and every figure is rendered 
 
 from __future__ import annotations
 
+import datetime
+import json
 import math
 import struct
 import subprocess
@@ -15,11 +17,12 @@ from support import PYTHON, REPO, child_env
 
 from pivotd.bench.achievable import achievable
 from pivotd.bus.messages import JOINT_STATE, ODOMETRY, encode_joint_state, encode_odometry
-from pivotd.daemon.recorder import JOINT_COMMAND_TOPIC, METADATA_NAME, Recorder
+from pivotd.daemon.recorder import JOINT_COMMAND_TOPIC, METADATA_NAME, STATE_TOPIC, Recorder
+from pivotd.daemon.timeline import STRING, encode_text
 from pivotd.gimbal.kinematics import camera_position, joints_to_world_direction
 from pivotd.sim.analysis import visible_counts
 from pivotd.sim.launch import derive_config
-from pivotd.viz.figures import FIGURES, SIZES, build_figure, max_envelope, save_figure
+from pivotd.viz.figures import FIGURES, SIZES, build_figure, fault_marks, max_envelope, save_figure, state_steps
 from pivotd.viz.recording import read_recording
 from pivotd.viz.views import camera_views
 
@@ -28,6 +31,13 @@ SPEED = 1.0  # m/s along +y
 AMPLITUDE = math.radians(60.0)  # commanded pan = A sin(ω t)
 OMEGA = 1.0  # rad/s
 DURATION = 8.0
+#: the run's state timeline as the daemon records it: (t [s], kind, value, previous, extra)
+EVENTS = [(0.0, "state", "starting", None, {}), (0.0, "state", "waiting", "starting", {}),
+          (0.2, "link", "up", None, {}), (0.2, "faults", 0, None, {"names": [], "mode": "enabled"}),
+          (0.5, "state", "holding", "waiting", {}), (1.0, "state", "tracking", "holding", {}),
+          (4.0, "faults", 4, 0, {"names": ["overcurrent"], "mode": "fault"}), (4.0, "state", "fault", "tracking", {}),
+          (5.0, "faults", 0, 4, {"names": [], "mode": "enabled"}), (5.0, "state", "tracking", "fault", {}),
+          (7.5, "state", "parking", "tracking", {}), (8.0, "state", "stopped", "parking", {})]
 
 
 def pan_at(t: np.ndarray) -> np.ndarray:
@@ -49,6 +59,10 @@ def write_run(tmp: Path, with_commands: bool = True) -> tuple[Path, Path]:
     rec_path = tmp / "run.mcap"
     rec = Recorder(rec_path)
     rec.add_metadata(METADATA_NAME, {"name": "synthetic", "config": str(config)})
+    for t, kind, value, previous, extra in EVENTS:  # first: a recording cut short still has its setpoints cut
+        rec.write(STATE_TOPIC, STRING, encode_text(json.dumps({
+            "kind": kind, "value": value, "previous": previous, "wall_time": T0_NS * 1e-9 + t,
+            "monotonic": 100.0 + t, **extra})), log_time_ns=T0_NS + round(t * 1e9))
     yaw = math.pi / 2  # heading +y
     quat = np.array([0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)])
     for k in range(int(DURATION * 20) + 1):  # poses at 20 Hz
@@ -135,9 +149,25 @@ def test_each_figure_renders_with_its_axes_and_data(tmp_path, which):
         ax = by_title["commanded vs measured pan/tilt"]
         assert ax.get_ylabel() == "joint angle [deg]"
         labels = [line.get_label() for line in ax.get_lines()]
-        assert labels == ["pan measured", "pan commanded", "tilt measured", "tilt commanded"]
+        assert labels == ["pan measured", "pan commanded", "tilt measured", "tilt commanded",
+                          "pan limits -170°…170°", "_nolegend_", "tilt limits -45°…60°", "_nolegend_"]
         pan_cmd = ax.get_lines()[1].get_ydata()
         assert max(pan_cmd) == pytest.approx(60.0, abs=0.01) and min(pan_cmd) == pytest.approx(-60.0, abs=0.5)
+        # the limits are the run's gimbal.limits, as horizontal lines at their angle
+        assert [tuple(line.get_ydata()) for line in ax.get_lines()[4:]] == [(-170, -170), (170, 170), (-45, -45),
+                                                                           (60, 60)]
+        tl = by_title["daemon state and faults"]
+        assert tl.get_title() == "daemon state and faults (recording started 2023-11-14 22:13:20 UTC)"
+        steps = tl.get_lines()[0]
+        names = ["starting", "waiting", "tracking", "holding", "fault", "parking", "stopped"]
+        assert [t.get_text() for t in tl.get_yticklabels()] == names
+        np.testing.assert_allclose(steps.get_xdata(), [0, 0, 0.5, 1, 4, 5, 7.5, 8, DURATION], atol=1e-5)
+        assert [names[int(v)] for v in steps.get_ydata()] == [
+            "starting", "waiting", "holding", "tracking", "fault", "tracking", "parking", "stopped", "stopped"]
+        faults = [(tuple(line.get_xdata()), line.get_linestyle(), line.get_label()) for line in tl.get_lines()[1:]]
+        assert faults == [((4.0, 4.0), "-", "fault 0x0004 (overcurrent)"), ((5.0, 5.0), ":", "faults cleared")]
+        utc = tl.child_axes[0]  # the clock time on top: start + seconds
+        assert utc.xaxis.get_major_formatter()(3.0, 0) == "22:13:23"
     if which in ("dynamics", "all"):
         rate_ax = next(a for a, t in zip(fig.axes, titles, strict=True) if t.startswith("setpoints sent: rate"))
         assert rate_ax.get_ylabel() == "rate [deg/s]"
@@ -153,6 +183,34 @@ def test_each_figure_renders_with_its_axes_and_data(tmp_path, which):
     out = save_figure(fig, tmp_path / f"{which}.png", dpi=40)
     w, h = SIZES[which]
     assert png_size(out) == (round(w * 40), round(h * 40))
+
+
+def test_the_state_timeline_reads_back_in_order_with_both_clocks(tmp_path):
+    rec_path, _ = write_run(tmp_path)
+    run = read_recording(rec_path)
+    assert run.start == datetime.datetime.fromtimestamp(T0_NS * 1e-9, datetime.UTC)
+    assert [(e.t, e.kind, e.value, e.previous) for e in run.timeline] == [
+        (pytest.approx(t), kind, value, previous) for t, kind, value, previous, _ in EVENTS]
+    fault = run.states("faults")[1]
+    assert fault.extra == {"names": ["overcurrent"], "mode": "fault"}
+    assert fault.wall_time == pytest.approx(T0_NS * 1e-9 + 4.0) and fault.monotonic == pytest.approx(104.0)
+    t, levels, names = state_steps(run)  # what the timeline panel draws
+    assert names == ["starting", "waiting", "tracking", "holding", "fault", "parking", "stopped"]
+    assert [names[i] for i in levels] == ["starting", "waiting", "holding", "tracking", "fault", "tracking",
+                                          "parking", "stopped", "stopped"]
+    assert t[-1] == pytest.approx(run.measured.t[-1])
+    assert fault_marks(run) == [(pytest.approx(4.0), True, "fault 0x0004 (overcurrent)"),
+                                (pytest.approx(5.0), False, "faults cleared")]
+
+
+def test_a_recording_without_a_timeline_draws_the_joints_all_the_same(tmp_path):
+    rec_path, _ = write_run(tmp_path)
+    run = read_recording(rec_path)
+    old = type(run)(**{**run.__dict__, "timeline": []})
+    fig = build_figure(old, "joints")
+    tl = fig.axes[1]
+    assert tl.get_lines() == [] and tl.texts[0].get_text() == "no state timeline in this recording"
+    save_figure(fig, tmp_path / "old.png", dpi=20)
 
 
 def test_max_envelope_takes_the_maximum_per_window():
@@ -196,7 +254,7 @@ def test_cli_writes_the_png_and_names_bad_input(tmp_path):
         f"pivotd plot: error: {rec_path}: the run's config {config} is not there any more; pass --config FILE")
     out = plot_cli(str(rec_path), "-o", str(tmp_path / "y.png"), "--config", str(tmp_path / "moved.yaml"),
                    "--figure", "joints", "--dpi", "20")
-    assert out.returncode == 0 and png_size(tmp_path / "y.png") == (180, 90)
+    assert out.returncode == 0 and png_size(tmp_path / "y.png") == (180, 120)
 
 
 def test_a_recording_cut_short_is_read_up_to_its_last_complete_chunk(tmp_path):

@@ -157,6 +157,7 @@ class Daemon:
         self._states = StateLog(self.cfg.topics.pose, self.cfg.topics.path, log)  # state changes, logged once each
         self._threads: list[threading.Thread] = []
         self._recorder = None
+        self._timeline = None  # the recording's state timeline (pivotd/daemon/timeline.py), with a recording
         self._map_published = 0  # the worker's map loads (PlannerWorker.map_previews) already published
         self._diagnostics_pub = None  # /diagnostics (cfg.ros.diagnostics)
         self._diagnostics_at = -np.inf  # [s monotonic] when diagnostics were last published
@@ -364,6 +365,8 @@ class Daemon:
                 tick = self.control.tick(now, pose, self.plan)
                 self.state = tick.mode
                 self._states.tick(now, tick.mode, pose, self.cfg.control.pose_timeout_s)
+                if self._timeline is not None:
+                    self._timeline.state(tick.mode)
                 if tick.setpoint is not None and self._recorder is not None:
                     self._record_setpoint(tick.setpoint)
             except Exception as exc:
@@ -590,6 +593,8 @@ class Daemon:
         self.state = DaemonState.PARKING
         target = park_joints(self.cfg)
         control.override_target = target
+        if self._timeline is not None:
+            self._timeline.parking()  # the control ticks may not get to say so: a park at the park pose is done
         deadline = time.monotonic() + self.cfg.gimbal.park_timeout_s
         down_since: float | None = None
         tol = np.radians(0.5)
@@ -656,10 +661,16 @@ class Daemon:
             self._recorder = open_recording(record, r.max_bytes, r.max_duration_s,
                                             what="--record" if self.overrides.record is not None else "record.path")
             record_run(self._recorder, cfg.name, cfg.source, version(), cfg.map.file, r.map_max_bytes)
+            from pivotd.daemon.timeline import StateTimeline
+
+            self._timeline = StateTimeline(self._recorder)
+            self._timeline.state(self.state)
         self.link = build_gimbal(cfg)
         self.link.start()
         self.control = build_control_loop(cfg, self.link)
         self.state = DaemonState.WAITING
+        if self._timeline is not None:
+            self._timeline.state(DaemonState.WAITING)
         for name, target in (("planner", self._planner_loop), ("control", self._control_loop)):
             t = threading.Thread(target=target, name=f"pivotd-{name}", daemon=True)
             t.start()
@@ -739,6 +750,8 @@ class Daemon:
                         self.bus.publish_status(status)
                         self._publish_map()
                         self._publish_diagnostics(status)
+                    if self._timeline is not None:
+                        self._timeline.status(status)
                     line = status_line(status)
                     if line != last_line:
                         self.notifier.status(line)
@@ -767,6 +780,8 @@ class Daemon:
             if self.session is not None:
                 self.session.close()
             if self._recorder is not None:
+                if self._timeline is not None:
+                    self._timeline.state(DaemonState.STOPPED)
                 self._recorder.close()
             self.worker.close()
         log.info("pivotd stopped")

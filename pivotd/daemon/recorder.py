@@ -7,6 +7,8 @@ Besides the bus traffic the daemon records the setpoints it sends to the gimbal 
 :data:`JOINT_COMMAND_TOPIC` (``sensor_msgs/msg/JointState``: commanded pan/tilt [rad] and rates [rad/s]),
 with ``topics.pose_source: tf`` each pose it accepted from TF on :data:`TF_POSE_TOPIC`
 (``geometry_msgs/msg/PoseStamped`` in the map frame, stamped with the chain's oldest stamp),
+its state timeline on :data:`STATE_TOPIC` and the status document at 1 Hz on :data:`STATUS_TOPIC`
+(pivotd/daemon/timeline.py),
 and, at the start of every file, what ``pivotd plot`` needs to draw the run on any machine: a metadata record
 :data:`METADATA_NAME` (name, config file, version, part), the config file's text (attachment
 :data:`CONFIG_ATTACHMENT`), the map's checksum (metadata :data:`MAP_METADATA_NAME`) and, up to
@@ -54,6 +56,10 @@ CHUNK_BYTES = 128 * 1024
 JOINT_COMMAND_TOPIC = "/pivot/joint_command"
 #: recording-only channel of the poses composed from TF that the daemon accepted (``topics.pose_source: tf``)
 TF_POSE_TOPIC = "/pivot/tf_pose"
+#: recording-only channel of the daemon's state, link, fault changes (``std_msgs/msg/String``, JSON; timeline.py)
+STATE_TOPIC = "/pivot/state"
+#: recording-only channel of the status document at 1 Hz (``std_msgs/msg/String``, JSON; timeline.py)
+STATUS_TOPIC = "/pivot/status"
 #: MCAP metadata record at the start of each file: ``config`` (absolute path of the config file), ``name``,
 #: ``version`` (of pivotd), ``part`` (1 for the first file of a recording, 2 for the next, …)
 METADATA_NAME = "pivotd"

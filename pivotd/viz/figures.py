@@ -4,19 +4,22 @@
   camera's (red) and the landmarks, those that entered the gimbal camera's FoV highlighted (the paper's figures);
 * ``visibility``: landmarks in the FoV over time, gimbal vs forward-facing camera and the achievable view (the
   best path the configured gimbal can execute on the route, ``pivotd bench achievable``);
-* ``joints``: commanded vs measured pan and tilt;
+* ``joints``: commanded vs measured pan and tilt with the joint limits, and below it the state timeline: the
+  daemon's state over time as steps, gimbal faults set and cleared as vertical lines, UTC clock time on top;
 * ``dynamics``: rate, acceleration and jerk of the commanded motion (of the measured one when the recording
   has no setpoints) against the configured limits.
 """
 
 from __future__ import annotations
 
+import datetime
 import logging
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from pivotd.daemon.states import DaemonState
 from pivotd.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -28,11 +31,13 @@ if TYPE_CHECKING:  # the figure names stay importable without the recording's de
 
 FIGURES = ("route", "visibility", "joints", "dynamics")
 #: figure size [inches] of each figure drawn alone, and of ``all``
-SIZES = {"route": (9.0, 7.0), "visibility": (9.0, 4.0), "joints": (9.0, 4.5), "dynamics": (9.0, 7.5),
+SIZES = {"route": (9.0, 7.0), "visibility": (9.0, 4.0), "joints": (9.0, 6.0), "dynamics": (9.0, 7.5),
          "all": (16.0, 11.0)}
 PIVOT_COLOR, FORWARD_COLOR, ACHIEVABLE_COLOR = "tab:blue", "tab:red", "tab:gray"
 AXIS_COLORS = {"pan": "tab:green", "tilt": "tab:purple"}
 ENVELOPE_S = 0.1  # [s] window of the acceleration and jerk envelopes
+FAULT_COLOR = "tab:red"
+JOINTS_TIMELINE_RATIOS = (3.0, 1.2)  # heights of the joints panel and of the state timeline below it
 
 
 def require_pyplot() -> Any:
@@ -65,15 +70,20 @@ def build_figure(run: Recording, which: str = "all", views: Views | None = None,
         grid = fig.add_gridspec(3, 2, width_ratios=(1.15, 1.0))
         draw_route(fig.add_subplot(grid[0:2, 0]), run, views)
         draw_visibility(fig.add_subplot(grid[2, 0]), views, achievable)
-        draw_joints(fig.add_subplot(grid[0, 1]), run)
+        joints, timeline = grid[0, 1].subgridspec(2, 1, height_ratios=JOINTS_TIMELINE_RATIOS).subplots(sharex=True)
+        draw_joints(joints, run)
+        draw_timeline(timeline, run)
         draw_dynamics(grid[1:3, 1].subgridspec(3, 1).subplots(sharex=True), run)
-        fig.suptitle(f"{run.cfg.name}: {run.path.name}", fontsize=11)
+        started = f", started {run.start:%Y-%m-%d %H:%M:%S} UTC" if run.start is not None else ""
+        fig.suptitle(f"{run.cfg.name}: {run.path.name}{started}", fontsize=11)
     elif which == "route":
         draw_route(fig.add_subplot(), run, views)
     elif which == "visibility":
         draw_visibility(fig.add_subplot(), views, achievable)
     elif which == "joints":
-        draw_joints(fig.add_subplot(), run)
+        joints, timeline = fig.subplots(2, 1, sharex=True, height_ratios=JOINTS_TIMELINE_RATIOS)
+        draw_joints(joints, run)
+        draw_timeline(timeline, run)
     else:
         draw_dynamics(fig.subplots(3, 1, sharex=True), run)
     return fig
@@ -165,7 +175,8 @@ def draw_visibility(ax: Any, views: Views, achievable: AchievableSeries | None =
 
 
 def draw_joints(ax: Any, run: Recording) -> None:
-    """Pan and tilt [deg] over time: measured (solid) and commanded (dashed)."""
+    """Pan and tilt [deg] over time: measured (solid), commanded (dashed) and the joint limits of the run's config
+    (``gimbal.limits``, dotted: min then max per axis, after the data lines)."""
     for i, axis in enumerate(("pan", "tilt")):
         color = AXIS_COLORS[axis]
         ax.plot(run.measured.t, np.degrees(run.measured.angles[:, i]), "-", c=color, lw=3.0, alpha=0.35,
@@ -173,11 +184,84 @@ def draw_joints(ax: Any, run: Recording) -> None:
         if len(run.commanded):
             ax.plot(run.commanded.t, np.degrees(run.commanded.angles[:, i]), "--", c=color, lw=1.0,
                     label=f"{axis} commanded")
-    ax.set_xlabel("time [s]")
+    for axis, (lo, hi) in joint_limits_deg(run).items():
+        ax.axhline(lo, c=AXIS_COLORS[axis], ls=":", lw=1.0, label=f"{axis} limits {lo:g}°…{hi:g}°")
+        ax.axhline(hi, c=AXIS_COLORS[axis], ls=":", lw=1.0, label="_nolegend_")
     ax.set_ylabel("joint angle [deg]")
     source = "" if len(run.commanded) else " (no setpoints in this recording)"
     ax.set_title(f"commanded vs measured pan/tilt{source}")
     ax.legend(loc="best", fontsize=8, ncol=2)
+
+
+def joint_limits_deg(run: Recording) -> dict[str, tuple[float, float]]:
+    """The run's joint limits (``gimbal.limits``) per axis: (min, max) [deg]."""
+    lim = run.cfg.gimbal.limits
+    return {"pan": (round(float(np.degrees(lim.pan_min)), 6), round(float(np.degrees(lim.pan_max)), 6)),
+            "tilt": (round(float(np.degrees(lim.tilt_min)), 6), round(float(np.degrees(lim.tilt_max)), 6))}
+
+
+def state_steps(run: Recording) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """The daemon's state as steps: change times (K,) [s] (the last one repeated at the end of the recording),
+    levels (K,) (indices into the names) and the names: the states the run went through, in
+    :class:`DaemonState` order (unknown ones after). Empty arrays when the recording has no state timeline."""
+    events = run.states("state")
+    if not events:
+        return np.zeros(0), np.zeros(0, int), []
+    seen = {str(e.value) for e in events}
+    names = [str(s) for s in DaemonState if str(s) in seen] + sorted(seen - {str(s) for s in DaemonState})
+    t = [e.t for e in events]
+    levels = [names.index(str(e.value)) for e in events]
+    end = max(t[-1], float(run.measured.t[-1]) if len(run.measured) else t[-1])
+    return np.array([*t, end]), np.array([*levels, levels[-1]]), names
+
+
+def fault_marks(run: Recording) -> list[tuple[float, bool, str]]:
+    """The gimbal's fault bits changing: (time [s], set (True) or cleared (False), label) per change."""
+    marks = []
+    for e in run.states("faults"):
+        bits, before = int(e.value or 0), int(e.previous or 0)
+        if bits == before or (e.previous is None and not bits):
+            continue
+        names = ", ".join(e.extra.get("names") or ()) or "none"
+        marks.append((e.t, bool(bits), f"fault 0x{bits:04x} ({names})" if bits else "faults cleared"))
+    return marks
+
+
+def draw_timeline(ax: Any, run: Recording) -> None:
+    """The daemon's state over time (steps, one level per state), fault bits set (solid red) and cleared (dotted),
+    threads that died (black); UTC clock time on the top axis; the recording's start time in the title."""
+    t, levels, names = state_steps(run)
+    if names:
+        ax.step(t, levels, where="post", c="k", lw=1.2, label="daemon state")
+        ax.set_yticks(range(len(names)), names, fontsize=7)
+        ax.set_ylim(-0.5, len(names) - 0.5)
+    else:
+        ax.text(0.5, 0.5, "no state timeline in this recording", transform=ax.transAxes, ha="center", va="center")
+        ax.set_yticks([])
+    for k, (time_s, is_set, label) in enumerate(fault_marks(run)):
+        ax.axvline(time_s, c=FAULT_COLOR, ls="-" if is_set else ":", lw=1.0, label=label if k < 6 else "_nolegend_")
+    for e in run.states("threads_dead"):
+        if e.value:
+            ax.axvline(e.t, c="k", ls="--", lw=1.0, label=f"thread died: {', '.join(map(str, e.value))}")
+    if len(ax.get_lines()) > 1:
+        ax.legend(loc="upper left", fontsize=7)
+    ax.set_xlabel("time [s]")
+    started = f"recording started {run.start:%Y-%m-%d %H:%M:%S} UTC" if run.start is not None else "no messages"
+    ax.set_title(f"daemon state and faults ({started})", fontsize=9)
+    if run.start is not None:
+        add_utc_axis(ax, run.start)
+
+
+def add_utc_axis(ax: Any, start: datetime.datetime) -> Any:
+    """A secondary time axis on top of ``ax`` labelled with the UTC clock time (``start`` + the axis' seconds)."""
+    from matplotlib.ticker import FuncFormatter
+
+    top = ax.secondary_xaxis("top")
+    top.xaxis.set_major_formatter(FuncFormatter(
+        lambda s, _: (start + datetime.timedelta(seconds=float(s))).strftime("%H:%M:%S")))
+    top.set_xlabel("UTC", fontsize=7)
+    top.tick_params(labelsize=7)
+    return top
 
 
 def motion_derivatives(series: JointSeries, dt: float | None) -> tuple[np.ndarray, ...]:

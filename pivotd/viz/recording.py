@@ -10,11 +10,13 @@ that is no file finds the newest recording of that target (``out/demo/run.mcap``
 
 from __future__ import annotations
 
+import datetime
 import json
 import logging
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -27,10 +29,13 @@ from pivotd.daemon.recorder import (
     MAP_ATTACHMENT_PREFIX,
     MAP_METADATA_NAME,
     METADATA_NAME,
+    STATE_TOPIC,
+    STATUS_TOPIC,
     TF_POSE_TOPIC,
     map_checksum,
     resolve_recording,
 )
+from pivotd.daemon.timeline import STRING, decode_text
 from pivotd.errors import InputError
 from pivotd.maps.formats import load_landmarks
 
@@ -50,10 +55,28 @@ class JointSeries:
 
 
 @dataclass(frozen=True)
+class StateEvent:
+    """One change on the recording's state channel (pivotd/daemon/timeline.py): ``t`` [s since the recording's
+    first message], ``kind`` (``state``, ``link``, ``faults``, ``threads_dead``), ``value`` and ``previous`` (None
+    for the first of its kind), ``wall_time`` [s since the epoch], ``monotonic`` [s, the daemon's clock] and the
+    rest of the message (``faults``: ``names``, ``mode``)."""
+
+    t: float
+    kind: str
+    value: Any
+    previous: Any
+    wall_time: float
+    monotonic: float
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
 class Recording:
     """What a recording holds for plotting: the run's config, body poses (times (P,) [s], positions (P, 3) [m],
     quaternions (P, 4) x y z w), measured joints (``joint_states``), commanded joints (the setpoints sent; empty
-    in recordings made before they were recorded) and the landmarks (M, 3) [m] the run planned against."""
+    in recordings made before they were recorded) and the landmarks (M, 3) [m] the run planned against; the state
+    timeline (in time order; empty in recordings made before it was recorded), the status documents recorded at
+    1 Hz as (t [s], document) and the UTC time of the first message (``start``; t = 0)."""
 
     path: Path
     cfg: Config
@@ -63,6 +86,13 @@ class Recording:
     measured: JointSeries
     commanded: JointSeries
     landmarks: np.ndarray
+    timeline: list[StateEvent] = field(default_factory=list)
+    statuses: list[tuple[float, dict[str, Any]]] = field(default_factory=list)
+    start: datetime.datetime | None = None
+
+    def states(self, kind: str = "state") -> list[StateEvent]:
+        """The timeline's events of one ``kind``."""
+        return [e for e in self.timeline if e.kind == kind]
 
 
 def _empty_joints() -> JointSeries:
@@ -88,7 +118,7 @@ def _joints(rows: list[tuple[float, object]]) -> JointSeries:
 
 
 #: message types a figure uses; other channels (view plans, paths, ...) are skipped while reading
-_PLOTTED_TYPES = (*m.POSE_TYPES, m.JOINT_STATE, m.POINT_CLOUD2)
+_PLOTTED_TYPES = (*m.POSE_TYPES, m.JOINT_STATE, m.POINT_CLOUD2, STRING)
 
 
 @dataclass
@@ -166,9 +196,15 @@ def _recording(path: Path, contents: _Contents, cfg: Config) -> Recording:
     poses: list[tuple[float, m.PoseSample]] = []
     measured: list[tuple[float, object]] = []
     commanded: list[tuple[float, object]] = []
+    texts: list[tuple[str, float, dict]] = []  # (topic, log time [s], JSON document) of the timeline's channels
     for topic, msgtype, log_ns, data in contents.messages:
         time_s = log_ns * 1e-9
         try:
+            if topic in (STATE_TOPIC, STATUS_TOPIC) and msgtype == STRING:
+                doc = _json(decode_text(data, topic))
+                if doc is not None:
+                    texts.append((topic, time_s, doc))
+                continue
             if topic == pose_topic and msgtype in m.POSE_TYPES:
                 poses.append((time_s, m.decode_pose(data, msgtype, topic, None)))
             elif topic in (t.joint_states, JOINT_COMMAND_TOPIC) and msgtype == m.JOINT_STATE:
@@ -195,7 +231,35 @@ def _recording(path: Path, contents: _Contents, cfg: Config) -> Recording:
         measured=_shift(_joints(measured), t0),
         commanded=_shift(_joints(commanded), t0),
         landmarks=_landmarks(path, cfg, cloud),
+        timeline=_timeline(texts, t0),
+        statuses=sorted(((ts - t0, doc) for topic, ts, doc in texts if topic == STATUS_TOPIC), key=lambda r: r[0]),
+        start=None if contents.first_ns is None else datetime.datetime.fromtimestamp(t0, datetime.timezone.utc),
     )
+
+
+def _json(text: str) -> dict | None:
+    """A JSON object, or None (a message the daemon did not write: skipped)."""
+    try:
+        doc = json.loads(text)
+    except ValueError:
+        return None
+    return doc if isinstance(doc, dict) else None
+
+
+def _timeline(texts: list[tuple[str, float, dict]], t0: float) -> list[StateEvent]:
+    """The state channel's events in time order (an event lacking ``kind`` or a time is skipped)."""
+    events = []
+    for topic, time_s, doc in texts:
+        if topic != STATE_TOPIC or not isinstance(doc.get("kind"), str):
+            continue
+        try:
+            wall, mono = float(doc["wall_time"]), float(doc["monotonic"])
+        except (KeyError, TypeError, ValueError):
+            continue
+        extra = {k: v for k, v in doc.items() if k not in ("kind", "value", "previous", "wall_time", "monotonic")}
+        events.append(StateEvent(time_s - t0, doc["kind"], doc.get("value"), doc.get("previous"), wall, mono, extra))
+    events.sort(key=lambda e: (e.t, e.monotonic))
+    return events
 
 
 def _shift(series: JointSeries, t0: float) -> JointSeries:
