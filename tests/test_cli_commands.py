@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -57,12 +58,13 @@ def test_make_lint_runs_ruff(tmp_path):
     bin_dir = Path(PYTHON).parent
     if not (bin_dir / "ruff").exists():
         pytest.skip("ruff is not installed beside this interpreter")
+    env = {k: v for k, v in os.environ.items() if k not in ("MAKEFLAGS", "MFLAGS", "MAKELEVEL")}  # not a sub-make
     dry = subprocess.run(["make", "-n", "-o", ".venv/.installed", "lint", f"BIN={bin_dir}"], cwd=REPO,
-                         capture_output=True, text=True, timeout=60)
+                         capture_output=True, text=True, timeout=60, env=env)
     assert dry.returncode == 0, dry.stderr
     assert dry.stdout.strip() == f"{bin_dir}/ruff check ."
     res = subprocess.run(["make", "-s", "-o", ".venv/.installed", "lint", f"BIN={bin_dir}"], cwd=REPO,
-                         capture_output=True, text=True, timeout=300)
+                         capture_output=True, text=True, timeout=300, env=env)
     assert res.returncode == 0, res.stdout + res.stderr
     assert "All checks passed" in res.stdout
 
