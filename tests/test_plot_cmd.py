@@ -188,7 +188,7 @@ def test_each_figure_renders_with_its_axes_and_data(tmp_path, which):
 def test_the_state_timeline_reads_back_in_order_with_both_clocks(tmp_path):
     rec_path, _ = write_run(tmp_path)
     run = read_recording(rec_path)
-    assert run.start == datetime.datetime.fromtimestamp(T0_NS * 1e-9, datetime.UTC)
+    assert run.start == datetime.datetime.fromtimestamp(T0_NS * 1e-9, datetime.timezone.utc)
     assert [(e.t, e.kind, e.value, e.previous) for e in run.timeline] == [
         (pytest.approx(t), kind, value, previous) for t, kind, value, previous, _ in EVENTS]
     fault = run.states("faults")[1]

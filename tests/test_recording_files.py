@@ -34,7 +34,7 @@ from pivotd.sim.launch import derive_config
 from pivotd.viz.recording import read_recording
 
 NAME = re.compile(r"run-\d{8}-\d{6}(-\d+)?\.mcap")
-WHEN = datetime.datetime(2026, 12, 2, 1, 44, 0, tzinfo=datetime.UTC)
+WHEN = datetime.datetime(2026, 12, 2, 1, 44, 0, tzinfo=datetime.timezone.utc)
 
 
 def read(path: Path) -> tuple[list, dict, dict]:
