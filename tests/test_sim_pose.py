@@ -83,7 +83,7 @@ def stop_tool(proc):
     if proc.poll() is None:
         proc.send_signal(signal.SIGTERM)
         try:
-            proc.wait(timeout=15)
+            proc.wait(timeout=60)  # generous: a loaded host delays the exit, not a hang
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
