@@ -87,6 +87,17 @@ class Rescue(Enum):
     KEPT = "kept"  # the plan is the rescue's
 
 
+def directions_at_s(s_grid: np.ndarray, directions: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Unit directions (K, 3) at arc lengths ``s`` (K,) [m] of ``directions`` (N, 3) given at ``s_grid`` (N,)
+    (ascending): slerp between neighbours, the end directions held beyond the ends."""
+    if s_grid.shape[0] == 1:
+        return np.repeat(directions, s.shape[0], axis=0)
+    sc = np.clip(s, s_grid[0], s_grid[-1])
+    i = np.clip(np.searchsorted(s_grid, sc, side="right") - 1, 0, s_grid.shape[0] - 2)
+    t = (sc - s_grid[i]) / np.maximum(s_grid[i + 1] - s_grid[i], 1e-12)
+    return slerp(directions[i], directions[i + 1], t)
+
+
 @dataclass(frozen=True)
 class Plan:
     """An immutable view plan over a horizon.
@@ -120,14 +131,7 @@ class Plan:
     def direction_at_s(self, s: np.ndarray | float) -> np.ndarray:
         """Viewing directions (K, 3) (or (3,)) interpolated (slerp) at arc lengths ``s``."""
         scalar = np.ndim(s) == 0
-        s_arr = np.atleast_1d(np.asarray(s, float))
-        if self.s.shape[0] == 1:
-            out = np.repeat(self.directions, s_arr.shape[0], axis=0)
-        else:
-            sc = np.clip(s_arr, self.s[0], self.s[-1])
-            i = np.clip(np.searchsorted(self.s, sc, side="right") - 1, 0, self.s.shape[0] - 2)
-            t = (sc - self.s[i]) / np.maximum(self.s[i + 1] - self.s[i], 1e-12)
-            out = slerp(self.directions[i], self.directions[i + 1], t)
+        out = directions_at_s(self.s, self.directions, np.atleast_1d(np.asarray(s, float)))
         return out[0] if scalar else out
 
     def locate(self, position: np.ndarray) -> float:
@@ -585,10 +589,7 @@ class RecedingHorizonPlanner:
         version, s_old, dirs = deferred
         if version != self._path_version or s_old.shape[0] < 2:
             return None
-        out = np.empty((s.shape[0], 3))
-        for k in range(3):
-            out[:, k] = np.interp(s, s_old, dirs[:, k])
-        return Seed("joint_grid", normalize(out), SeedKind.WARM)
+        return Seed("joint_grid", directions_at_s(s_old, dirs, s), SeedKind.WARM)
 
     def _measure_speed(self, now: float, body_position: np.ndarray) -> None:
         """Update :attr:`speed` from the travel since the last replan (an average over about a second)."""
