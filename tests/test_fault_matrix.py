@@ -516,6 +516,31 @@ def test_check_device_log_judges_the_step_after_a_late_setpoint_and_heartbeats_w
         assert check.checked_pairs == 19 + 1 + 2, check
 
 
+@pytest.mark.parametrize("device", ["stuck", "following"])
+def test_check_device_log_counts_a_position_step_unless_a_stuck_axis_restarted_from_where_it_stands(tmp_path, device):
+    """A setpoint whose position jumps while its rate does not (both at rest) is a step the device executes at its
+    own speed: it counts, unless the axis stood still farther than the tracking-error bound from its setpoint for
+    the tracking-error window and the stream restarted from where it stands (the daemon's hold; its rate step may
+    be zero, so only the position shows it)."""
+    from pivotd.config import load_config
+    from pivotd.sim.launch import REPO
+
+    cfg = load_config(REPO / "config" / "demo.yaml")
+    commanded, stuck = 0.8, 0.2  # [rad] where the stream rests, where the axis stands
+    log = [_log_row(0.0, "tx", "STATE", pan=stuck, mode=MODE_ENABLED)]
+    log += [_log_row(0.01 * k, "rx", "SETPOINT", seq=k, pan=commanded) for k in range(1, 41)]
+    measured = stuck if device == "stuck" else commanded
+    log += [_log_row(0.01 * k + 0.005, "tx", "STATE", pan=measured, mode=MODE_ENABLED) for k in range(1, 41)]
+    log.sort(key=lambda r: float(r["t_s"]))
+    log += [_log_row(0.41 + 0.01 * k, "rx", "SETPOINT", seq=41 + k, pan=stuck) for k in range(3)]
+    check = check_device_log(cfg, _write_log(tmp_path / "log.csv", log))
+    assert check.checked_pairs == 42, check
+    if device == "stuck":
+        assert check.axis_restarts == 1 and check.beyond_limits == 0, check
+    else:
+        assert check.axis_restarts == 0 and check.beyond_step == 1 and check.beyond_limits == 1, check
+
+
 def test_device_reboot_behind_an_open_port_is_configured_and_enabled_again(tmp_path):
     """The device restarts (forgets CONFIG, comes up disabled) while the port stays open: ENABLE is refused as
     not configured, so the link runs the whole handshake again instead of retrying ENABLE forever."""

@@ -308,11 +308,13 @@ class SetpointCheck:
     beyond_velocity: int = 0
     beyond_acceleration: int = 0
     beyond_jerk: int = 0
+    beyond_step: int = 0  # pairs whose position stepped farther than their rates move in a period, unexplained
     worst: dict = field(default_factory=lambda: {"velocity": 0.0, "acceleration": 0.0, "jerk": 0.0})
 
     @property
     def beyond_limits(self) -> int:
-        return self.beyond_position + self.beyond_velocity + self.beyond_acceleration + self.beyond_jerk
+        return (self.beyond_position + self.beyond_velocity + self.beyond_acceleration + self.beyond_jerk
+                + self.beyond_step)
 
 
 def check_device_log(cfg, path: Path) -> SetpointCheck:
@@ -470,7 +472,9 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                 def beyond(acc, jerk):
                     return (np.abs(acc) > amax + allow_a) | (jerk is not None and np.abs(jerk) > jmax + allow_j)
 
-                continuous = not np.any(beyond(acc, jerk))
+                # a position the rates do not reach in a period (or in a stall the loop continues across) is a step
+                stepped = np.abs(pos - prev[1]) > np.maximum(np.abs(prev[2]), np.abs(rate)) * (stall + dt) + 2 * res
+                continuous = not np.any(beyond(acc, jerk)) and not np.any(stepped)
                 nxt = [acc]
                 if restarted is not None and not continuous:  # judged from the measured state it starts at
                     acc, jerk = restarted, restarted / dt
@@ -480,7 +484,8 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                 elif restarted is not None:  # either the stream continued or it restarted here: both stay open
                     nxt = [acc, *restarts]
                 elif not continuous:  # an axis held at the measured state after it did not follow?
-                    axis_accs = {i: axis_restart(i, t, prev[1], pos, rate) for i in np.flatnonzero(beyond(acc, jerk))}
+                    axis_accs = {i: axis_restart(i, t, prev[1], pos, rate)
+                                 for i in np.flatnonzero(beyond(acc, jerk) | stepped)}
                     if all(a is not None for a in axis_accs.values()):
                         acc, jerk = acc.copy(), None if jerk is None else jerk.copy()
                         for i, a in axis_accs.items():
@@ -489,6 +494,8 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                                 jerk[i] = a / dt
                         nxt = [acc]
                         out.axis_restarts += 1
+                    else:
+                        out.beyond_step += int(any(axis_accs.get(i, 0.0) is None for i in np.flatnonzero(stepped)))
                 out.checked_pairs += 1
                 out.worst["acceleration"] = max(out.worst["acceleration"], float(np.max(np.abs(acc) / amax)))
                 out.beyond_acceleration += int(np.any(np.abs(acc) > amax + allow_a))
@@ -840,7 +847,7 @@ def summarise(stack: SoakStack, events: list[dict], warmup: float, exit_code: in
         "setpoints": check.setpoints, "checked_pairs": check.checked_pairs,
         "restarts": check.restarts, "restarted_steps": check.restarted_steps, "axis_restarts": check.axis_restarts,
         "setpoints_beyond_limits": check.beyond_limits,
-        "beyond": {"position": check.beyond_position, "velocity": check.beyond_velocity,
+        "beyond": {"position": check.beyond_position, "step": check.beyond_step, "velocity": check.beyond_velocity,
                    "acceleration": check.beyond_acceleration, "jerk": check.beyond_jerk},
         "worst_ratio_to_limit": check.worst,
         "tracebacks": tracebacks, "traceback_lines": first[:5],
