@@ -542,3 +542,24 @@ def test_a_watchdog_bit_latched_while_the_device_follows_keeps_the_stream_contin
     check = check_device_log(cfg, tmp_path / "gimbal.csv")
     assert check.beyond_limits == 0, check
     assert check.checked_pairs == len(gimbal.setpoints) - 1, check
+
+
+def test_a_body_turning_in_place_under_a_view_held_in_the_world_gets_the_pan_rate_that_holds_it(rig):
+    """The robot turns in place at 0.5 rad/s under a plan that looks one way in the world: the pan must turn at
+    −0.5 rad/s, on the view. The feed-forward carries the body on at its estimated turn rate (with the attitude
+    held fixed it had no part of the turn and the pan ran 3° behind the view)."""
+    _, clock, gimbal, loop = rig
+    rate = 0.5  # [rad/s] yaw rate of the body
+    target = np.array([1.0, 0.3, 0.0])
+
+    t0 = clock.t
+
+    def turning(t):
+        yaw = rate * (t - t0)
+        return pose_at(t, np.array([0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)]))
+
+    _run(loop, clock, 300, turning, lambda t: plan_towards(target, t))
+    sp = np.array(gimbal.setpoints)
+    assert np.median(sp[-50:, 2]) == pytest.approx(-rate, abs=0.02)  # the pan rate sent
+    want = math.atan2(target[1], target[0]) - rate * (clock.t - t0)  # -1.2 rad: inside the pan range
+    assert sp[-1, 0] == pytest.approx(want, abs=math.radians(0.5))  # on the view, not behind it

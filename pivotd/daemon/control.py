@@ -41,6 +41,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from pivotd.bus.messages import PoseSample
 from pivotd.daemon.planner import Plan, camera_positions
@@ -52,6 +53,9 @@ from pivotd.gimbal.kinematics import JointLimits, Mount, joints_to_world_directi
 from pivotd.gimbal.motion import MotionGenerator, MotionSample
 
 log = logging.getLogger(__name__)
+
+MAX_TURN_RATE = 20.0  # [rad/s] a body turn rate above this between two poses is a jump of the pose, not a turn
+TURN_RATE_FLOOR = 1e-3  # [rad/s] below this the body is taken as not turning
 
 
 @dataclass(frozen=True)
@@ -119,6 +123,7 @@ class ControlLoop:
         self._last_pose_rx: float | None = None
         self._prev_pose: PoseSample | None = None
         self._speed = 0.0
+        self._turn = np.zeros(3)  # [rad/s] the body's estimated angular velocity, world frame
 
     def invalidate(self) -> None:
         """Restart the stream from a state measured from now on, unless the device kept following it (see the
@@ -208,6 +213,9 @@ class ControlLoop:
             if dt > 1e-4:
                 v = float(np.linalg.norm(pose.position - prev.position)) / dt
                 self._speed += 0.3 * (min(v, 10.0) - self._speed)
+                turn = (Rotation.from_quat(pose.quat) * Rotation.from_quat(prev.quat).inv()).as_rotvec() / dt
+                if np.all(np.isfinite(turn)) and np.linalg.norm(turn) <= MAX_TURN_RATE:
+                    self._turn += 0.3 * (turn - self._turn)
         self._prev_pose = pose
 
     def reconfigure(self, settings: ControlSettings, mount: Mount) -> None:
@@ -222,8 +230,9 @@ class ControlLoop:
     def _target(self, pose: PoseSample, plan: Plan, mount: Mount) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
         """Joint target (2,), feed-forward rate (2,) and acceleration (2,) from the plan, and a clamped flag.
 
-        The derivatives are finite differences of the joint angles along the plan ahead of the robot,
-        at its estimated speed, with the latest body attitude held fixed.
+        The derivatives are finite differences of the joint angles along the plan ahead of the robot, at its
+        estimated speed, with the body attitude carried on at its estimated angular velocity (a body turning
+        under a view held in the world needs the pan to turn the other way, in place too).
         """
         cam = camera_positions(pose.position[None, :], pose.quat[None, :], mount)[0]
         s = plan.locate(cam)
@@ -236,11 +245,15 @@ class ControlLoop:
         rate = np.zeros(2)
         acc = np.zeros(2)
         h = 0.5 * self.settings.lookahead
-        if plan.s.shape[0] > 1 and self._speed > 0.02 and h > 0 and not clamped:
-            ahead = plan.direction_at_s(s + self._speed * h * np.arange(1, 3))
+        moving = plan.s.shape[0] > 1 and self._speed > 0.02
+        turning = float(np.linalg.norm(self._turn)) > TURN_RATE_FLOOR
+        if (moving or turning) and h > 0 and not clamped:
+            taus = h * np.arange(1, 3)
+            ahead = plan.direction_at_s(s + (self._speed if moving else 0.0) * taus).reshape(-1, 3)
+            quats = (Rotation.from_rotvec(np.outer(taus, self._turn)) * Rotation.from_quat(pose.quat)).as_quat()
             joints = [target]
-            for d in ahead:
-                p2, t2, c2 = world_direction_to_joints(d, pose.quat, mount, self.limits, float(joints[-1][0]))
+            for d, q in zip(ahead, quats, strict=True):
+                p2, t2, c2 = world_direction_to_joints(d, q, mount, self.limits, float(joints[-1][0]))
                 if c2:
                     break
                 joints.append(np.array([p2, t2]))
