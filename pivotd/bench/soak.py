@@ -495,7 +495,7 @@ def check_device_log(cfg, path: Path) -> SetpointCheck:
                         nxt = [acc]
                         out.axis_restarts += 1
                     else:
-                        out.beyond_step += int(any(axis_accs.get(i, 0.0) is None for i in np.flatnonzero(stepped)))
+                        out.beyond_step += int(any(axis_accs[i] is None for i in np.flatnonzero(stepped)))
                 out.checked_pairs += 1
                 out.worst["acceleration"] = max(out.worst["acceleration"], float(np.max(np.abs(acc) / amax)))
                 out.beyond_acceleration += int(np.any(np.abs(acc) > amax + allow_a))

@@ -41,13 +41,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from pivotd.bus.messages import PoseSample
 from pivotd.daemon.planner import Plan, camera_positions
 from pivotd.daemon.states import DaemonState
 from pivotd.daemon.tracking_error import TrackingErrorSettings, TrackingErrorSupervisor, TrackingState
 from pivotd.firmware_proto.messages import FAULT_WATCHDOG
+from pivotd.geometry import quat_to_matrix, so3_exp, so3_log
 from pivotd.gimbal.interface import GimbalInterface, GimbalMode, GimbalState, LinkState
 from pivotd.gimbal.kinematics import JointLimits, Mount, joints_to_world_direction, world_direction_to_joints
 from pivotd.gimbal.motion import MotionGenerator, MotionSample
@@ -206,14 +206,16 @@ class ControlLoop:
         self._reset_from(state, now)
         return True
 
-    def _estimate_speed(self, pose: PoseSample) -> None:
+    def _estimate_motion(self, pose: PoseSample) -> None:
+        """Update the robot's speed [m/s] and angular velocity [rad/s] (world frame) from ``pose`` and the one
+        before it (stamps' difference, else the arrival times'), each smoothed over the last poses."""
         prev = self._prev_pose
         if prev is not None and pose.rx_time > prev.rx_time:
             dt = pose.stamp - prev.stamp if pose.stamp > prev.stamp else pose.rx_time - prev.rx_time
             if dt > 1e-4:
                 v = float(np.linalg.norm(pose.position - prev.position)) / dt
                 self._speed += 0.3 * (min(v, 10.0) - self._speed)
-                turn = (Rotation.from_quat(pose.quat) * Rotation.from_quat(prev.quat).inv()).as_rotvec() / dt
+                turn = so3_log(quat_to_matrix(pose.quat) @ quat_to_matrix(prev.quat).T) / dt
                 if np.all(np.isfinite(turn)) and np.linalg.norm(turn) <= MAX_TURN_RATE:
                     self._turn += 0.3 * (turn - self._turn)
         self._prev_pose = pose
@@ -249,11 +251,12 @@ class ControlLoop:
         turning = float(np.linalg.norm(self._turn)) > TURN_RATE_FLOOR
         if (moving or turning) and h > 0 and not clamped:
             taus = h * np.arange(1, 3)
-            ahead = plan.direction_at_s(s + (self._speed if moving else 0.0) * taus).reshape(-1, 3)
-            quats = (Rotation.from_rotvec(np.outer(taus, self._turn)) * Rotation.from_quat(pose.quat)).as_quat()
+            ahead = plan.direction_at_s(s + (self._speed if moving else 0.0) * taus)
+            # the body turned on by exp(ωτ) sees a world direction d as the body now sees exp(−ωτ) d
+            ahead = np.einsum("kij,kj->ki", so3_exp(-np.outer(taus, self._turn)), ahead)
             joints = [target]
-            for d, q in zip(ahead, quats, strict=True):
-                p2, t2, c2 = world_direction_to_joints(d, q, mount, self.limits, float(joints[-1][0]))
+            for d in ahead:
+                p2, t2, c2 = world_direction_to_joints(d, pose.quat, mount, self.limits, float(joints[-1][0]))
                 if c2:
                     break
                 joints.append(np.array([p2, t2]))
@@ -311,7 +314,7 @@ class ControlLoop:
             self.motion.hold()
             mode = DaemonState.HOLDING
         else:
-            self._estimate_speed(pose)
+            self._estimate_motion(pose)
             target, rate, acc, clamped = self._target(pose, plan, mount)
             self.motion.set_target(target, rate, acc)
             mode = DaemonState.TRACKING
