@@ -242,3 +242,25 @@ def test_dense_cells_are_read_through_an_even_subsample_fixed_at_load():
     assert store.snapshot().retained(way, flt)[0].size == pts.shape[0]
     with pytest.raises(InputError, match="landmarks per map cell"):
         MapStore(cell_cap=0)
+
+
+def test_a_thinned_cell_weighs_in_the_queries_as_much_as_it_holds():
+    """With the cell cap the queries read ``cap`` of a dense cell's landmarks; those carry the cell's weight in
+    ``query_weights`` (n / kept each), so the weight the planner sees in range is the map's, cell by cell."""
+    rng = np.random.default_rng(3)
+    dense = rng.uniform([2, 0, 0], [3, 1, 1], (1000, 3))  # one cell, ten times the cap
+    sparse = rng.uniform([-4, 0, 0], [-1, 1, 1], (240, 3))  # three cells, 80 each on average: under the cap
+    store = MapStore(cell_cap=100)
+    store.set_layer("base", _cloud(np.concatenate([dense, sparse]), weight=2.0))
+    snap = store.snapshot()
+    (idx,) = snap.retained(np.zeros((1, 3)), RetainedFilter(max_range=10.0))
+    w = snap.query_weights[idx]
+    near = snap.points[idx, 0] > 0
+    assert near.sum() == 100 and (~near).sum() == 240
+    np.testing.assert_allclose(w[near], 20.0)  # 2 × 1000 / 100
+    np.testing.assert_allclose(w[~near], 2.0)
+    assert w[near].sum() == pytest.approx(2.0 * 1000) and w[~near].sum() == pytest.approx(2.0 * 240)
+    np.testing.assert_allclose(snap.weights, 2.0)  # the map's own weights are untouched
+    unthinned = MapStore()
+    unthinned.set_layer("base", _cloud(dense))
+    assert unthinned.snapshot().query_weights is unthinned.snapshot().weights

@@ -294,3 +294,20 @@ def test_a_path_beyond_the_offset_is_left_for_the_pose_and_resumed_when_back(sce
     back = pl.replan(snap, sc.path[16], IDENTITY, None)
     arc16 = float(np.sum(np.linalg.norm(np.diff(sc.path[:17], axis=0), axis=1)))
     assert back.path_mode is PathMode.ON_PATH and back.s[0] == pytest.approx(arc16, abs=1e-6)
+
+
+def test_a_dense_cluster_outweighs_a_sparse_one_that_the_cell_cap_reads_more_of():
+    """Left: 3000 landmarks packed in one 1 m cell; right: 600 spread over six cells (100 each). With a cell cap of
+    256 the queries read 256 on the left and all 600 on the right; the plan still looks at the left, where five
+    times as many landmarks are."""
+    rng = np.random.default_rng(5)
+    left = rng.uniform([0.05, 3.05, 0.05], [0.95, 3.95, 0.95], (3000, 3))
+    right = np.concatenate([rng.uniform([x, -4.0, 0.0], [x + 1.0, -3.0, 1.0], (100, 3)) for x in range(-3, 3)])
+    store = MapStore(cell_cap=256)
+    store.set_layer("base", LandmarkCloud(np.concatenate([left, right]).astype(np.float32),
+                                          np.ones(3600, np.float32)))
+    snap = store.snapshot()
+    assert snap.queried_landmarks == 256 + 600
+    pl = _planner(horizon=1)
+    plan = pl.replan(snap, np.array([0.5, 0.0, 0.5]), IDENTITY, None)
+    assert plan.directions[0, 1] > 0.5, plan.directions[0]  # towards +y: the dense cluster

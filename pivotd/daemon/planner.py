@@ -504,7 +504,7 @@ class RecedingHorizonPlanner:
         retained = self._retained(snapshot, cams, s)
         warm = self._warm_start(s, cams.shape[0], mode)
         problem = trajectory_problem(
-            snapshot.points, cams, st.alpha, st.lam, weights=snapshot.weights, retained=retained,
+            snapshot.points, cams, st.alpha, st.lam, weights=snapshot.query_weights, retained=retained,
             anchor=anchor,
             constraint=self._constraint(quats), max_step=st.max_step, options=st.options,
         )
@@ -715,7 +715,7 @@ class RecedingHorizonPlanner:
         axes = np.empty((blind.size, 3))
         for k, i in enumerate(blind):
             idx = retained[i]
-            w = None if snapshot.weights is None else snapshot.weights[idx]
+            w = snapshot.query_weights[idx]
             axes[k] = optimize_view(snapshot.points[idx] - cams[i], w, st.alpha,
                                     init=result.directions[i], kernel=self._view_kernel()).direction
         constraint = problem.constraint

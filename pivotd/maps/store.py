@@ -14,6 +14,9 @@ Dense cells: with ``cell_cap`` a layer also keeps, fixed at load, an even subsam
 landmarks of every grid cell that holds more (:meth:`GridIndex.thinned`, 4 B per kept landmark), and the
 retained-set queries read only those. A query then touches at most ``cell_cap`` landmarks per cell in range,
 however densely the map is packed: its cost and memory follow what the planner keeps, not the density.
+The kept landmarks of a thinned cell weigh for the cell's whole count in :attr:`MapSnapshot.query_weights`
+(one more float32 per landmark of the snapshot while any cell is thinned), so the planner's objective is the
+map's, not the subsample's.
 """
 
 from __future__ import annotations
@@ -87,6 +90,14 @@ class MapSnapshot:
     occupancy: OccupancyGrid | None = None
     _indexes: tuple[tuple[int, GridIndex], ...] = field(default=(), repr=False)
     _thin: tuple[_Thin | None, ...] = field(default=(), repr=False)  # per entry of _indexes
+    _query_weights: np.ndarray | None = field(default=None, repr=False)  # see query_weights (None: the weights)
+
+    @property
+    def query_weights(self) -> np.ndarray:
+        """Weights (M,) float32 of the landmarks as the retained-set queries return them: ``weights``, with each
+        kept landmark of a cell the cell cap thins weighing ``n / kept`` times its own (n landmarks in the cell),
+        so that a dense cell counts in the planner's objective as much as it holds, not as much as is read."""
+        return self.weights if self._query_weights is None else self._query_weights
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
@@ -346,11 +357,30 @@ class MapStore:
         for arr in (points, weights, directions):
             if arr is not None:
                 arr.flags.writeable = False
-        snap = MapSnapshot(points, weights, directions, version, infos, occupancy, tuple(indexes), tuple(thins))
+        snap = MapSnapshot(points, weights, directions, version, infos, occupancy, tuple(indexes), tuple(thins),
+                           _thinned_weights(weights, indexes, thins))
         self._layers = layers
         self._snapshot = snap  # the single reference swap readers observe
         log.debug("map version %d: %d landmarks in %d layers", version, len(snap), len(infos))
         return version
+
+
+def _thinned_weights(weights: np.ndarray, indexes: list[tuple[int, GridIndex]],
+                     thins: list[_Thin | None]) -> np.ndarray | None:
+    """``weights`` (M,) with the kept rows of every thinned cell scaled by its landmarks over those kept (a copy,
+    read-only); None when no layer is thinned. Cost O(M) per map update, none per query."""
+    if not any(t is not None for t in thins):
+        return None
+    out = weights.copy()
+    for (offset, index), thin in zip(indexes, thins, strict=True):
+        if thin is None:
+            continue
+        kept = np.diff(thin.index.starts)
+        scale = (np.diff(index.starts) / np.maximum(kept, 1)).astype(POINT_DTYPE)
+        rows = thin.rows.astype(np.int64) + offset
+        out[rows] *= np.repeat(scale, kept)
+    out.flags.writeable = False
+    return out
 
 
 _CHUNK = 1 << 20  # rows per block of spatial_cell_order's temporaries
