@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from pivotd.daemon.planner import Plan, PlannerSettings, RecedingHorizonPlanner
-from pivotd.geometry import angle_between, normalize, slerp
-from pivotd.gimbal.kinematics import JointLimits, Mount, world_directions_to_joints
+from pivotd.geometry import angle_between, direction_to_pan_tilt, normalize, pan_tilt_to_direction, slerp
+from pivotd.gimbal.kinematics import JointLimits, Mount, base_from_world, world_directions_to_joints
 from pivotd.maps.filters import RetainedFilter
 from pivotd.maps.formats import LandmarkCloud
 from pivotd.maps.store import MapStore
@@ -311,3 +311,28 @@ def test_a_dense_cluster_outweighs_a_sparse_one_that_the_cell_cap_reads_more_of(
     pl = _planner(horizon=1)
     plan = pl.replan(snap, np.array([0.5, 0.0, 0.5]), IDENTITY, None)
     assert plan.directions[0, 1] > 0.5, plan.directions[0]  # towards +y: the dense cluster
+
+
+def test_between_far_apart_waypoints_a_plan_follows_the_gimbal_sweep_not_the_great_circle():
+    """Waypoints 200° apart in pan at the same tilt (a view handed from a cluster behind to one ahead): between
+    them the plan's direction is the joints' interpolation at that tilt, not the great circle, which dives 30° below
+    it (towards the floor, to a −45° tilt limit); the body turning between the waypoints is carried along."""
+    pans, tilts = np.radians([-140.0, 60.0]), np.radians([-15.0, -15.0])
+    yaw = math.radians(10.0)
+    quats = np.array([IDENTITY, [0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)]])
+    mount = Mount()
+    frames = base_from_world(quats, mount)
+    dirs = np.einsum("nji,nj->ni", frames, pan_tilt_to_direction(pans, tilts))
+    common = dict(created=0.0, positions=np.array([[0.0, 0, 0], [1.0, 0, 0]]), directions=dirs, body_quats=quats,
+                  visible=np.zeros(2), s=np.array([0.0, 1.0]), map_version=0, path_version=0, solve_s=0.0, pans=pans)
+    plan = Plan(**common, tilts=tilts, base_frames=frames)
+    np.testing.assert_allclose(plan.direction_at_s(np.array([0.0, 1.0])), dirs, atol=1e-12)
+    for f in np.linspace(0.0, 1.0, 11):
+        d = plan.direction_at_s(f)
+        # in the interpolated body frame the joints are the linear interpolation of the waypoints' joints
+        q = np.array([0.0, 0.0, math.sin(f * yaw / 2), math.cos(f * yaw / 2)])
+        pan, tilt = direction_to_pan_tilt(base_from_world(q, mount) @ d)
+        assert math.degrees(tilt) == pytest.approx(-15.0, abs=0.5)
+        assert math.degrees(pan) == pytest.approx((-140.0 + 200.0 * f + 180.0) % 360.0 - 180.0, abs=1.0)
+    great_circle = Plan(**common).direction_at_s(0.5)
+    assert math.degrees(direction_to_pan_tilt(frames[0] @ great_circle)[1]) < -40.0

@@ -98,6 +98,24 @@ def directions_at_s(s_grid: np.ndarray, directions: np.ndarray, s: np.ndarray) -
     return slerp(directions[i], directions[i + 1], t)
 
 
+def joint_directions_at_s(s_grid: np.ndarray, pans: np.ndarray, tilts: np.ndarray, base_frames: np.ndarray,
+                          s: np.ndarray) -> np.ndarray:
+    """Unit world directions (K, 3) at arc lengths ``s`` (K,) [m] of a plan whose waypoints at ``s_grid`` (N,)
+    (ascending, N ≥ 2) have joints ``pans``, ``tilts`` (N,) [rad] in the gimbal base frames ``base_frames``
+    (N, 3, 3) (world → base): the joints interpolated linearly, as the gimbal moves between them, each in the
+    two neighbouring waypoints' base frames and those directions slerped; the ends held beyond the ends.
+
+    Between waypoints far apart on the sphere this is the gimbal's sweep, not the great circle (which can dive
+    through the floor or the unreachable sector of a bounded pan); between close ones the two agree."""
+    sc = np.clip(s, s_grid[0], s_grid[-1])
+    i = np.clip(np.searchsorted(s_grid, sc, side="right") - 1, 0, s_grid.shape[0] - 2)
+    t = (sc - s_grid[i]) / np.maximum(s_grid[i + 1] - s_grid[i], 1e-12)
+    d = pan_tilt_to_direction(pans[i] + t * (pans[i + 1] - pans[i]), tilts[i] + t * (tilts[i + 1] - tilts[i]))
+    a = np.einsum("kji,kj->ki", base_frames[i], d)
+    b = np.einsum("kji,kj->ki", base_frames[i + 1], d)
+    return slerp(a, b, t)
+
+
 @dataclass(frozen=True)
 class Plan:
     """An immutable view plan over a horizon.
@@ -106,7 +124,9 @@ class Plan:
     positions: (N, 3) camera centres [m]; directions: (N, 3) world unit viewing directions;
     body_quats: (N, 4) predicted body attitude (x, y, z, w); visible: (N,) hard counts;
     pans: (N,) joint pan [rad] chosen for each waypoint over the whole horizon (None: the control loop
-    picks the branch nearest its previous pan); rescue: what the rescue of a blind warm start did.
+    picks the branch nearest its previous pan); tilts: (N,) joint tilt [rad] of each waypoint and base_frames:
+    (N, 3, 3) world → gimbal base rotations (both None: directions between waypoints are slerped, else the
+    joints are interpolated, :func:`joint_directions_at_s`); rescue: what the rescue of a blind warm start did.
     """
 
     created: float
@@ -126,12 +146,19 @@ class Plan:
     path_mode: PathMode = PathMode.NO_PATH
     path_offset: float | None = None  # [m] the robot's distance from the path (None without one)
     seed: str = ""  # the seed the plan came from (pivotd.pivot.trajectory.Seed: warm, anchor, chain, ...)
+    tilts: np.ndarray | None = None
+    base_frames: np.ndarray | None = None
 
 
     def direction_at_s(self, s: np.ndarray | float) -> np.ndarray:
-        """Viewing directions (K, 3) (or (3,)) interpolated (slerp) at arc lengths ``s``."""
+        """Viewing directions (K, 3) (or (3,)) at arc lengths ``s``: the joints interpolated where the plan has
+        them (:func:`joint_directions_at_s`), else the directions slerped."""
         scalar = np.ndim(s) == 0
-        out = directions_at_s(self.s, self.directions, np.atleast_1d(np.asarray(s, float)))
+        sv = np.atleast_1d(np.asarray(s, float))
+        if self.pans is not None and self.tilts is not None and self.base_frames is not None and self.s.shape[0] > 1:
+            out = joint_directions_at_s(self.s, self.pans, self.tilts, self.base_frames, sv)
+        else:
+            out = directions_at_s(self.s, self.directions, sv)
         return out[0] if scalar else out
 
     def locate(self, position: np.ndarray) -> float:
@@ -546,6 +573,9 @@ class RecedingHorizonPlanner:
         self.last_objective = result.objective
         directions, visible = result.directions, np.asarray(result.visible)
         pans = self._joint_pans(directions, quats, anchor)
+        frames = base_from_world(quats, self.mount)
+        tilts = np.clip(direction_to_pan_tilt(np.einsum("nij,nj->ni", frames, directions))[1], self.limits.tilt_min,
+                        self.limits.tilt_max)
         plan = Plan(
             created=time.monotonic(),
             positions=cams,
@@ -564,6 +594,8 @@ class RecedingHorizonPlanner:
             path_mode=mode,
             path_offset=offset,
             seed=result.seed,
+            tilts=tilts,
+            base_frames=frames,
         )
         self.last_plan = plan
         self._adapt(plan.solve_s)
