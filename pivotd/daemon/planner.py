@@ -31,7 +31,6 @@ from pivotd.gimbal.kinematics import (
 )
 from pivotd.gimbal.pan_unwrap import (
     base_pan_tilt,
-    joint_pans,
     unwrap_pans,
 )
 from pivotd.maps.filters import RetainedFilter
@@ -92,10 +91,16 @@ def directions_at_s(s_grid: np.ndarray, directions: np.ndarray, s: np.ndarray) -
     (ascending): slerp between neighbours, the end directions held beyond the ends."""
     if s_grid.shape[0] == 1:
         return np.repeat(directions, s.shape[0], axis=0)
+    i, t = _segments(s_grid, s)
+    return slerp(directions[i], directions[i + 1], t)
+
+
+def _segments(s_grid: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For arc lengths ``s`` (K,) [m] on the waypoints ``s_grid`` (N,) (ascending, N ≥ 2): the waypoint each
+    segment starts at (K,) int and the fraction of it covered (K,), ``s`` clamped to the grid's ends."""
     sc = np.clip(s, s_grid[0], s_grid[-1])
     i = np.clip(np.searchsorted(s_grid, sc, side="right") - 1, 0, s_grid.shape[0] - 2)
-    t = (sc - s_grid[i]) / np.maximum(s_grid[i + 1] - s_grid[i], 1e-12)
-    return slerp(directions[i], directions[i + 1], t)
+    return i, (sc - s_grid[i]) / np.maximum(s_grid[i + 1] - s_grid[i], 1e-12)
 
 
 def joint_directions_at_s(s_grid: np.ndarray, pans: np.ndarray, tilts: np.ndarray, base_frames: np.ndarray,
@@ -107,9 +112,7 @@ def joint_directions_at_s(s_grid: np.ndarray, pans: np.ndarray, tilts: np.ndarra
 
     Between waypoints far apart on the sphere this is the gimbal's sweep, not the great circle (which can dive
     through the floor or the unreachable sector of a bounded pan); between close ones the two agree."""
-    sc = np.clip(s, s_grid[0], s_grid[-1])
-    i = np.clip(np.searchsorted(s_grid, sc, side="right") - 1, 0, s_grid.shape[0] - 2)
-    t = (sc - s_grid[i]) / np.maximum(s_grid[i + 1] - s_grid[i], 1e-12)
+    i, t = _segments(s_grid, s)
     d = pan_tilt_to_direction(pans[i] + t * (pans[i + 1] - pans[i]), tilts[i] + t * (tilts[i + 1] - tilts[i]))
     a = np.einsum("kji,kj->ki", base_frames[i], d)
     b = np.einsum("kji,kj->ki", base_frames[i + 1], d)
@@ -248,7 +251,7 @@ def camera_positions(body_positions: np.ndarray, body_quats: np.ndarray, mount: 
 class _Execution:
     """A replan's plans as the gimbal can follow them, and the judge that compares them.
 
-    A plan's joint pans are chosen along it from the commanded pan (:func:`pivotd.gimbal.pan_unwrap.joint_pans`:
+    A plan's joint pans are chosen along it from the commanded pan (:func:`pivotd.gimbal.pan_unwrap.unwrap_pans`:
     the least total slew inside the limits) and each move between waypoints is clamped to the axis speeds over the
     time the robot takes between them; the directions of that rate-limited joint path are judged by the objective.
     A plan within the speeds is its own execution; one that must slew the long way round a bounded pan range is
@@ -258,7 +261,7 @@ class _Execution:
                  anchor: np.ndarray | None) -> None:
         st = planner.settings
         self._planner, self._quats = planner, quats
-        self._R = base_from_world(quats, planner.mount)
+        self.frames = base_from_world(quats, planner.mount)  # (N, 3, 3) world → gimbal base, also the plan's
         self._on = st.axis_speeds is not None and s.shape[0] > 1
         if not self._on:
             return
@@ -281,9 +284,9 @@ class _Execution:
     def _follow(self, directions: np.ndarray) -> np.ndarray:
         pl = self._planner
         pan0, tilt0 = (None, None) if self._start is None else self._start
-        d = np.einsum("nij,nj->ni", self._R, np.asarray(directions, float).reshape(-1, 3))  # base_pan_tilt's
+        d = np.einsum("nij,nj->ni", self.frames, np.asarray(directions, float).reshape(-1, 3))  # base_pan_tilt's
         pans, tilts = direction_to_pan_tilt(d)
-        pans, _ = unwrap_pans(pans, self._pan_start(directions, pan0), pl.limits)  # joint_pans
+        pans, _ = unwrap_pans(pans, self._pan_start(directions, pan0), pl.limits)  # as the plan's own (_plan_joints)
         tilts = np.clip(tilts, pl.limits.tilt_min, pl.limits.tilt_max)
         pan_l, tilt_l = pans.tolist(), tilts.tolist()
         p, t = (pan_l[0], tilt_l[0]) if pan0 is None else (pan0, tilt0)
@@ -294,7 +297,7 @@ class _Execution:
             out_p.append(p)
             out_t.append(t)
         d_base = pan_tilt_to_direction(np.array(out_p), np.array(out_t))
-        return np.einsum("nji,nj->ni", self._R, d_base)
+        return np.einsum("nji,nj->ni", self.frames, d_base)
 
     def held_at_limits(self, directions: np.ndarray) -> np.ndarray | None:
         """``directions`` (N, 3) with their pans followed continuously from the commanded pan (each step the
@@ -304,7 +307,7 @@ class _Execution:
         pl = self._planner
         if not self._on or self._start is None or pl.limits.continuous_pan:
             return None
-        d = np.einsum("nij,nj->ni", self._R, np.asarray(directions, float).reshape(-1, 3))
+        d = np.einsum("nij,nj->ni", self.frames, np.asarray(directions, float).reshape(-1, 3))
         pans, tilts = direction_to_pan_tilt(d)
         steps = np.remainder(np.diff(np.concatenate([[self._start[0]], pans])) + np.pi, 2 * np.pi) - np.pi
         held = np.clip(self._start[0] + np.cumsum(steps), pl.limits.pan_min, pl.limits.pan_max)
@@ -312,7 +315,7 @@ class _Execution:
         if np.allclose(held, joint, atol=1e-9, rtol=0.0):
             return None
         d_base = pan_tilt_to_direction(held, np.clip(tilts, pl.limits.tilt_min, pl.limits.tilt_max))
-        return np.einsum("nji,nj->ni", self._R, d_base)
+        return np.einsum("nji,nj->ni", self.frames, d_base)
 
     def objective(self, problem: TrajectoryProblem, result: TrajectoryResult) -> float:
         """The objective of ``result`` as executed (its own without axis speeds)."""
@@ -572,10 +575,7 @@ class RecedingHorizonPlanner:
             result = executed.best(problem, [result, problem.evaluate(Seed(result.seed, held, SeedKind.WARM))])
         self.last_objective = result.objective
         directions, visible = result.directions, np.asarray(result.visible)
-        pans = self._joint_pans(directions, quats, anchor)
-        frames = base_from_world(quats, self.mount)
-        tilts = np.clip(direction_to_pan_tilt(np.einsum("nij,nj->ni", frames, directions))[1], self.limits.tilt_min,
-                        self.limits.tilt_max)
+        pans, tilts = self._plan_joints(directions, executed.frames, quats, anchor)
         plan = Plan(
             created=time.monotonic(),
             positions=cams,
@@ -595,7 +595,7 @@ class RecedingHorizonPlanner:
             path_offset=offset,
             seed=result.seed,
             tilts=tilts,
-            base_frames=frames,
+            base_frames=executed.frames,
         )
         self.last_plan = plan
         self._adapt(plan.solve_s)
@@ -778,18 +778,21 @@ class RecedingHorizonPlanner:
             self._kernel = cone_kernel(alpha, ViewOptions().cells)
         return self._kernel
 
-    def _joint_pans(self, directions: np.ndarray, quats: np.ndarray, anchor: np.ndarray | None) -> np.ndarray:
-        """Joint pans (N,) [rad] for the planned ``directions`` (N, 3) over the whole horizon, from the commanded
-        pan (pivotd.gimbal.pan_unwrap.joint_pans: the least total slew inside the limits). When the bounded pan
-        range forces a slew the long way round, the joint-grid seed and the judge of plans as executed have
-        already weighed it (:class:`_Execution`)."""
+    def _plan_joints(self, directions: np.ndarray, frames: np.ndarray, quats: np.ndarray,
+                     anchor: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """Joint pans and tilts (N,) [rad] for the planned ``directions`` (N, 3) in the base frames ``frames``
+        (N, 3, 3) (world → base) over the whole horizon: the pans from the commanded pan
+        (pivotd.gimbal.pan_unwrap.unwrap_pans: the least total slew inside the limits), the tilts clamped to their
+        limits. When the bounded pan range forces a slew the long way round, the joint-grid seed and the judge of
+        plans as executed have already weighed it (:class:`_Execution`)."""
         commanded = self._commanded_joints(anchor, quats[0])
         if commanded is not None:
             start = commanded[0]
         else:
             reference = self._reference_pan()
             start = reference if reference is not None else self.limits.clamp(0.0, 0.0)[0]
-        return joint_pans(directions, quats, self.mount, self.limits, start)[0]
+        pan, tilt = direction_to_pan_tilt(np.einsum("nij,nj->ni", frames, directions))
+        return unwrap_pans(pan, start, self.limits)[0], np.clip(tilt, self.limits.tilt_min, self.limits.tilt_max)
 
     def _reference_pan(self) -> float | None:
         """The previous plan's first joint pan [rad] (the branch a direction's pan is taken nearest to), if any."""

@@ -96,11 +96,3 @@ def base_pan_tilt(directions: np.ndarray, body_quats: np.ndarray, mount: Mount) 
     d = np.einsum("nij,nj->ni", base_from_world(np.asarray(body_quats, float).reshape(-1, 4), mount),
                   np.asarray(directions, float).reshape(-1, 3))
     return direction_to_pan_tilt(d)
-
-
-def joint_pans(directions: np.ndarray, body_quats: np.ndarray, mount: Mount, limits: JointLimits,
-               start: float) -> tuple[np.ndarray, np.ndarray]:
-    """Joint pans (N,) [rad] of a plan (directions (N, 3), attitudes (N, 4)) chosen by :func:`unwrap_pans`
-    from the commanded pan ``start``, and the clamped mask (N,)."""
-    pan, _ = base_pan_tilt(directions, body_quats, mount)
-    return unwrap_pans(pan, start, limits)
