@@ -80,6 +80,7 @@ def test_achievable_beats_forward_beside_a_rich_wall(tmp_path):
     # the gimbal looked ahead the whole time: the daemon is the forward camera
     np.testing.assert_array_equal(s.n_daemon, s.n_forward)
     assert r["frames_daemon_below_forward"] == 0 and r["frames_daemon_below_90pct_forward"] == 0
+    assert r["frames_achievable_below_90pct_forward"] == int((s.n_achievable < 0.9 * s.n_forward).sum())
     # turning towards the wall sees far more, and the executed path keeps most of what the DP planned
     assert r["achievable_mean"] > 2.0 * r["forward_mean"]
     assert r["achievable_mean"] >= 0.8 * r["dp_mean"]

@@ -156,6 +156,22 @@ def test_clamping_reports_and_stays_inside_limits():
     assert not clamped and pan == pytest.approx(np.deg2rad(45)) and tilt == pytest.approx(np.deg2rad(50))
 
 
+def test_a_direction_in_the_dead_sector_is_held_at_the_end_of_the_range_the_gimbal_is_at():
+    """A ±170° pan unit at −165° whose target drifts behind it to 175° (−185°): 5° from the +170° end, 15° from the
+    −170° one. Holding −170° costs 10° more of view; going to +170° sweeps 335° through the whole range."""
+    limits = JointLimits(pan_min=np.deg2rad(-170), pan_max=np.deg2rad(170), tilt_min=np.deg2rad(-45),
+                         tilt_max=np.deg2rad(45))
+    q = np.array([0, 0, 0, 1.0])
+    d = pan_tilt_to_direction(np.deg2rad(175), 0.0)
+    pan, tilt, clamped = world_direction_to_joints(d, q, Mount(), limits, previous_pan=np.deg2rad(-165))
+    assert clamped and pan == pytest.approx(np.deg2rad(-170), abs=1e-12) and tilt == pytest.approx(0.0, abs=1e-12)
+    pan, _, clamped = world_direction_to_joints(d, q, Mount(), limits, previous_pan=np.deg2rad(150))
+    assert clamped and pan == pytest.approx(np.deg2rad(170), abs=1e-12)
+    # without a previous pan: the end whose axis is closest
+    pan, _, clamped = world_direction_to_joints(d, q, Mount(), limits)
+    assert clamped and pan == pytest.approx(np.deg2rad(170), abs=1e-12)
+
+
 def test_over_the_top_solution_used_when_pan_range_excludes_primary():
     """Tilt range past vertical lets a ±90° pan unit look backwards over the top."""
     limits = JointLimits(pan_min=np.deg2rad(-90), pan_max=np.deg2rad(90), tilt_min=np.deg2rad(-180),

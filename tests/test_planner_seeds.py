@@ -4,6 +4,7 @@ seeds beside the commanded direction; the joint-grid seed keeps the plan executa
 import math
 
 import numpy as np
+import pytest
 from test_planner_rescue import BLANK, IDENTITY, snapshot, yaw
 
 from pivotd.daemon.planner import PathMode, Plan, PlannerSettings, RecedingHorizonPlanner
@@ -15,10 +16,13 @@ N = 21
 LIMITS = JointLimits(math.radians(-170), math.radians(170), math.radians(-45), math.radians(60), False)
 
 
-def planner(axis_speeds: tuple[float, float] | None = None) -> RecedingHorizonPlanner:
-    """Rescue off; the joint-grid seed only with ``axis_speeds`` [rad/s]."""
+def planner(axis_speeds: tuple[float, float] | None = None,
+            axis_accelerations: tuple[float, float] | None = None) -> RecedingHorizonPlanner:
+    """Rescue off; the joint-grid seed only with ``axis_speeds`` [rad/s]; steps at full speed throughout unless
+    ``axis_accelerations`` [rad/s²] are given; the replan period of the config (0.2 s)."""
     st = PlannerSettings(fov=math.radians(60), lam=0.6, spacing=0.5, horizon=N, rescue_fraction=None,
-                         axis_speeds=axis_speeds, retained_filter=RetainedFilter(min_range=0.3, max_range=10.0))
+                         axis_speeds=axis_speeds, axis_accelerations=axis_accelerations, replan_period=0.2,
+                         retained_filter=RetainedFilter(min_range=0.3, max_range=10.0))
     return RecedingHorizonPlanner(st, Mount(), LIMITS)
 
 
@@ -121,3 +125,61 @@ def test_a_plan_past_the_end_of_the_pan_range_is_also_judged_held_there():
     inside = np.repeat(yaw(-100.0)[None], N, 0)
     inside[8:] = yaw(40.0)
     assert executed.held_at_limits(inside) is None
+
+
+def test_a_plan_as_executed_turns_at_most_one_replan_period_towards_its_first_waypoint():
+    from pivotd.daemon.planner import _Execution
+
+    pl = planner((math.radians(120), math.radians(90)))
+    pl.set_path(path(), None, 1)
+    executed = _Execution(pl, np.arange(N) * 0.5, np.tile(IDENTITY, (N, 1)), BLANK)  # commanded -50°
+    plan = np.repeat(yaw(40.0)[None], N, 0)  # 90° away from the first waypoint on
+    out = executed.directions(plan)
+    # 0.2 s at 120 °/s before the next plan: 24°, then 60° a step
+    for k, want in [(0, -26.0), (1, 34.0), (2, 40.0)]:
+        assert angle_between(out[k], yaw(want)) < 1e-9, k
+
+
+def test_a_jump_the_axes_cannot_make_between_two_waypoints_is_started_early_enough_to_arrive_on_time():
+    from pivotd.daemon.planner import _Execution
+
+    pl = planner((math.radians(120), math.radians(90)))
+    pl.set_path(path(), None, 1)
+    executed = _Execution(pl, np.arange(N) * 0.5, np.tile(IDENTITY, (N, 1)), BLANK)  # commanded -50°, 60° a step
+    plan = np.repeat(BLANK[None], N, 0)
+    plan[8:] = yaw(100.0)  # 150° between waypoints 7 and 8
+    early = executed.anticipated(plan)
+    assert early is not None
+    pans = [math.degrees(math.atan2(d[1], d[0])) for d in early]
+    assert np.allclose(pans[:6], -50.0) and np.allclose(pans[6:9], [-20.0, 40.0, 100.0])
+    assert np.allclose(pans[9:], 100.0)
+    # followed late, the plan reaches 100° one step after waypoint 8; started early it is there at waypoint 8
+    late, on_time = executed.directions(plan), executed.directions(early)
+    assert angle_between(late[8], yaw(100.0)) > math.radians(80) and angle_between(on_time[8], yaw(100.0)) < 1e-9
+    # a plan whose every step fits is left alone
+    assert executed.anticipated(on_time) is None
+
+
+def test_with_acceleration_limits_a_step_is_what_the_axis_covers_accelerating_and_braking():
+    pl = planner((math.radians(120), math.radians(90)), (math.radians(360), math.radians(270)))
+    dpan, dtilt = pl._step_limits(np.arange(4) * 0.5, np.tile(IDENTITY, (4, 1)))  # 0.5 s a step at 1 m/s
+    # rest to rest over 1 s: 120 °/s × (1 s − 1/3 s) = 80°, half of it a step (60° at full speed throughout)
+    assert np.allclose(np.degrees(dpan), 40.0) and np.allclose(np.degrees(dtilt), 30.0)
+    # short steps: a triangle (0.1 s: 360 °/s² × 0.2² / 4 = 3.6°, a step 1.8°)
+    assert math.degrees(pl._step_limits(np.array([0.0, 0.1]), np.tile(IDENTITY, (2, 1)))[0][0]) == pytest.approx(1.8)
+
+
+def test_a_turn_in_place_between_two_waypoints_gives_the_axes_the_time_of_the_turn():
+    pl = planner((math.radians(120), math.radians(90)))
+    half = math.sin(math.radians(45.0))  # a 90° turn about z
+    quats = np.array([IDENTITY, IDENTITY, [0.0, 0.0, -half, half], [0.0, 0.0, -half, half]])
+    s = np.array([0.0, 0.5, 0.5 + 1e-6, 1.0])  # the turn takes no arc length
+    dpan, _ = pl._step_limits(s, quats)
+    # 90° at the nominal 90 °/s: one second, 120° of pan; the steps of travel 0.5 s, 60°
+    assert np.allclose(np.degrees(dpan), [60.0, 120.0, 60.0])
+    # once the robot has been seen turning, at its own rate: 45 °/s
+    pl.replan(snapshot(), np.zeros(3), IDENTITY, None, now=0.0)
+    q1 = np.array([0.0, 0.0, math.sin(math.radians(-11.25)), math.cos(math.radians(-11.25))])  # 22.5° in 0.5 s
+    pl.replan(snapshot(), np.zeros(3), q1, None, now=0.5)
+    assert math.degrees(pl.turn_rate) == pytest.approx(45.0)
+    assert math.degrees(pl._step_limits(s, quats)[0][1]) == pytest.approx(240.0)

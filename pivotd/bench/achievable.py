@@ -409,6 +409,7 @@ def achievable(run: Recording, rate_hz: float = 10.0, grid_deg: float = 2.0) -> 
         "share_achievable_teleport": mean(n_ach) / max(mean(n_teleport), 1e-12),
         "frames_daemon_below_forward": int((n_daemon < n_forward).sum()),
         "frames_daemon_below_90pct_forward": int((n_daemon < 0.9 * n_forward).sum()),
+        "frames_achievable_below_90pct_forward": int((n_ach < 0.9 * n_forward).sum()),
         "winner": found.winner,
         "candidates": {k: round(v, 3) for k, v in found.means.items()},
         "executed": check,
@@ -450,7 +451,8 @@ def report_lines(r: dict) -> list[str]:
         f"  daemon / achievable {r['share_daemon_achievable']:.1%}, achievable / teleport "
         f"{r['share_achievable_teleport']:.1%}",
         f"  frames where the daemon sees less than forward: {r['frames_daemon_below_forward']}, "
-        f"below 90 % of forward: {r['frames_daemon_below_90pct_forward']}",
+        f"below 90 % of forward: {r['frames_daemon_below_90pct_forward']} (the achievable path's own: "
+        f"{r['frames_achievable_below_90pct_forward']})",
         f"  executed path within every limit: {'yes' if ex['within_limits'] else 'NO'} "
         f"(worst share of the limits: {worst}; joint limits {'kept' if ex['within_joint_limits'] else 'LEFT'})",
         f"  time: cell scores {sec['scores_s']:.2f} s, DP and executions {sec['dp_and_execution_s']:.2f} s, "

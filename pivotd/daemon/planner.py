@@ -199,8 +199,13 @@ class PlannerSettings:
     replan_budget: float | None = _PLANNER.replan_budget  # [s] a slower replan halves the next one's horizon and cap
     axis_speeds: tuple[float, float] | None = (_MOTION.pan.max_velocity, _MOTION.tilt.max_velocity)  # [rad/s] pan
     # and tilt speed limits: the joint-grid seed (None: no such seed) and the judge of plans as executed
+    axis_accelerations: tuple[float, float] | None = (_MOTION.pan.max_acceleration, _MOTION.tilt.max_acceleration)
+    # [rad/s²] pan and tilt acceleration limits: what the axes cover in a step (None: at full speed throughout)
     joint_grid_step: float = math.radians(4.0)  # [rad] no key: the joint grid's largest spacing
+    replan_period: float = 1.0 / _PLANNER.replan_hz  # [s] the time between replans: how far the gimbal can turn
+    # towards a plan's first waypoint before the next plan replaces it (the judge of plans as executed)
     nominal_speed: float = 1.0  # [m/s] no key: the robot's speed assumed until it has been measured
+    nominal_turn_rate: float = math.radians(90.0)  # [rad/s] no key: the robot's turn rate assumed until it has turned
 
     #: Most halvings of the horizon and of the landmarks per waypoint after late replans.
     MAX_DEGRADE = 3
@@ -243,6 +248,25 @@ def _scatter(directions: np.ndarray, rows: np.ndarray, values: np.ndarray) -> np
     return out
 
 
+#: [rad/s] a turn slower than this between two replans is not a measurement of the turn rate.
+TURNING = math.radians(5.0)
+
+
+def _turn_angles(quats: np.ndarray) -> np.ndarray:
+    """Rotation angles [rad] (N − 1,) between consecutive attitudes ``quats`` (N, 4) (x, y, z, w)."""
+    q = np.asarray(quats, float)
+    dots = np.abs(np.einsum("ij,ij->i", q[:-1], q[1:])) / np.maximum(
+        np.linalg.norm(q[:-1], axis=1) * np.linalg.norm(q[1:], axis=1), 1e-300)
+    return 2.0 * np.arccos(np.clip(dots, 0.0, 1.0))
+
+
+def _rest_to_rest(speed: float, acceleration: float, duration: np.ndarray) -> np.ndarray:
+    """Distance [rad] (K,) an axis covers from rest to rest in ``duration`` (K,) [s] within ``speed`` [rad/s] and
+    ``acceleration`` [rad/s²]: a triangle up to 2 · speed / acceleration, a trapezoid beyond."""
+    t = np.asarray(duration, float)
+    return np.where(t * acceleration <= 2.0 * speed, 0.25 * acceleration * t * t, speed * (t - speed / acceleration))
+
+
 def camera_positions(body_positions: np.ndarray, body_quats: np.ndarray, mount: Mount) -> np.ndarray:
     """Sensor centres (N, 3) in the world for body positions (N, 3) and attitudes (N, 4)."""
     return body_positions + np.einsum("nij,j->ni", quat_to_matrix(body_quats), np.asarray(mount.translation, float))
@@ -265,9 +289,10 @@ class _Execution:
         self._on = st.axis_speeds is not None and s.shape[0] > 1
         if not self._on:
             return
-        self._dpan, self._dtilt = planner._step_limits(s)
+        self._dpan, self._dtilt = planner._step_limits(s, quats)
         self._dpan_l, self._dtilt_l = self._dpan.tolist(), self._dtilt.tolist()
         self._start = planner._commanded_joints(anchor, quats[0])
+        self._reach = planner._first_reach()  # (pan, tilt) [rad] the gimbal turns towards the first waypoint
         self._memo: dict[bytes, np.ndarray] = {}  # executed directions by the plan's bytes
 
     def directions(self, directions: np.ndarray) -> np.ndarray:
@@ -289,7 +314,11 @@ class _Execution:
         pans, _ = unwrap_pans(pans, self._pan_start(directions, pan0), pl.limits)  # as the plan's own (_plan_joints)
         tilts = np.clip(tilts, pl.limits.tilt_min, pl.limits.tilt_max)
         pan_l, tilt_l = pans.tolist(), tilts.tolist()
-        p, t = (pan_l[0], tilt_l[0]) if pan0 is None else (pan0, tilt0)
+        if pan0 is None:
+            p, t = pan_l[0], tilt_l[0]
+        else:  # from the commanded joints, as far towards the first waypoint as the gimbal turns before the next plan
+            p = pan0 + min(max(pan_l[0] - pan0, -self._reach[0]), self._reach[0])
+            t = tilt0 + min(max(tilt_l[0] - tilt0, -self._reach[1]), self._reach[1])
         out_p, out_t = [p], [t]
         for k, (dp, dt) in enumerate(zip(self._dpan_l, self._dtilt_l, strict=True), start=1):
             p += min(max(pan_l[k] - p, -dp), dp)
@@ -315,6 +344,31 @@ class _Execution:
         if np.allclose(held, joint, atol=1e-9, rtol=0.0):
             return None
         d_base = pan_tilt_to_direction(held, np.clip(tilts, pl.limits.tilt_min, pl.limits.tilt_max))
+        return np.einsum("nji,nj->ni", self.frames, d_base)
+
+    def anticipated(self, directions: np.ndarray) -> np.ndarray | None:
+        """``directions`` (N, 3) with each joint move between waypoints brought within the axis speeds by starting it
+        early: from the last waypoint back, each waypoint's pan and tilt are moved towards the next one's until the
+        step fits (the joints as :meth:`directions` takes them). A plan that jumps between two waypoints farther
+        apart than the gimbal can turn is followed late (the slew starts at the jump); this one arrives on time at the
+        cost of the views before it. None when every step already fits (or without axis speeds)."""
+        if not self._on:
+            return None
+        pl = self._planner
+        pan0 = None if self._start is None else self._start[0]
+        d = np.einsum("nij,nj->ni", self.frames, np.asarray(directions, float).reshape(-1, 3))
+        pans, tilts = direction_to_pan_tilt(d)
+        pans, _ = unwrap_pans(pans, self._pan_start(directions, pan0), pl.limits)
+        tilts = np.clip(tilts, pl.limits.tilt_min, pl.limits.tilt_max)
+        if (np.all(np.abs(np.diff(pans)) <= self._dpan + 1e-12)
+                and np.all(np.abs(np.diff(tilts)) <= self._dtilt + 1e-12)):
+            return None
+        pan_l, tilt_l = pans.tolist(), tilts.tolist()
+        for k in range(len(pan_l) - 2, -1, -1):
+            dp, dt = self._dpan_l[k], self._dtilt_l[k]
+            pan_l[k] = min(max(pan_l[k], pan_l[k + 1] - dp), pan_l[k + 1] + dp)
+            tilt_l[k] = min(max(tilt_l[k], tilt_l[k + 1] - dt), tilt_l[k + 1] + dt)
+        d_base = pan_tilt_to_direction(np.array(pan_l), np.array(tilt_l))
         return np.einsum("nji,nj->ni", self.frames, d_base)
 
     def objective(self, problem: TrajectoryProblem, result: TrajectoryResult) -> float:
@@ -371,8 +425,10 @@ class RecedingHorizonPlanner:
         self._joint_keys: tuple[int, ...] = ()  # grid keys of the horizon when the joint-grid seed was last made
         self._queried = False  # whether this replan queried the map for a waypoint new to the horizon
         self._grid: JointGrid | None = None
-        self._moved: tuple[float, np.ndarray] | None = None  # (time [s], body position) of the last replan
+        self._moved: tuple[float, np.ndarray, np.ndarray] | None = None  # (time [s], body position, attitude) of the
+        # last replan
         self.speed: float | None = None  # [m/s] the robot's measured speed (smoothed over replans)
+        self.turn_rate: float | None = None  # [rad/s] the fastest turn of the robot measured between two replans
         self.joint_solves = 0  # replans that solved the joint-grid seed (another basin than the plan's)
         self._deferred: tuple[int, np.ndarray, np.ndarray] | None = None  # (path version, s (N,), directions (N, 3))
         # of a joint-grid seed in another basin, to be solved by the next replan
@@ -514,9 +570,9 @@ class RecedingHorizonPlanner:
         t0 = time.perf_counter()
         st = self.settings
         body_position = np.asarray(body_position, float)
-        if now is not None:
-            self._measure_speed(float(now), body_position)
         body_quat = normalize(np.asarray(body_quat, float))
+        if now is not None:
+            self._measure_speed(float(now), body_position, body_quat)
         mode, offset = PathMode.NO_PATH, None
         if self._tracker is not None:
             self.progress, offset = self._advance(body_position)
@@ -573,6 +629,11 @@ class RecedingHorizonPlanner:
         held = executed.held_at_limits(result.directions)
         if held is not None:
             result = executed.best(problem, [result, problem.evaluate(Seed(result.seed, held, SeedKind.WARM))])
+        # a plan with a jump the axes cannot make between two waypoints, the slew started early enough to arrive on
+        # time, when that sees more as executed than following it late
+        early = executed.anticipated(result.directions)
+        if early is not None:
+            result = executed.best(problem, [result, problem.evaluate(Seed(result.seed, early, SeedKind.WARM))])
         self.last_objective = result.objective
         directions, visible = result.directions, np.asarray(result.visible)
         pans, tilts = self._plan_joints(directions, executed.frames, quats, anchor)
@@ -623,15 +684,20 @@ class RecedingHorizonPlanner:
             return None
         return Seed("joint_grid", directions_at_s(s_old, dirs, s), SeedKind.WARM)
 
-    def _measure_speed(self, now: float, body_position: np.ndarray) -> None:
-        """Update :attr:`speed` from the travel since the last replan (an average over about a second)."""
-        last, self._moved = self._moved, (now, body_position.copy())
+    def _measure_speed(self, now: float, body_position: np.ndarray, body_quat: np.ndarray) -> None:
+        """Update :attr:`speed` from the travel since the last replan (an average over about a second) and
+        :attr:`turn_rate` from the turn (the fastest seen: a turn in place is not assumed slower than the robot
+        turns)."""
+        last, self._moved = self._moved, (now, body_position.copy(), body_quat.copy())
         if last is None or now <= last[0]:
             return
         dt = now - last[0]
         v = float(np.linalg.norm(body_position - last[1])) / dt
         k = min(1.0, dt)  # weight of this sample: its share of a second
         self.speed = v if self.speed is None else (1.0 - k) * self.speed + k * v
+        w = float(_turn_angles(np.stack([last[2], body_quat]))[0]) / dt
+        if w > TURNING:
+            self.turn_rate = w if self.turn_rate is None else max(self.turn_rate, w)
 
     def _joint_seed(self, problem: TrajectoryProblem, s: np.ndarray, quats: np.ndarray,
                     anchor: np.ndarray | None) -> tuple[Seed, float] | None:
@@ -668,8 +734,10 @@ class RecedingHorizonPlanner:
                 fresh[key] = sc
             scores[i] = sc
         self._joint_scores = fresh
-        dpan, dtilt = self._step_limits(s)
-        path = best_joint_path(scores, dpan, dtilt, grid, start=self._commanded_joints(anchor, quats[0]))
+        dpan, dtilt = self._step_limits(s, quats)
+        start = self._commanded_joints(anchor, quats[0])
+        path = best_joint_path(scores, dpan, dtilt, grid, start=start,
+                               start_reach=None if start is None else self._first_reach())
         dirs = np.einsum("nji,nj->ni", R, grid.base_directions()[path.cells[:, 0] * grid.shape[1] + path.cells[:, 1]])
         return Seed("joint_grid", dirs, SeedKind.WARM), path.total
 
@@ -808,13 +876,27 @@ class RecedingHorizonPlanner:
                                                  self._reference_pan())
         return pan, tilt
 
-    def _step_limits(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Largest pan and tilt moves [rad] (N − 1,) between waypoints at arc lengths ``s`` (N,) [m]: the axis speeds
-        times the time the robot takes between them (at :attr:`speed`, else ``nominal_speed``)."""
+    def _first_reach(self) -> tuple[float, float]:
+        """Largest pan and tilt moves [rad] from the commanded joints to a plan's first waypoint: the axis speeds times
+        :attr:`PlannerSettings.replan_period` (the time that plan is followed before the next one)."""
+        st = self.settings
+        return st.axis_speeds[0] * st.replan_period, st.axis_speeds[1] * st.replan_period
+
+    def _step_limits(self, s: np.ndarray, quats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Largest pan and tilt moves [rad] (N − 1,) between waypoints at arc lengths ``s`` (N,) [m] with body attitudes
+        ``quats`` (N, 4), over the time the robot takes between them: the longer of its travel at :attr:`speed` (else
+        ``nominal_speed``) and its turn at :attr:`turn_rate` (else ``nominal_turn_rate``; a turn in place takes time
+        and no arc length). The axis speeds times that time, or with ``axis_accelerations`` half of what an axis covers
+        from rest to rest in twice that time (a slew accelerates and brakes: over steps of 0.5 s at 120 °/s and
+        360 °/s² that is 40° a step, not 60°)."""
         st = self.settings
         speed = max(self.speed if self.speed is not None else st.nominal_speed, 1e-3)
-        dt = np.diff(s) / speed
-        return st.axis_speeds[0] * dt, st.axis_speeds[1] * dt
+        turn_rate = max(self.turn_rate if self.turn_rate is not None else st.nominal_turn_rate, 1e-3)
+        dt = np.maximum(np.diff(s) / speed, _turn_angles(quats) / turn_rate)
+        if st.axis_accelerations is None:
+            return st.axis_speeds[0] * dt, st.axis_speeds[1] * dt
+        return tuple(0.5 * _rest_to_rest(v, a, 2.0 * dt) for v, a in zip(st.axis_speeds, st.axis_accelerations,
+                                                                        strict=True))
 
     def _count(self, snapshot: MapSnapshot, cam: np.ndarray, idx: np.ndarray, direction: np.ndarray) -> int:
         """Hard count of the retained landmarks ``idx`` within α of ``direction`` seen from ``cam``."""

@@ -136,8 +136,9 @@ def world_direction_to_joints(
 
     Returns (pan, tilt, clamped) [rad]. Among the reachable solutions the one nearest ``previous_pan``
     (default: 0, or the middle of a range that excludes 0) is chosen; the primary solution (|tilt| ≤ π/2) is
-    preferred over the over-the-top one. When no solution is reachable, the clamped joint values whose axis
-    is closest to the requested direction are returned with ``clamped=True``.
+    preferred over the over-the-top one. When no solution is reachable, the clamped joint values nearest
+    ``previous_pan`` (when given; the end of the range the gimbal is at), and of those the ones whose axis is closest
+    to the requested direction, are returned with ``clamped=True``.
     """
     d = np.asarray(direction, dtype=float)
     if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) < 1e-12:
@@ -161,14 +162,18 @@ def world_direction_to_joints(
                 pan_c, tilt_c = limits.clamp(pan_c, tilt_b)  # remove the tolerance slack
                 return pan_c, tilt_c, False
 
+    # Unreachable: with a previous pan, the clamped joints nearest it (held at the end of the range the gimbal is
+    # at, not sent the long way round to the other end, which sees no more of a direction it cannot reach either);
+    # of those, and without a previous pan, the ones whose axis is closest to the requested direction.
     best: tuple[float, float] | None = None
-    best_err = np.inf
+    best_key = (np.inf, np.inf)
     for pan_b, tilt_b in branches:
         for pan_c in _pan_candidates(pan_b, reference, limits):
             pan_k, tilt_k = limits.clamp(pan_c, tilt_b)
             err = float(angle_between(pan_tilt_to_direction(pan_k, tilt_k), d_base))
-            if err < best_err - 1e-12:
-                best, best_err = (pan_k, tilt_k), err
+            key = (round(abs(pan_k - reference), 9) if previous_pan is not None else 0.0, err)
+            if key[0] < best_key[0] or (key[0] == best_key[0] and err < best_key[1] - 1e-12):
+                best, best_key = (pan_k, tilt_k), key
     assert best is not None
     return best[0], best[1], True
 
