@@ -16,12 +16,10 @@ N = 21
 LIMITS = JointLimits(math.radians(-170), math.radians(170), math.radians(-45), math.radians(60), False)
 
 
-def planner(axis_speeds: tuple[float, float] | None = None,
-            axis_accelerations: tuple[float, float] | None = None) -> RecedingHorizonPlanner:
-    """Rescue off; the joint-grid seed only with ``axis_speeds`` [rad/s]; steps at full speed throughout unless
-    ``axis_accelerations`` [rad/s²] are given; the replan period of the config (0.2 s)."""
+def planner(axis_speeds: tuple[float, float] | None = None) -> RecedingHorizonPlanner:
+    """Rescue off; the joint-grid seed only with ``axis_speeds`` [rad/s]; the replan period of the config (0.2 s)."""
     st = PlannerSettings(fov=math.radians(60), lam=0.6, spacing=0.5, horizon=N, rescue_fraction=None,
-                         axis_speeds=axis_speeds, axis_accelerations=axis_accelerations, replan_period=0.2,
+                         axis_speeds=axis_speeds, replan_period=0.2,
                          retained_filter=RetainedFilter(min_range=0.3, max_range=10.0))
     return RecedingHorizonPlanner(st, Mount(), LIMITS)
 
@@ -160,15 +158,6 @@ def test_a_jump_the_axes_cannot_make_between_two_waypoints_is_started_early_enou
     assert executed.anticipated(on_time) is None
 
 
-def test_with_acceleration_limits_a_step_is_what_the_axis_covers_accelerating_and_braking():
-    pl = planner((math.radians(120), math.radians(90)), (math.radians(360), math.radians(270)))
-    dpan, dtilt = pl._step_limits(np.arange(4) * 0.5, np.tile(IDENTITY, (4, 1)))  # 0.5 s a step at 1 m/s
-    # rest to rest over 1 s: 120 °/s × (1 s − 1/3 s) = 80°, half of it a step (60° at full speed throughout)
-    assert np.allclose(np.degrees(dpan), 40.0) and np.allclose(np.degrees(dtilt), 30.0)
-    # short steps: a triangle (0.1 s: 360 °/s² × 0.2² / 4 = 3.6°, a step 1.8°)
-    assert math.degrees(pl._step_limits(np.array([0.0, 0.1]), np.tile(IDENTITY, (2, 1)))[0][0]) == pytest.approx(1.8)
-
-
 def test_a_turn_in_place_between_two_waypoints_gives_the_axes_the_time_of_the_turn():
     pl = planner((math.radians(120), math.radians(90)))
     half = math.sin(math.radians(45.0))  # a 90° turn about z
@@ -183,3 +172,29 @@ def test_a_turn_in_place_between_two_waypoints_gives_the_axes_the_time_of_the_tu
     pl.replan(snapshot(), np.zeros(3), q1, None, now=0.5)
     assert math.degrees(pl.turn_rate) == pytest.approx(45.0)
     assert math.degrees(pl._step_limits(s, quats)[0][1]) == pytest.approx(240.0)
+
+
+def test_a_plan_started_early_is_published_and_the_next_replan_starts_from_the_plan_as_solved():
+    from pivotd.maps.formats import LandmarkCloud
+    from pivotd.maps.store import MapStore
+
+    rng = np.random.default_rng(3)  # a sparse wall on the right for the first 3 m, a dense one on the left after
+    right = np.c_[rng.uniform(-1, 3.2, 600), np.full(600, -1.5), rng.uniform(-0.5, 0.5, 600)]
+    left = np.c_[rng.uniform(3.8, 12, 3000), np.full(3000, 1.5), rng.uniform(-0.5, 0.5, 3000)]
+    pts = np.vstack([right, left]).astype(np.float32)
+    store = MapStore()
+    store.set_layer("base", LandmarkCloud(points=pts, weights=np.ones(pts.shape[0], np.float32)))
+    snap = store.snapshot()
+    pl = planner((math.radians(120), math.radians(90)))
+    pl.set_path(path(), None, 1)
+    plan = pl.replan(snap, np.zeros(3), IDENTITY, yaw(-90.0), now=0.0)
+    assert pl._warm_from is not None and pl._warm_from[0] is plan
+    solved = pl._warm_from[1]
+    dpan, _ = pl._step_limits(plan.s, plan.body_quats)
+    # the published plan keeps every step within the axis speeds; the plan as solved does not
+    assert np.all(np.abs(np.diff(plan.pans)) <= dpan + 1e-9)
+    assert np.any(np.abs(np.diff(solved.pans)) > dpan + 1e-9)
+    # the next warm start is the plan as solved, read at the new arc lengths
+    s = plan.s[:1] + 0.05
+    np.testing.assert_allclose(pl._warm_start(np.r_[s, plan.s[1:]], plan.s.shape[0], PathMode.ON_PATH)[1:],
+                               solved.direction_at_s(plan.s[1:]), atol=1e-12)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 
 import numpy as np
@@ -199,8 +199,6 @@ class PlannerSettings:
     replan_budget: float | None = _PLANNER.replan_budget  # [s] a slower replan halves the next one's horizon and cap
     axis_speeds: tuple[float, float] | None = (_MOTION.pan.max_velocity, _MOTION.tilt.max_velocity)  # [rad/s] pan
     # and tilt speed limits: the joint-grid seed (None: no such seed) and the judge of plans as executed
-    axis_accelerations: tuple[float, float] | None = (_MOTION.pan.max_acceleration, _MOTION.tilt.max_acceleration)
-    # [rad/s²] pan and tilt acceleration limits: what the axes cover in a step (None: at full speed throughout)
     joint_grid_step: float = math.radians(4.0)  # [rad] no key: the joint grid's largest spacing
     replan_period: float = 1.0 / _PLANNER.replan_hz  # [s] the time between replans: how far the gimbal can turn
     # towards a plan's first waypoint before the next plan replaces it (the judge of plans as executed)
@@ -258,13 +256,6 @@ def _turn_angles(quats: np.ndarray) -> np.ndarray:
     dots = np.abs(np.einsum("ij,ij->i", q[:-1], q[1:])) / np.maximum(
         np.linalg.norm(q[:-1], axis=1) * np.linalg.norm(q[1:], axis=1), 1e-300)
     return 2.0 * np.arccos(np.clip(dots, 0.0, 1.0))
-
-
-def _rest_to_rest(speed: float, acceleration: float, duration: np.ndarray) -> np.ndarray:
-    """Distance [rad] (K,) an axis covers from rest to rest in ``duration`` (K,) [s] within ``speed`` [rad/s] and
-    ``acceleration`` [rad/s²]: a triangle up to 2 · speed / acceleration, a trapezoid beyond."""
-    t = np.asarray(duration, float)
-    return np.where(t * acceleration <= 2.0 * speed, 0.25 * acceleration * t * t, speed * (t - speed / acceleration))
 
 
 def camera_positions(body_positions: np.ndarray, body_quats: np.ndarray, mount: Mount) -> np.ndarray:
@@ -433,6 +424,8 @@ class RecedingHorizonPlanner:
         self._deferred: tuple[int, np.ndarray, np.ndarray] | None = None  # (path version, s (N,), directions (N, 3))
         # of a joint-grid seed in another basin, to be solved by the next replan
         self._kernel: ConeKernel | None = None  # the rescue's single-view cone kernel (see _view_kernel)
+        self._warm_from: tuple[Plan, Plan] | None = None  # (last plan, the same as solved) when its slew was started
+        # early (RecedingHorizonPlanner.replan): the next warm start is the solved one
 
     def set_path(self, positions: np.ndarray | None, quats: np.ndarray | None, version: int) -> None:
         """Install a new translation path (None clears it); progress restarts from the nearest point."""
@@ -553,6 +546,8 @@ class RecedingHorizonPlanner:
         prev = self.last_plan
         if prev is None or prev.path_version != self._path_version or prev.path_mode is not mode:
             return None
+        if self._warm_from is not None and self._warm_from[0] is prev:
+            prev = self._warm_from[1]  # the plan as solved, before its slew was started early
         if mode is not PathMode.ON_PATH:
             return np.repeat(prev.directions[-1:], n, axis=0)
         return prev.direction_at_s(s)
@@ -631,6 +626,8 @@ class RecedingHorizonPlanner:
             result = executed.best(problem, [result, problem.evaluate(Seed(result.seed, held, SeedKind.WARM))])
         # a plan with a jump the axes cannot make between two waypoints, the slew started early enough to arrive on
         # time, when that sees more as executed than following it late
+        # (the next replan starts from the plan before that: a start the ascent has already converged from)
+        solved = result
         early = executed.anticipated(result.directions)
         if early is not None:
             result = executed.best(problem, [result, problem.evaluate(Seed(result.seed, early, SeedKind.WARM))])
@@ -659,6 +656,10 @@ class RecedingHorizonPlanner:
             base_frames=executed.frames,
         )
         self.last_plan = plan
+        self._warm_from = None
+        if result is not solved:
+            pans_s, tilts_s = self._plan_joints(solved.directions, executed.frames, quats, anchor)
+            self._warm_from = (plan, replace(plan, directions=solved.directions, pans=pans_s, tilts=tilts_s))
         self._adapt(plan.solve_s)
         return plan
 
@@ -886,17 +887,12 @@ class RecedingHorizonPlanner:
         """Largest pan and tilt moves [rad] (N − 1,) between waypoints at arc lengths ``s`` (N,) [m] with body attitudes
         ``quats`` (N, 4), over the time the robot takes between them: the longer of its travel at :attr:`speed` (else
         ``nominal_speed``) and its turn at :attr:`turn_rate` (else ``nominal_turn_rate``; a turn in place takes time
-        and no arc length). The axis speeds times that time, or with ``axis_accelerations`` half of what an axis covers
-        from rest to rest in twice that time (a slew accelerates and brakes: over steps of 0.5 s at 120 °/s and
-        360 °/s² that is 40° a step, not 60°)."""
+        and no arc length), times the axis speeds."""
         st = self.settings
         speed = max(self.speed if self.speed is not None else st.nominal_speed, 1e-3)
         turn_rate = max(self.turn_rate if self.turn_rate is not None else st.nominal_turn_rate, 1e-3)
         dt = np.maximum(np.diff(s) / speed, _turn_angles(quats) / turn_rate)
-        if st.axis_accelerations is None:
-            return st.axis_speeds[0] * dt, st.axis_speeds[1] * dt
-        return tuple(0.5 * _rest_to_rest(v, a, 2.0 * dt) for v, a in zip(st.axis_speeds, st.axis_accelerations,
-                                                                        strict=True))
+        return st.axis_speeds[0] * dt, st.axis_speeds[1] * dt
 
     def _count(self, snapshot: MapSnapshot, cam: np.ndarray, idx: np.ndarray, direction: np.ndarray) -> int:
         """Hard count of the retained landmarks ``idx`` within α of ``direction`` seen from ``cam``."""

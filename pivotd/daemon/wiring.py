@@ -129,7 +129,6 @@ def planner_settings(cfg: Config) -> PlannerSettings:
         rescue_reach=RESCUE_REACH,
         replan_budget=pl.replan_budget,
         axis_speeds=(cfg.motion.pan.max_velocity, cfg.motion.tilt.max_velocity),
-        axis_accelerations=(cfg.motion.pan.max_acceleration, cfg.motion.tilt.max_acceleration),
         replan_period=1.0 / pl.replan_hz,
     )
 
