@@ -297,13 +297,19 @@ class _Execution:
             out = self._memo[key] = self._follow(directions)
         return out
 
-    def _follow(self, directions: np.ndarray) -> np.ndarray:
+    def _joints(self, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Joint pans and tilts (N,) [rad] of ``directions`` (N, 3) as the plan's own (:meth:`RecedingHorizonPlanner.
+        _plan_joints`): the pans unwrapped from the commanded pan inside the limits, the tilts clamped."""
         pl = self._planner
-        pan0, tilt0 = (None, None) if self._start is None else self._start
         d = np.einsum("nij,nj->ni", self.frames, np.asarray(directions, float).reshape(-1, 3))  # base_pan_tilt's
         pans, tilts = direction_to_pan_tilt(d)
-        pans, _ = unwrap_pans(pans, self._pan_start(directions, pan0), pl.limits)  # as the plan's own (_plan_joints)
-        tilts = np.clip(tilts, pl.limits.tilt_min, pl.limits.tilt_max)
+        pans, _ = unwrap_pans(pans, self._pan_start(directions, None if self._start is None else self._start[0]),
+                              pl.limits)
+        return pans, np.clip(tilts, pl.limits.tilt_min, pl.limits.tilt_max)
+
+    def _follow(self, directions: np.ndarray) -> np.ndarray:
+        pan0, tilt0 = (None, None) if self._start is None else self._start
+        pans, tilts = self._joints(directions)
         pan_l, tilt_l = pans.tolist(), tilts.tolist()
         if pan0 is None:
             p, t = pan_l[0], tilt_l[0]
@@ -345,12 +351,7 @@ class _Execution:
         cost of the views before it. None when every step already fits (or without axis speeds)."""
         if not self._on:
             return None
-        pl = self._planner
-        pan0 = None if self._start is None else self._start[0]
-        d = np.einsum("nij,nj->ni", self.frames, np.asarray(directions, float).reshape(-1, 3))
-        pans, tilts = direction_to_pan_tilt(d)
-        pans, _ = unwrap_pans(pans, self._pan_start(directions, pan0), pl.limits)
-        tilts = np.clip(tilts, pl.limits.tilt_min, pl.limits.tilt_max)
+        pans, tilts = self._joints(directions)
         if (np.all(np.abs(np.diff(pans)) <= self._dpan + 1e-12)
                 and np.all(np.abs(np.diff(tilts)) <= self._dtilt + 1e-12)):
             return None
