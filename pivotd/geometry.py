@@ -162,6 +162,12 @@ def yaw_to_matrix(yaw: np.ndarray) -> np.ndarray:
     return R
 
 
+def quat_angles(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
+    """Rotation angles [rad] in [0, π] between unit quaternions ``q1`` and ``q2`` (..., 4) (x, y, z, w)."""
+    dot = np.abs(np.einsum("...i,...i->...", np.asarray(q1, float), np.asarray(q2, float)))
+    return 2.0 * np.arccos(np.minimum(dot, 1.0))
+
+
 def pan_tilt_to_direction(pan: np.ndarray, tilt: np.ndarray) -> np.ndarray:
     """Unit optical axis in the gimbal base frame (..., 3) for joint angles ``pan``, ``tilt`` [rad].
 

@@ -22,7 +22,15 @@ from enum import Enum
 import numpy as np
 
 from pivotd.config.settings import MAX_MARKER_LANDMARKS, MotionConfig, PivotConfig, PlannerConfig
-from pivotd.geometry import direction_to_pan_tilt, normalize, pan_tilt_to_direction, quat_to_matrix, slerp
+from pivotd.daemon.pose_gate import turn_angle
+from pivotd.geometry import (
+    direction_to_pan_tilt,
+    normalize,
+    pan_tilt_to_direction,
+    quat_angles,
+    quat_to_matrix,
+    slerp,
+)
 from pivotd.gimbal.kinematics import (
     JointLimits,
     Mount,
@@ -250,14 +258,6 @@ def _scatter(directions: np.ndarray, rows: np.ndarray, values: np.ndarray) -> np
 TURNING = math.radians(5.0)
 
 
-def _turn_angles(quats: np.ndarray) -> np.ndarray:
-    """Rotation angles [rad] (N − 1,) between consecutive attitudes ``quats`` (N, 4) (x, y, z, w)."""
-    q = np.asarray(quats, float)
-    dots = np.abs(np.einsum("ij,ij->i", q[:-1], q[1:])) / np.maximum(
-        np.linalg.norm(q[:-1], axis=1) * np.linalg.norm(q[1:], axis=1), 1e-300)
-    return 2.0 * np.arccos(np.clip(dots, 0.0, 1.0))
-
-
 def camera_positions(body_positions: np.ndarray, body_quats: np.ndarray, mount: Mount) -> np.ndarray:
     """Sensor centres (N, 3) in the world for body positions (N, 3) and attitudes (N, 4)."""
     return body_positions + np.einsum("nij,j->ni", quat_to_matrix(body_quats), np.asarray(mount.translation, float))
@@ -278,11 +278,14 @@ class _Execution:
         self._planner, self._quats = planner, quats
         self.frames = base_from_world(quats, planner.mount)  # (N, 3, 3) world → gimbal base, also the plan's
         self._on = st.axis_speeds is not None and s.shape[0] > 1
+        if st.axis_speeds is None:
+            return
+        self.steps = planner._step_limits(s, quats)  # (N − 1,) pan and tilt moves [rad], also the joint-grid seed's
+        self.start = planner._commanded_joints(anchor, quats[0])  # (pan, tilt) [rad] commanded, or None
         if not self._on:
             return
-        self._dpan, self._dtilt = planner._step_limits(s, quats)
+        self._dpan, self._dtilt = self.steps
         self._dpan_l, self._dtilt_l = self._dpan.tolist(), self._dtilt.tolist()
-        self._start = planner._commanded_joints(anchor, quats[0])
         self._reach = planner._first_reach()  # (pan, tilt) [rad] the gimbal turns towards the first waypoint
         self._memo: dict[bytes, np.ndarray] = {}  # executed directions by the plan's bytes
 
@@ -297,18 +300,21 @@ class _Execution:
             out = self._memo[key] = self._follow(directions)
         return out
 
+    def _base_pan_tilt(self, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pan and tilt (N,) [rad] of ``directions`` (N, 3) in the waypoints' base frames (base_pan_tilt's)."""
+        return direction_to_pan_tilt(np.einsum("nij,nj->ni", self.frames, np.asarray(directions, float).reshape(-1, 3)))
+
     def _joints(self, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Joint pans and tilts (N,) [rad] of ``directions`` (N, 3) as the plan's own (:meth:`RecedingHorizonPlanner.
         _plan_joints`): the pans unwrapped from the commanded pan inside the limits, the tilts clamped."""
         pl = self._planner
-        d = np.einsum("nij,nj->ni", self.frames, np.asarray(directions, float).reshape(-1, 3))  # base_pan_tilt's
-        pans, tilts = direction_to_pan_tilt(d)
-        pans, _ = unwrap_pans(pans, self._pan_start(directions, None if self._start is None else self._start[0]),
+        pans, tilts = self._base_pan_tilt(directions)
+        pans, _ = unwrap_pans(pans, self._pan_start(directions, None if self.start is None else self.start[0]),
                               pl.limits)
         return pans, np.clip(tilts, pl.limits.tilt_min, pl.limits.tilt_max)
 
     def _follow(self, directions: np.ndarray) -> np.ndarray:
-        pan0, tilt0 = (None, None) if self._start is None else self._start
+        pan0, tilt0 = (None, None) if self.start is None else self.start
         pans, tilts = self._joints(directions)
         pan_l, tilt_l = pans.tolist(), tilts.tolist()
         if pan0 is None:
@@ -331,13 +337,12 @@ class _Execution:
         slew the long way round to the other end; None when that changes nothing (no such step, continuous pan,
         or no commanded pan)."""
         pl = self._planner
-        if not self._on or self._start is None or pl.limits.continuous_pan:
+        if not self._on or self.start is None or pl.limits.continuous_pan:
             return None
-        d = np.einsum("nij,nj->ni", self.frames, np.asarray(directions, float).reshape(-1, 3))
-        pans, tilts = direction_to_pan_tilt(d)
-        steps = np.remainder(np.diff(np.concatenate([[self._start[0]], pans])) + np.pi, 2 * np.pi) - np.pi
-        held = np.clip(self._start[0] + np.cumsum(steps), pl.limits.pan_min, pl.limits.pan_max)
-        joint, _ = unwrap_pans(pans, self._start[0], pl.limits)
+        pans, tilts = self._base_pan_tilt(directions)
+        steps = np.remainder(np.diff(np.concatenate([[self.start[0]], pans])) + np.pi, 2 * np.pi) - np.pi
+        held = np.clip(self.start[0] + np.cumsum(steps), pl.limits.pan_min, pl.limits.pan_max)
+        joint, _ = unwrap_pans(pans, self.start[0], pl.limits)
         if np.allclose(held, joint, atol=1e-9, rtol=0.0):
             return None
         d_base = pan_tilt_to_direction(held, np.clip(tilts, pl.limits.tilt_min, pl.limits.tilt_max))
@@ -603,7 +608,7 @@ class RecedingHorizonPlanner:
         # (not on the replan that queried the map for it: the work of a new waypoint is spread over two replans)
         keys = tuple(_grid_keys(s[1:]))
         due = warm is None or (keys != self._joint_keys and not self._queried)
-        joint = self._joint_seed(problem, s, quats, anchor) if due else None
+        joint = self._joint_seed(problem, s, executed) if due else None
         if due:
             self._joint_keys = keys
         other_basin = joint is not None and self._other_basin(problem, joint, result, executed)
@@ -697,12 +702,12 @@ class RecedingHorizonPlanner:
         v = float(np.linalg.norm(body_position - last[1])) / dt
         k = min(1.0, dt)  # weight of this sample: its share of a second
         self.speed = v if self.speed is None else (1.0 - k) * self.speed + k * v
-        w = float(_turn_angles(np.stack([last[2], body_quat]))[0]) / dt
+        w = turn_angle(last[2], body_quat) / dt
         if w > TURNING:
             self.turn_rate = w if self.turn_rate is None else max(self.turn_rate, w)
 
-    def _joint_seed(self, problem: TrajectoryProblem, s: np.ndarray, quats: np.ndarray,
-                    anchor: np.ndarray | None) -> tuple[Seed, float] | None:
+    def _joint_seed(self, problem: TrajectoryProblem, s: np.ndarray,
+                    executed: _Execution) -> tuple[Seed, float] | None:
         """The best pan/tilt path over the horizon on a joint grid inside the limits (pivotd.pivot.joint_dp), each
         move within the axis speeds at the robot's speed (:attr:`speed`, else ``nominal_speed``), starting from
         the commanded joints; scored by each cell's hard visible share of the waypoint (the objective's terms) on at
@@ -719,7 +724,7 @@ class RecedingHorizonPlanner:
                                           continuous_pan=lim.continuous_pan)
         grid = self._grid
         cap = max(1, st.options.seed_cap)
-        R = base_from_world(quats, self.mount)
+        R = executed.frames
         keys = _grid_keys(s)
         scores = np.empty((s.shape[0], *grid.shape))
         fresh: dict[int, np.ndarray] = {}
@@ -736,8 +741,8 @@ class RecedingHorizonPlanner:
                 fresh[key] = sc
             scores[i] = sc
         self._joint_scores = fresh
-        dpan, dtilt = self._step_limits(s, quats)
-        start = self._commanded_joints(anchor, quats[0])
+        dpan, dtilt = executed.steps
+        start = executed.start
         path = best_joint_path(scores, dpan, dtilt, grid, start=start,
                                start_reach=None if start is None else self._first_reach())
         dirs = np.einsum("nji,nj->ni", R, grid.base_directions()[path.cells[:, 0] * grid.shape[1] + path.cells[:, 1]])
@@ -892,7 +897,8 @@ class RecedingHorizonPlanner:
         st = self.settings
         speed = max(self.speed if self.speed is not None else st.nominal_speed, 1e-3)
         turn_rate = max(self.turn_rate if self.turn_rate is not None else st.nominal_turn_rate, 1e-3)
-        dt = np.maximum(np.diff(s) / speed, _turn_angles(quats) / turn_rate)
+        q = np.asarray(quats, float)
+        dt = np.maximum(np.diff(s) / speed, quat_angles(q[:-1], q[1:]) / turn_rate)
         return st.axis_speeds[0] * dt, st.axis_speeds[1] * dt
 
     def _count(self, snapshot: MapSnapshot, cam: np.ndarray, idx: np.ndarray, direction: np.ndarray) -> int:

@@ -8,13 +8,13 @@ loop already holds on a stale pose then), so a relocalised robot recovers by its
 from __future__ import annotations
 
 import enum
-import math
 import threading
 
 import numpy as np
 
 from pivotd.bus.messages import PoseSample
 from pivotd.config.settings import PoseGateConfig
+from pivotd.geometry import quat_angles
 
 #: Reception-time slack [s] added to the time between poses (network and scheduling jitter).
 TIME_SLACK_S = 0.1
@@ -31,8 +31,7 @@ class PoseVerdict(enum.Enum):
 
 def turn_angle(q1: np.ndarray, q2: np.ndarray) -> float:
     """Rotation angle [rad] between two unit quaternions (x, y, z, w), in [0, π]."""
-    dot = min(1.0, abs(float(np.dot(q1, q2))))
-    return 2.0 * math.acos(dot)
+    return float(quat_angles(q1, q2))
 
 
 class PoseGate:
