@@ -168,6 +168,20 @@ def quat_angles(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
     return 2.0 * np.arccos(np.minimum(dot, 1.0))
 
 
+def quat_slerp(q1: np.ndarray, q2: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Unit quaternions (K, 4) (x, y, z, w) a fraction ``t`` (K,) of the shorter rotation from unit ``q1`` to ``q2``
+    (4,), at constant angular speed."""
+    a = np.asarray(q1, float)
+    b = np.asarray(q2, float)
+    if float(np.dot(a, b)) < 0.0:
+        b = -b
+    t = np.asarray(t, float)[:, None]
+    omega = float(np.arccos(min(abs(float(np.dot(a, b))), 1.0)))
+    if omega < 1e-9:
+        return normalize(np.broadcast_to(a, (t.shape[0], 4)).copy())
+    return normalize((np.sin((1.0 - t) * omega) * a + np.sin(t * omega) * b) / np.sin(omega))
+
+
 def pan_tilt_to_direction(pan: np.ndarray, tilt: np.ndarray) -> np.ndarray:
     """Unit optical axis in the gimbal base frame (..., 3) for joint angles ``pan``, ``tilt`` [rad].
 

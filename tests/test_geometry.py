@@ -1,3 +1,5 @@
+import math
+
 import numpy as np
 import pytest
 
@@ -197,3 +199,14 @@ def test_slerp_between_opposite_vertical_directions_turns_through_the_horizontal
     up = np.array([0.0, 1e-8, 1.0]) / np.hypot(1e-8, 1.0)
     mid = g.slerp(up, -up, 0.5)
     assert abs(mid[2]) < 1e-7 and abs(float(mid @ up)) < 1e-12  # a level direction ⟂ up, as for any other axis
+
+
+def test_quat_slerp_turns_at_constant_angular_speed_the_short_way():
+    from pivotd.geometry import quat_angles, quat_slerp
+
+    a = np.array([0.0, 0.0, 0.0, 1.0])
+    b = -np.array([0.0, 0.0, math.sin(math.radians(60)), math.cos(math.radians(60))])  # 120° about z, other sign
+    q = quat_slerp(a, b, np.linspace(0.0, 1.0, 5))
+    np.testing.assert_allclose(np.degrees(quat_angles(a, q)), [0.0, 30.0, 60.0, 90.0, 120.0], atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0)
+    np.testing.assert_allclose(quat_slerp(a, a, np.array([0.5])), [a])

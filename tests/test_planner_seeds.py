@@ -174,6 +174,33 @@ def test_a_turn_in_place_between_two_waypoints_gives_the_axes_the_time_of_the_tu
     assert math.degrees(pl._step_limits(s, quats)[0][1]) == pytest.approx(240.0)
 
 
+def test_a_turn_in_place_on_the_path_gets_a_waypoint_per_waypoint_period_of_the_turn():
+    """East to a corner, a 90° turn in place (the path's repeated corner dropped: the attitude turns over its first
+    0.25 m north), north on. The robot stands at the corner before the turn, seen turning at 45 °/s: the turn takes
+    2 s where the travel to the next waypoint takes 0.5 s, so 3 waypoints split it into 22.5° steps of 0.5 s each
+    (without them those 2 s lie between two waypoints and no direction is planned inside them)."""
+    q_east, q_north = np.array([0.0, 0.0, 0.0, 1.0]), np.array([0.0, 0.0, math.sin(math.pi / 4), math.cos(math.pi / 4)])
+    east = np.c_[np.arange(0.0, 5.01, 0.25), np.zeros(21), np.zeros(21)]
+    north = np.c_[np.full(60, 5.0), np.arange(0.25, 15.01, 0.25), np.zeros(60)]
+    quats = np.vstack([np.tile(q_east, (21, 1)), np.tile(q_north, (60, 1))])
+    pl = planner((math.radians(120), math.radians(90)))
+    pl.set_path(np.vstack([east, north]), quats, 1)
+    pl.replan(snapshot(), np.array([4.8, 0.0, 0.0]), q_east, None)  # progress reaches the corner's grid cell
+    pl.turn_rate = math.radians(45.0)
+    plan = pl.replan(snapshot(), np.array([5.0, 0.0, 0.0]), q_east, None)
+    assert np.all(np.diff(plan.s) > 0)
+    assert plan.s.shape[0] == N + 3
+    yaws = np.degrees(np.unwrap([2 * math.atan2(q[2], q[3]) for q in plan.body_quats]))
+    np.testing.assert_allclose(yaws[:5], [0.0, 22.5, 45.0, 67.5, 90.0], atol=1e-6)
+    assert np.all((plan.s[1:4] > 5.0) & (plan.s[1:4] < 5.25))  # where the path turns
+    dpan, _ = pl._step_limits(plan.s, plan.body_quats)
+    np.testing.assert_allclose(np.degrees(dpan[:3]), 60.0, rtol=1e-3)  # 0.5 s each at 120 °/s
+    # a path without a turn is sampled in arc length only
+    straight = planner((math.radians(120), math.radians(90)))
+    straight.set_path(path(), None, 1)
+    assert straight.replan(snapshot(), np.zeros(3), IDENTITY, None).s.shape[0] == N
+
+
 def test_a_plan_started_early_is_published_and_the_next_replan_starts_from_the_plan_as_solved():
     from pivotd.maps.formats import LandmarkCloud
     from pivotd.maps.store import MapStore

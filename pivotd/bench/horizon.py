@@ -205,6 +205,7 @@ def run(args: argparse.Namespace) -> int:
             # optimised on the full sets from the same warm start.
             full.set_path(sc.path, None, planner._path_version)
             full.progress, full.last_plan = planner.progress, prev
+            full.speed, full.turn_rate, full.cruise_speed = planner.speed, planner.turn_rate, planner.cruise_speed
             ref = _replan(full, snap, pos[0], qk, prev_anchor, None)
             ours = _visible_full(snap, plan, ret, settings.alpha)
             quality.append(ours / max(_visible_full(snap, ref, ret, settings.alpha), 1))

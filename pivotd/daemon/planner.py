@@ -28,6 +28,7 @@ from pivotd.geometry import (
     normalize,
     pan_tilt_to_direction,
     quat_angles,
+    quat_slerp,
     quat_to_matrix,
     slerp,
 )
@@ -425,6 +426,7 @@ class RecedingHorizonPlanner:
         self._moved: tuple[float, np.ndarray, np.ndarray] | None = None  # (time [s], body position, attitude) of the
         # last replan
         self.speed: float | None = None  # [m/s] the robot's measured speed (smoothed over replans)
+        self.cruise_speed: float | None = None  # [m/s] the fastest smoothed speed measured on this path
         self.turn_rate: float | None = None  # [rad/s] the fastest turn of the robot measured between two replans
         self.joint_solves = 0  # replans that solved the joint-grid seed (another basin than the plan's)
         self._deferred: tuple[int, np.ndarray, np.ndarray] | None = None  # (path version, s (N,), directions (N, 3))
@@ -443,6 +445,7 @@ class RecedingHorizonPlanner:
         self.progress = None
         self._located_at = None
         self._off_moved = 0.0
+        self.cruise_speed = None
 
     def _advance(self, body_position: np.ndarray) -> tuple[float, float]:
         """The robot's progress along the path [m] and its distance from the path [m] near that progress.
@@ -483,6 +486,49 @@ class RecedingHorizonPlanner:
         if s[-1] < length - 1e-9 and s.shape[0] < horizon:
             s = np.append(s, length)  # the end of the path closes the window
         return s
+
+    def _sample_turns(self, s: np.ndarray, body_pos: np.ndarray,
+                      quats: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The horizon at arc lengths ``s`` (N,) [m], body positions (N, 3) and attitudes (N, 4) with waypoints added
+        where the body turns for longer than it travels (a turn in place, a tight corner): one per waypoint period
+        (``spacing`` at :attr:`cruise_speed`) of the turn's time at :attr:`turn_rate` beyond the travel's, at most
+        half the horizon in all. The added waypoints split the turn into equal angles (equal times) and lie where the
+        path turns within the interval. Without them the seconds of a turn in place lie between two waypoints: the
+        objective, which counts waypoints, gives them no weight and has no direction to place in them."""
+        st = self.settings
+        turn_rate = max(self.turn_rate if self.turn_rate is not None else st.nominal_turn_rate, 1e-3)
+        period = st.spacing / max(self.cruise_speed or st.nominal_speed, 1e-3)
+        turn_s = quat_angles(quats[:-1], quats[1:]) / turn_rate
+        extra = np.floor((turn_s - np.diff(s) / st.spacing * period) / period + 1e-9).astype(int)
+        extra = np.clip(extra, 0, None)
+        budget = self._horizon() // 2
+        if budget < 1 or not np.any(extra > 0):
+            return s, body_pos, quats
+        out_s, out_p, out_q = [s[:1]], [body_pos[:1]], [quats[:1]]
+        for i in range(s.shape[0] - 1):
+            n = min(int(extra[i]), budget)
+            budget -= n
+            if n:
+                f = np.arange(1, n + 1) / (n + 1)
+                out_s.append(self._where_turning(s[i], s[i + 1], f))
+                out_p.append(self._tracker.sample(out_s[-1])[0])
+                out_q.append(quat_slerp(quats[i], quats[i + 1], f))
+            out_s.append(s[i + 1:i + 2])
+            out_p.append(body_pos[i + 1:i + 2])
+            out_q.append(quats[i + 1:i + 2])
+        return np.concatenate(out_s), np.concatenate(out_p), np.concatenate(out_q)
+
+    def _where_turning(self, s0: float, s1: float, fractions: np.ndarray) -> np.ndarray:
+        """Arc lengths (K,) in (s0, s1) [m] by which the path's attitude has made ``fractions`` (K,) of its turn over
+        [s0, s1] (evenly spread where it does not turn), strictly increasing."""
+        grid = np.linspace(s0, s1, 17)
+        q = self._tracker.sample(grid)[1]
+        turned = np.concatenate([[0.0], np.cumsum(quat_angles(q[:-1], q[1:]))])
+        turning = turned[-1] > 1e-9
+        at = np.interp(fractions * turned[-1], turned, grid) if turning else s0 + fractions * (s1 - s0)
+        gap = 1e-6 * max(s1 - s0, 1e-3)
+        at = np.maximum.accumulate(np.maximum(at, s0 + gap)) + gap * np.arange(at.shape[0])
+        return np.minimum(at, s1 - gap)
 
     def _horizon(self) -> int:
         """Waypoints of the horizon in force: ``horizon`` halved per :attr:`degrade` step, at least 2 (or 1)."""
@@ -584,6 +630,7 @@ class RecedingHorizonPlanner:
             # The first waypoint is where the robot is now, with its measured attitude.
             body_pos[0] = body_position
             quats[0] = body_quat
+            s, body_pos, quats = self._sample_turns(s, body_pos, quats)
         else:
             s = np.zeros(1)
             body_pos, quats = body_position[None, :], body_quat[None, :]
@@ -702,6 +749,7 @@ class RecedingHorizonPlanner:
         v = float(np.linalg.norm(body_position - last[1])) / dt
         k = min(1.0, dt)  # weight of this sample: its share of a second
         self.speed = v if self.speed is None else (1.0 - k) * self.speed + k * v
+        self.cruise_speed = max(self.cruise_speed or 0.0, self.speed)
         w = turn_angle(last[2], body_quat) / dt
         if w > TURNING:
             self.turn_rate = w if self.turn_rate is None else max(self.turn_rate, w)
