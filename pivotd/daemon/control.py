@@ -229,12 +229,15 @@ class ControlLoop:
         self.tracking.settings = settings.tracking_error
         self.mount = mount
 
-    def _target(self, pose: PoseSample, plan: Plan, mount: Mount) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
-        """Joint target (2,), feed-forward rate (2,) and acceleration (2,) from the plan, and a clamped flag.
+    def _target(self, pose: PoseSample, plan: Plan, mount: Mount) -> tuple[np.ndarray, np.ndarray, bool]:
+        """Joint target (2,) [rad] and feed-forward rate (2,) [rad/s] from the plan, and a clamped flag.
 
-        The derivatives are finite differences of the joint angles along the plan ahead of the robot, at its
-        estimated speed, with the body attitude carried on at its estimated angular velocity (a body turning
-        under a view held in the world needs the pan to turn the other way, in place too).
+        The rate is the finite difference of the joint angles over half the lookahead along the plan ahead of
+        the robot, at its estimated speed, with the body attitude carried on at its estimated angular velocity
+        (a body turning under a view held in the world needs the pan to turn the other way, in place too). No
+        acceleration is fed forward: the plan is piecewise linear between waypoints, so its second difference
+        is a train of spikes at the waypoints and replans, beyond the axes' limits, that would only tell the
+        motion generator the reference cannot be followed and scale its rate feed-forward away.
         """
         cam = camera_positions(pose.position[None, :], pose.quat[None, :], mount)[0]
         s = plan.locate(cam)
@@ -245,25 +248,17 @@ class ControlLoop:
                                                        prev_pan)
         target = np.array([pan, tilt])
         rate = np.zeros(2)
-        acc = np.zeros(2)
         h = 0.5 * self.settings.lookahead
         moving = plan.s.shape[0] > 1 and self._speed > 0.02
         turning = float(np.linalg.norm(self._turn)) > TURN_RATE_FLOOR
         if (moving or turning) and h > 0 and not clamped:
-            taus = h * np.arange(1, 3)
-            ahead = plan.direction_at_s(s + (self._speed if moving else 0.0) * taus)
-            # the body turned on by exp(ωτ) sees a world direction d as the body now sees exp(−ωτ) d
-            ahead = np.einsum("kij,kj->ki", so3_exp(-np.outer(taus, self._turn)), ahead)
-            joints = [target]
-            for d in ahead:
-                p2, t2, c2 = world_direction_to_joints(d, pose.quat, mount, self.limits, float(joints[-1][0]))
-                if c2:
-                    break
-                joints.append(np.array([p2, t2]))
-            if len(joints) == 3:
-                rate = (joints[1] - joints[0]) / h
-                acc = (joints[2] - 2 * joints[1] + joints[0]) / h**2
-        return target, rate, acc, clamped
+            ahead = plan.direction_at_s(s + (self._speed * h if moving else 0.0))
+            # the body turned on by exp(ωh) sees a world direction d as the body now sees exp(−ωh) d
+            ahead = so3_exp(-h * self._turn) @ ahead
+            p2, t2, c2 = world_direction_to_joints(ahead, pose.quat, mount, self.limits, pan)
+            if not c2:
+                rate = (np.array([p2, t2]) - target) / h
+        return target, rate, clamped
 
     def tick(self, now: float, pose: PoseSample | None, plan: Plan | None, faulted: bool = False) -> TickResult:
         """One control period at monotonic time ``now`` [s]."""
@@ -315,8 +310,8 @@ class ControlLoop:
             mode = DaemonState.HOLDING
         else:
             self._estimate_motion(pose)
-            target, rate, acc, clamped = self._target(pose, plan, mount)
-            self.motion.set_target(target, rate, acc)
+            target, rate, clamped = self._target(pose, plan, mount)
+            self.motion.set_target(target, rate)
             mode = DaemonState.TRACKING
 
         sample = self.motion.step()
