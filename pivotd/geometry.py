@@ -176,7 +176,7 @@ def quat_slerp(q1: np.ndarray, q2: np.ndarray, t: np.ndarray) -> np.ndarray:
     if float(np.dot(a, b)) < 0.0:
         b = -b
     t = np.asarray(t, float)[:, None]
-    omega = float(np.arccos(min(abs(float(np.dot(a, b))), 1.0)))
+    omega = float(np.arccos(min(float(np.dot(a, b)), 1.0)))
     if omega < 1e-9:
         return normalize(np.broadcast_to(a, (t.shape[0], 4)).copy())
     return normalize((np.sin((1.0 - t) * omega) * a + np.sin(t * omega) * b) / np.sin(omega))

@@ -496,11 +496,10 @@ class RecedingHorizonPlanner:
         path turns within the interval. Without them the seconds of a turn in place lie between two waypoints: the
         objective, which counts waypoints, gives them no weight and has no direction to place in them."""
         st = self.settings
-        turn_rate = max(self.turn_rate if self.turn_rate is not None else st.nominal_turn_rate, 1e-3)
-        period = st.spacing / max(self.cruise_speed or st.nominal_speed, 1e-3)
-        turn_s = quat_angles(quats[:-1], quats[1:]) / turn_rate
-        extra = np.floor((turn_s - np.diff(s) / st.spacing * period) / period + 1e-9).astype(int)
-        extra = np.clip(extra, 0, None)
+        cruise = max(self.cruise_speed or st.nominal_speed, 1e-3)
+        period = st.spacing / cruise
+        turn_s = quat_angles(quats[:-1], quats[1:]) / self._assumed_turn_rate()
+        extra = np.clip(np.floor((turn_s - np.diff(s) / cruise) / period + 1e-9).astype(int), 0, None)
         budget = self._horizon() // 2
         if budget < 1 or not np.any(extra > 0):
             return s, body_pos, quats
@@ -937,6 +936,10 @@ class RecedingHorizonPlanner:
         st = self.settings
         return st.axis_speeds[0] * st.replan_period, st.axis_speeds[1] * st.replan_period
 
+    def _assumed_turn_rate(self) -> float:
+        """The robot's turn rate [rad/s] for the time of a turn: :attr:`turn_rate`, else ``nominal_turn_rate``."""
+        return max(self.turn_rate if self.turn_rate is not None else self.settings.nominal_turn_rate, 1e-3)
+
     def _step_limits(self, s: np.ndarray, quats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Largest pan and tilt moves [rad] (N − 1,) between waypoints at arc lengths ``s`` (N,) [m] with body attitudes
         ``quats`` (N, 4), over the time the robot takes between them: the longer of its travel at :attr:`speed` (else
@@ -944,9 +947,8 @@ class RecedingHorizonPlanner:
         and no arc length), times the axis speeds."""
         st = self.settings
         speed = max(self.speed if self.speed is not None else st.nominal_speed, 1e-3)
-        turn_rate = max(self.turn_rate if self.turn_rate is not None else st.nominal_turn_rate, 1e-3)
         q = np.asarray(quats, float)
-        dt = np.maximum(np.diff(s) / speed, quat_angles(q[:-1], q[1:]) / turn_rate)
+        dt = np.maximum(np.diff(s) / speed, quat_angles(q[:-1], q[1:]) / self._assumed_turn_rate())
         return st.axis_speeds[0] * dt, st.axis_speeds[1] * dt
 
     def _count(self, snapshot: MapSnapshot, cam: np.ndarray, idx: np.ndarray, direction: np.ndarray) -> int:
