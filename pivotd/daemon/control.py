@@ -233,8 +233,10 @@ class ControlLoop:
         """Joint target (2,) [rad] and feed-forward rate (2,) [rad/s] from the plan, and a clamped flag.
 
         The rate is the finite difference of the joint angles over half the lookahead along the plan ahead of
-        the robot, at its estimated speed, with the body attitude carried on at its estimated angular velocity
-        (a body turning under a view held in the world needs the pan to turn the other way, in place too). No
+        the robot, at its estimated speed, with the body attitude carried on by the path's turn over that stretch
+        (the plan's predicted attitudes: a corner is met as it comes), or at the robot's estimated angular velocity
+        while it turns in place (a body turning under a view held in the world needs the pan to turn the other
+        way). No
         acceleration is fed forward: the plan is piecewise linear between waypoints, so its second difference
         is a train of spikes at the waypoints and replans, beyond the axes' limits, that would only tell the
         motion generator the reference cannot be followed and scale its rate feed-forward away.
@@ -252,9 +254,13 @@ class ControlLoop:
         moving = plan.s.shape[0] > 1 and self._speed > 0.02
         turning = float(np.linalg.norm(self._turn)) > TURN_RATE_FLOOR
         if (moving or turning) and h > 0 and not clamped:
-            ahead = plan.direction_at_s(s + (self._speed * h if moving else 0.0))
-            # the body turned on by exp(ωh) sees a world direction d as the body now sees exp(−ωh) d
-            ahead = so3_exp(-h * self._turn) @ ahead
+            s_ahead = s + (self._speed * h if moving else 0.0)
+            ahead = plan.direction_at_s(s_ahead)
+            # the body turned on by a rotation T sees a world direction d as the body now sees Tᵀ d; moving along
+            # the path, T is the path's own turn over the lookahead (a corner is met as it comes, not after the
+            # smoothed measured rate has caught up with it); turning in place, exp(ωh) at the measured rate
+            turn = plan.body_turn(s, s_ahead) if moving else so3_exp(h * self._turn)
+            ahead = turn.T @ ahead
             p2, t2, c2 = world_direction_to_joints(ahead, pose.quat, mount, self.limits, pan)
             if not c2:
                 rate = (np.array([p2, t2]) - target) / h

@@ -173,6 +173,17 @@ class Plan:
             out = directions_at_s(self.s, self.directions, sv)
         return out[0] if scalar else out
 
+    def body_turn(self, s0: float, s1: float) -> np.ndarray:
+        """The rotation (3, 3) (world frame) the predicted body attitude makes from arc length ``s0`` to ``s1`` [m]
+        (each slerped between its neighbouring waypoints, held beyond the ends); the identity for a single pose."""
+        if self.s.shape[0] < 2:
+            return np.eye(3)
+        i, t = _segments(self.s, np.array([s0, s1], float))
+        q = self.body_quats
+        r0, r1 = quat_to_matrix(np.array([quat_slerp(q[k], q[k + 1], np.array([f]))[0]
+                                          for k, f in zip(i, t, strict=True)]))
+        return r1 @ r0.T
+
     def locate(self, position: np.ndarray) -> float:
         """Arc length [m] of the point of the plan's camera polyline nearest to ``position``."""
         return project_onto_polyline(self.positions, self.s, position)[0]
