@@ -51,6 +51,10 @@ def test_journal_priorities_state_lines_once_and_prompt_stop_with_the_link_down(
                 assert wait_until(lambda: probe.status.get("state") == "tracking", 30), daemon.output()
                 assert daemon.wait_stderr(f"poses on {pose_topic} again after a gap", 40), daemon.output()
                 assert sim.stop(signal.SIGTERM, timeout=20) == 0, sim.output()
+            # the end of the walk is a second stale episode: wait for its WARNING before the link goes down (a link
+            # down first, on a loaded machine, would report that instead)
+            stale = f"no pose on {pose_topic} for "
+            assert wait_until(lambda: len(lines_with(list(daemon.stderr), stale)) >= 2, 30), daemon.output()
             assert probe.status.get("version") == version()
             mock.kill()  # the gimbal is gone: its link goes down
             assert wait_until(lambda: probe.status.get("link") not in ("up", None), 30), daemon.output()
