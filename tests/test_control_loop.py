@@ -633,8 +633,8 @@ def test_a_corner_of_the_path_is_met_as_it_comes_under_a_view_held_in_the_world(
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(body, axis=0), axis=1))])
     view = np.array([math.cos(-0.3), math.sin(-0.3), 0.0])  # held in the world: pan −0.3 before the corner, −1.87 after
     plan = replace(plan_towards(view, 0.0, s.shape[0]), positions=camera_positions(body, quats, mount),
-                   body_quats=quats, s=arc, directions=np.tile(view, (s.shape[0], 1)))
-    plan = replace(plan, base_frames=base_from_world(quats, mount))
+                   body_quats=quats, s=arc, directions=np.tile(view, (s.shape[0], 1)),
+                   base_frames=base_from_world(quats, mount))
     t0 = clock.t
 
     def driving(t):

@@ -236,8 +236,7 @@ class ControlLoop:
         the robot, at its estimated speed, with the body attitude carried on by the path's turn over that stretch
         (the plan's predicted attitudes: a corner is met as it comes), or at the robot's estimated angular velocity
         while it turns in place (a body turning under a view held in the world needs the pan to turn the other
-        way). No
-        acceleration is fed forward: the plan is piecewise linear between waypoints, so its second difference
+        way). No acceleration is fed forward: the plan is piecewise linear between waypoints, so its second difference
         is a train of spikes at the waypoints and replans, beyond the axes' limits, that would only tell the
         motion generator the reference cannot be followed and scale its rate feed-forward away.
         """
