@@ -652,3 +652,44 @@ def test_a_corner_of_the_path_is_met_as_it_comes_under_a_view_held_in_the_world(
     assert err[(x > 1.5) & (x < corner[0] - 1.0)].max() < 0.5  # on the view before the corner (after the first slew)
     assert err[around].max() < 12.0, err[around].max()
     assert err[x > corner[1] + 1.5].max() < 0.5  # and back on it after, without ringing
+
+
+def test_a_plan_whose_horizon_comes_back_past_the_robot_is_followed_where_the_robot_is_not_a_lap_later(rig):
+    """A loop shorter than the plan's horizon: the plan's tail passes the robot again one lap later (here 0.05 m from
+    the camera against 0.14 m for the plan's own start, as a spiral's inner lap). Located on the plan's nearest point
+    the loop followed the tail's view (180° the other way in the world); located near where it was, it follows the
+    view at the robot's own progress."""
+    from pivotd.bus.messages import PoseSample
+    from pivotd.daemon.planner import camera_positions
+    from pivotd.geometry import matrix_to_quat, yaw_to_matrix
+
+    cfg, clock, gimbal, loop = rig
+    mount = cfg.gimbal.mount
+    radius, shrink, speed = 1.5, 0.02, 0.5
+    s = np.arange(0.0, 12.0 + 1e-9, 0.5)  # 1.3 laps of a 9.4 m loop
+
+    def body_at(arc, r=None):  # the body on the spiral r = radius − shrink·arc (or at radius r), heading along it
+        theta = np.asarray(arc, float) / radius
+        rr = radius - shrink * np.asarray(arc, float) if r is None else np.full(theta.shape, r)
+        pos = np.column_stack([rr * np.cos(theta), rr * np.sin(theta), np.full(theta.shape, 0.7)])
+        return pos, matrix_to_quat(yaw_to_matrix(theta + 0.5 * math.pi))
+
+    body, quats = body_at(s)
+    view_yaw = math.pi * np.clip((s - 4.0) / 4.0, 0.0, 1.0)  # +x in the world until 4 m, −x from 8 m on
+    views = np.column_stack([np.cos(view_yaw), np.sin(view_yaw), np.zeros_like(s)])
+    plan = replace(plan_towards(views[0], 0.0, s.shape[0]), positions=camera_positions(body, quats, mount),
+                   body_quats=quats, s=s, directions=views)
+    t0 = clock.t
+
+    def driving(t):
+        pos, q = body_at(np.array([speed * (t - t0)]), r=radius - 0.14)
+        return PoseSample(stamp=t, frame_id="map", position=pos[0], quat=q[0], rx_time=t)
+
+    ticks = round(2.0 / speed * loop.settings.rate_hz)  # 2 m: the view along +x stays inside the pan range
+    _run(loop, clock, ticks, driving, lambda t: replace(plan, created=t))
+    sp = np.array(gimbal.setpoints)
+    assert np.all(np.diff(sp[:, 0]) <= 1e-9)  # never towards the tail's view (pan +90° at the start)
+    arc = speed * np.arange(1, ticks + 1) / loop.settings.rate_hz
+    want = -(arc / radius + 0.5 * math.pi)  # the pan that looks along +x in the world
+    err = np.degrees(np.abs(sp[:, 0] - want))
+    assert err[arc > 1.2].max() < 1.0, err[arc > 1.2].max()  # on it once the first slew is over

@@ -76,7 +76,7 @@ def test_slerp_and_plan_interpolation():
                 map_version=0, path_version=0, solve_s=0.0)
     np.testing.assert_allclose(plan.direction_at_s(3.5), mid, atol=1e-12)
     np.testing.assert_allclose(plan.direction_at_s(-10), a)
-    assert plan.locate(np.array([0.25, 0.3, 0])) == pytest.approx(3.25)
+    assert plan.locate(np.array([0.25, 0.3, 0]))[0] == pytest.approx(3.25)
 
 
 def _plan_through(positions, s):
@@ -90,12 +90,12 @@ def test_plan_locate_keeps_the_index_mapping_at_repeated_positions():
     # The camera stood still between waypoints 1 and 2 (e.g. the horizon clamped at the path's end, or
     # the mount offset cancelling the motion): the zero-length segment keeps its own arc interval.
     plan = _plan_through([[0.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0], [1.0, 1.0, 0]], [3.0, 4.0, 4.5, 5.5])
-    assert plan.locate(np.array([1.2, 0.6, 0.0])) == pytest.approx(5.1)  # on the last segment
-    assert plan.locate(np.array([0.5, -0.2, 0.0])) == pytest.approx(3.5)  # on the first
-    assert plan.locate(np.array([1.5, -0.5, 0.0])) == pytest.approx(4.0)  # nearest to the repeated vertex
+    assert plan.locate(np.array([1.2, 0.6, 0.0]))[0] == pytest.approx(5.1)  # on the last segment
+    assert plan.locate(np.array([0.5, -0.2, 0.0]))[0] == pytest.approx(3.5)  # on the first
+    assert plan.locate(np.array([1.5, -0.5, 0.0]))[0] == pytest.approx(4.0)  # nearest to the repeated vertex
     clamped = _plan_through([[0.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0]], [0.0, 1.0, 1.0, 1.0])
-    assert clamped.locate(np.array([3.0, 0.0, 0.0])) == pytest.approx(1.0)
-    assert clamped.locate(np.array([0.25, 1.0, 0.0])) == pytest.approx(0.25)
+    assert clamped.locate(np.array([3.0, 0.0, 0.0]))[0] == pytest.approx(1.0)
+    assert clamped.locate(np.array([0.25, 1.0, 0.0]))[0] == pytest.approx(0.25)
 
 
 def _brute_force_locate(positions, s, point):
@@ -128,7 +128,7 @@ def test_plan_and_path_locate_match_a_brute_force_projection():
         point = rng.normal(size=3) * 3.0
         s_ref, d_ref = _brute_force_locate(positions, s, point)
         # Generic random data: the nearest point is unique, so the arc coordinates agree, not only distances.
-        assert _plan_through(positions, s).locate(point) == pytest.approx(s_ref, abs=1e-6)
+        assert _plan_through(positions, s).locate(point)[0] == pytest.approx(s_ref, abs=1e-6)
         path = Polyline(positions)
         arc_ref, dist_ref = _brute_force_locate(path.positions, path.arc, point)
         arc, dist = path.locate(point)

@@ -56,6 +56,10 @@ log = logging.getLogger(__name__)
 
 MAX_TURN_RATE = 20.0  # [rad/s] a body turn rate above this between two poses is a jump of the pose, not a turn
 TURN_RATE_FLOOR = 1e-3  # [rad/s] below this the body is taken as not turning
+#: [m] How far around where the camera was last located on a plan (and on from there by the distance the camera
+#: has moved since) it is located on the next one: a route that comes back past the robot within the plan's horizon
+#: (a loop shorter than the horizon) is not taken for where the robot is.
+LOCATE_REACH = 1.0
 
 
 @dataclass(frozen=True)
@@ -124,6 +128,8 @@ class ControlLoop:
         self._prev_pose: PoseSample | None = None
         self._speed = 0.0
         self._turn = np.zeros(3)  # [rad/s] the body's estimated angular velocity, world frame
+        self._located: tuple[int, float, np.ndarray] | None = None  # (path version, arc length [m], camera
+        # position (3,) [m]) where the camera was last located on a plan
 
     def invalidate(self) -> None:
         """Restart the stream from a state measured from now on, unless the device kept following it (see the
@@ -229,6 +235,24 @@ class ControlLoop:
         self.tracking.settings = settings.tracking_error
         self.mount = mount
 
+    def _locate(self, plan: Plan, cam: np.ndarray) -> float:
+        """Arc length [m] of the camera at ``cam`` (3,) [m] on ``plan``: the nearest point of the plan's stretch
+        within :data:`LOCATE_REACH` of where it was located last on the same path (or of the plan's start), reaching
+        on by the distance the camera has moved since, unless the camera is nearer another stretch by more than
+        that reach (it is elsewhere: a test's plan, a jump of the pose)."""
+        last = self._located
+        base = float(plan.s[0])
+        moved = 0.0
+        if last is not None and last[0] == plan.path_version:
+            base = max(base, last[1])
+            moved = float(np.linalg.norm(cam - last[2]))
+        s, distance = plan.locate(cam, (base - LOCATE_REACH, base + LOCATE_REACH + moved))
+        s_any, distance_any = plan.locate(cam)
+        if distance_any < distance - LOCATE_REACH:
+            s = s_any
+        self._located = (plan.path_version, s, cam)
+        return s
+
     def _target(self, pose: PoseSample, plan: Plan, mount: Mount) -> tuple[np.ndarray, np.ndarray, bool]:
         """Joint target (2,) [rad] and feed-forward rate (2,) [rad/s] from the plan, and a clamped flag.
 
@@ -241,7 +265,7 @@ class ControlLoop:
         motion generator the reference cannot be followed and scale its rate feed-forward away.
         """
         cam = camera_positions(pose.position[None, :], pose.quat[None, :], mount)[0]
-        s = plan.locate(cam)
+        s = self._locate(plan, cam)
         prev_pan = float(self.motion.state.position[0])
         if plan.pans is not None and plan.s.shape[0] > 1:  # the branch the planner chose over its horizon
             prev_pan = float(np.interp(s, plan.s, plan.pans))

@@ -184,9 +184,10 @@ class Plan:
                                           for k, f in zip(i, t, strict=True)]))
         return r1 @ r0.T
 
-    def locate(self, position: np.ndarray) -> float:
-        """Arc length [m] of the point of the plan's camera polyline nearest to ``position``."""
-        return project_onto_polyline(self.positions, self.s, position)[0]
+    def locate(self, position: np.ndarray, window: tuple[float, float] | None = None) -> tuple[float, float]:
+        """Arc length [m] of the point of the plan's camera polyline nearest to ``position`` (3,) [m], and its
+        distance [m]; with ``window`` = (lo, hi) [m] only the stretch of the plan overlapping that arc range."""
+        return project_onto_polyline(self.positions, self.s, position, window)
 
 
 @dataclass(frozen=True)
