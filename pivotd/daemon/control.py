@@ -247,9 +247,10 @@ class ControlLoop:
             base = max(base, last[1])
             moved = float(np.linalg.norm(cam - last[2]))
         s, distance = plan.locate(cam, (base - LOCATE_REACH, base + LOCATE_REACH + moved))
-        s_any, distance_any = plan.locate(cam)
-        if distance_any < distance - LOCATE_REACH:
-            s = s_any
+        if distance > LOCATE_REACH:  # only then can another stretch be nearer by more than the reach
+            s_any, distance_any = plan.locate(cam)
+            if distance_any < distance - LOCATE_REACH:
+                s = s_any
         self._located = (plan.path_version, s, cam)
         return s
 
